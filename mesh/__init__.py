@@ -1,0 +1,1 @@
+"""The zenoh protocol of simecs: keys, messages, codecs and the node runtime, in one place."""

@@ -1,0 +1,308 @@
+"""A typed client of the simecs protocol (the paper's Simulation Client).
+
+The viewer, the tests and the benchmarks drive the product through this and nothing else; it is
+plain zenoh underneath, so any other client written from docs/PROTOCOL.md is its equal.
+"""
+
+from __future__ import annotations
+
+import json
+import threading
+import time
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import numpy as np
+import zenoh
+import zenoh.ext
+
+from . import codec, frames, keys
+from . import messages as m
+from .config import MeshConfig
+from .model import DocPage, ModelDescription, ModelSummary
+from .runtime import BoundedWorker, open_session
+
+
+class RemoteError(Exception):
+    """The other side answered with an Error."""
+
+    def __init__(self, error: m.Error) -> None:
+        super().__init__(f"{error.code}: {error.message}")
+        self.error = error
+
+    @property
+    def code(self) -> str:
+        return self.error.code
+
+    @property
+    def field(self) -> str:
+        return self.error.field
+
+
+class NoReply(Exception):
+    """Nobody answered a query in time (the serving node is not on the mesh)."""
+
+
+def _decode_error(payload: bytes) -> m.Error:
+    try:
+        return codec.loads(m.Error, payload)
+    except codec.DecodeError:
+        return m.Error(code="internal", message=payload.decode("utf-8", "replace")[:500])
+
+
+class MeshClient:
+    """Server-wide requests; `session(id)` gives the per-session API."""
+
+    def __init__(self, session: zenoh.Session, timeout: float = 10.0, owns_session: bool = False) -> None:
+        self.z = session
+        self.timeout = timeout
+        self._owns = owns_session
+
+    @classmethod
+    def open(cls, cfg: MeshConfig, timeout: float = 10.0) -> MeshClient:
+        return cls(open_session(cfg), timeout=timeout, owns_session=True)
+
+    def close(self) -> None:
+        if self._owns:
+            self.z.close()
+
+    def __enter__(self) -> MeshClient:
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()
+
+    # -- raw requests ---------------------------------------------------------------------------
+    def _replies(self, key: str, payload: Any, timeout: float | None) -> list[zenoh.Reply]:
+        body = None if payload is None else (payload if isinstance(payload, bytes) else codec.dumps(payload))
+        return list(self.z.get(key, payload=body, timeout=timeout or self.timeout))
+
+    def request(self, key: str, payload: Any = None, timeout: float | None = None) -> Any:
+        """Send a get and return the `data` of its Ok reply; RemoteError / NoReply otherwise."""
+        replies = self._replies(key, payload, timeout)
+        errors = []
+        for reply in replies:
+            if reply.ok is not None:
+                ok = codec.loads(m.Ok, reply.ok.payload.to_bytes())
+                return ok.data
+            errors.append(_decode_error(reply.err.payload.to_bytes()))
+        if errors:
+            raise RemoteError(errors[0])
+        raise NoReply(f"no node answered {key} within {timeout or self.timeout} s")
+
+    def request_binary(self, key: str, timeout: float | None = None) -> tuple[bytes, Any]:
+        replies = self._replies(key, None, timeout)
+        errors = []
+        for reply in replies:
+            if reply.ok is not None:
+                att = reply.ok.attachment
+                return reply.ok.payload.to_bytes(), (json.loads(att.to_bytes()) if att is not None else None)
+            errors.append(_decode_error(reply.err.payload.to_bytes()))
+        if errors:
+            raise RemoteError(errors[0])
+        raise NoReply(f"no node answered {key} within {timeout or self.timeout} s")
+
+    # -- library --------------------------------------------------------------------------------
+    def list_models(self) -> list[ModelSummary]:
+        return codec.from_obj(m.ModelList, self.request(keys.LIBRARY)).models
+
+    def describe(self, model_id: str) -> ModelDescription:
+        return codec.from_obj(ModelDescription, self.request(keys.model(model_id)))
+
+    def doc(self, model_id: str, page: str) -> DocPage:
+        return codec.from_obj(DocPage, self.request(keys.doc(model_id, page)))
+
+    # -- sessions -------------------------------------------------------------------------------
+    def create_session(self, user: str, model_id: str) -> SessionClient:
+        snap = codec.from_obj(m.SessionSnapshot, self.request(keys.SESSIONS, m.CreateSession(user, model_id)))
+        return SessionClient(self, snap.session, snap)
+
+    def list_sessions(self, user: str) -> list[dict[str, Any]]:
+        return list(self.request(keys.SESSIONS, m.ListSessions(user)))
+
+    def session(self, session_id: str) -> SessionClient:
+        return SessionClient(self, session_id)
+
+    def recordings(self) -> list[m.RecordingInfo]:
+        return codec.from_obj(m.RecordingList, self.request(keys.RECORDINGS)).recordings
+
+    def live_nodes(self, timeout: float = 1.0) -> list[tuple[str, str]]:
+        """(role, node id) of every node whose liveliness token is up."""
+        out = []
+        for reply in self.z.liveliness().get(keys.NODE_TOKENS, timeout=timeout):
+            if reply.ok is not None:
+                parts = str(reply.ok.key_expr).split("/")
+                out.append((parts[2], parts[3]))
+        return sorted(out)
+
+
+class Watch:
+    """Subscriptions of one session; callbacks run in worker threads. Close to undeclare."""
+
+    def __init__(self) -> None:
+        self._entities: list[Any] = []
+        self._workers: list[BoundedWorker] = []
+
+    def close(self) -> None:
+        for e in self._entities:
+            try:
+                e.undeclare()
+            except Exception:
+                pass
+        for w in self._workers:
+            w.stop(timeout=1.0)
+        self._entities.clear()
+
+    def __enter__(self) -> Watch:
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()
+
+
+class SessionClient:
+    """Commands, state and results of one session."""
+
+    def __init__(
+        self, client: MeshClient, session_id: str, snapshot: m.SessionSnapshot | None = None
+    ) -> None:
+        if not keys.is_session_id(session_id):
+            raise ValueError(f"{session_id!r} is not a session id")
+        self.client = client
+        self.id = session_id
+        self.created = snapshot
+
+    def command(self, cmd: Any, timeout: float | None = None) -> Any:
+        return self.client.request(keys.cmd(self.id), cmd, timeout)
+
+    def snapshot(self) -> m.SessionSnapshot:
+        return codec.from_obj(m.SessionSnapshot, self.command(m.GetSession()))
+
+    def set_params(self, values: dict[str, float]) -> dict[str, float]:
+        return dict(self.command(m.SetParams(values)))
+
+    def reset_params(self, names: Sequence[str] = ()) -> dict[str, float]:
+        return dict(self.command(m.ResetParams(list(names))))
+
+    def set_initial(self, joints: Sequence[float]) -> Any:
+        return self.command(m.SetInitial([float(q) for q in joints]))
+
+    def set_joint_path(self, nodes: Sequence[tuple[Sequence[float], float, float]]) -> Any:
+        path = m.JointPath([m.PathNode([float(x) for x in q], float(s), float(a)) for q, s, a in nodes])
+        return self.command(m.SetCommand(path))
+
+    def set_settings(self, **settings: Any) -> Any:
+        return self.command(m.SetSettings(m.RunSettings(**settings)))
+
+    def run(self) -> str:
+        """Start a run; returns its run id."""
+        return str(self.command(m.Run())["run_id"])
+
+    def pause(self) -> Any:
+        return self.command(m.Pause())
+
+    def resume(self) -> Any:
+        return self.command(m.Resume())
+
+    def abort(self) -> Any:
+        return self.command(m.Abort())
+
+    def close(self) -> Any:
+        return self.command(m.CloseSession())
+
+    def save_param_set(self, name: str) -> Any:
+        return self.command(m.SaveParamSet(name))
+
+    def load_param_set(self, name: str) -> dict[str, float]:
+        return dict(self.command(m.LoadParamSet(name)))
+
+    def delete_param_set(self, name: str) -> Any:
+        return self.command(m.DeleteParamSet(name))
+
+    def list_param_sets(self) -> list[str]:
+        return list(self.command(m.ListParamSets()))
+
+    def runs(self) -> list[m.RunInfo]:
+        return [codec.from_obj(m.RunInfo, r) for r in self.client.request(keys.results(self.id))]
+
+    def results(
+        self,
+        run_id: str,
+        variables: Sequence[str] | None = None,
+        t0: float | None = None,
+        t1: float | None = None,
+        every: int = 1,
+    ) -> tuple[list[str], np.ndarray]:
+        """Full-resolution transients of a finished (or running) run: (column names, rows)."""
+        params = []
+        if variables:
+            params.append("vars=" + ",".join(variables))
+        if t0 is not None:
+            params.append(f"t0={t0!r}")
+        if t1 is not None:
+            params.append(f"t1={t1!r}")
+        if every != 1:
+            params.append(f"every={int(every)}")
+        key = keys.results(self.id, run_id) + ("?" + ";".join(params) if params else "")
+        payload, att = self.client.request_binary(key)
+        frame = frames.decode(payload)
+        return list(att["columns"]), frame.rows
+
+    def watch(
+        self,
+        on_state: Callable[[m.SessionState], None] | None = None,
+        on_live: Callable[[frames.Frame], None] | None = None,
+        on_full: Callable[[frames.Frame], None] | None = None,
+        on_layout: Callable[[m.RunLayout], None] | None = None,
+        on_params: Callable[[m.ParamValues], None] | None = None,
+    ) -> Watch:
+        watch = Watch()
+        z = self.client.z
+
+        def add(key: str, cb: Callable[[Any], None], decode: Callable[[bytes], Any], latched: bool) -> None:
+            worker = BoundedWorker(f"watch:{key}", lambda s: cb(decode(s.payload.to_bytes())), maxlen=4096)
+            watch._workers.append(worker)
+            if latched:
+                history = zenoh.ext.HistoryConfig(detect_late_publishers=True)
+                watch._entities.append(
+                    zenoh.ext.declare_advanced_subscriber(z, key, worker.push, history=history)
+                )
+            else:
+                watch._entities.append(z.declare_subscriber(key, worker.push))
+
+        if on_state:
+            add(keys.state(self.id), on_state, lambda b: codec.loads(m.SessionState, b), True)
+        if on_params:
+            add(keys.params(self.id), on_params, lambda b: codec.loads(m.ParamValues, b), True)
+        if on_layout:
+            add(keys.layout(self.id), on_layout, lambda b: codec.loads(m.RunLayout, b), True)
+        if on_live:
+            add(keys.vars_live(self.id), on_live, frames.decode, False)
+        if on_full:
+            add(keys.vars_full(self.id), on_full, frames.decode, False)
+        return watch
+
+    def wait_for(
+        self, phases: Sequence[str], timeout: float = 60.0, run_id: str | None = None
+    ) -> m.SessionState:
+        """Block until the session's state reaches one of `phases` (for `run_id` if given)."""
+        done = threading.Event()
+        seen: list[m.SessionState] = []
+
+        def on_state(st: m.SessionState) -> None:
+            seen.append(st)
+            if st.phase in phases and (run_id is None or st.run_id == run_id):
+                done.set()
+
+        with self.watch(on_state=on_state):
+            end = time.monotonic() + timeout
+            while not done.wait(0.1):
+                if time.monotonic() > end:
+                    last = seen[-1].phase if seen else "nothing"
+                    raise TimeoutError(
+                        f"session {self.id} did not reach {list(phases)} in {timeout} s (last: {last})"
+                    )
+                # The latched state may be missed by a just-declared subscriber: ask directly too.
+                snap = self.snapshot().state
+                on_state(snap)
+        return next(s for s in reversed(seen) if s.phase in phases)

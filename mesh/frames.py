@@ -1,0 +1,84 @@
+"""The binary sample frame: a fixed header and a row-major block of little-endian float64.
+
+The columns of a run are announced once in its `RunLayout`; frames carry only numbers. Layout of a
+frame (all little-endian), 40 bytes of header then the data:
+
+    offset size  field
+    0      4     magic  b"SMF1"
+    4      2     version (1)
+    6      2     flags  (1 = final frame of the run, 2 = decimated live frame)
+    8      4     run_index (matches RunLayout.run_index)
+    12     4     reserved (0)
+    16     8     seq: frame number within the run, from 0
+    24     8     wall_ns: wall-clock time the producer sent it (ns since the Unix epoch)
+    32     4     n_rows
+    36     4     n_cols
+    40     8*n_rows*n_cols float64 data, row after row
+"""
+
+from __future__ import annotations
+
+import struct
+from dataclasses import dataclass
+
+import numpy as np
+
+MAGIC = b"SMF1"
+VERSION = 1
+FLAG_FINAL = 1
+FLAG_LIVE = 2
+HEADER = struct.Struct("<4sHHIIQQII")
+MAX_CELLS = 16_000_000  # 128 MB of float64: refuse anything larger before allocating
+
+
+class FrameError(ValueError):
+    """A frame could not be decoded; the message says which field was wrong."""
+
+
+@dataclass
+class Frame:
+    run_index: int
+    seq: int
+    wall_ns: int
+    rows: np.ndarray  # (n_rows, n_cols) float64
+    flags: int = 0
+
+    @property
+    def final(self) -> bool:
+        return bool(self.flags & FLAG_FINAL)
+
+
+def encode(frame: Frame) -> bytes:
+    rows = np.ascontiguousarray(frame.rows, dtype="<f8")
+    if rows.ndim != 2:
+        raise FrameError(f"rows must be 2-D, got {rows.ndim}-D")
+    head = HEADER.pack(
+        MAGIC,
+        VERSION,
+        frame.flags,
+        frame.run_index,
+        0,
+        frame.seq,
+        frame.wall_ns,
+        rows.shape[0],
+        rows.shape[1],
+    )
+    return head + rows.tobytes()
+
+
+def decode(payload: bytes | bytearray | memoryview) -> Frame:
+    buf = memoryview(payload)
+    if len(buf) < HEADER.size:
+        raise FrameError(f"frame of {len(buf)} bytes is shorter than its {HEADER.size}-byte header")
+    magic, version, flags, run_index, _res, seq, wall_ns, n_rows, n_cols = HEADER.unpack_from(buf)
+    if magic != MAGIC:
+        raise FrameError(f"magic {bytes(magic)!r} is not {MAGIC!r}")
+    if version != VERSION:
+        raise FrameError(f"frame version {version} not supported (this node speaks {VERSION})")
+    if n_rows * n_cols > MAX_CELLS:
+        raise FrameError(f"n_rows*n_cols = {n_rows * n_cols} exceeds {MAX_CELLS}")
+    expected = HEADER.size + 8 * n_rows * n_cols
+    if len(buf) != expected:
+        raise FrameError(f"frame has {len(buf)} bytes, header announces {n_rows}x{n_cols} = {expected}")
+    rows = np.frombuffer(buf, dtype="<f8", offset=HEADER.size, count=n_rows * n_cols).reshape(n_rows, n_cols)
+    return Frame(run_index=run_index, seq=seq, wall_ns=wall_ns, rows=rows.astype(np.float64), flags=flags)

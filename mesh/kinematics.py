@@ -1,0 +1,89 @@
+"""Forward kinematics of a `ModelDescription` in plain numpy.
+
+Clients use it for the kinematic simulation of the initialisation sliders (paper §5.2) without
+importing any physics; the models use it to check that the chain they build in Exudyn is the one
+they describe. Quaternions are (w, x, y, z).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+
+import numpy as np
+
+from .model import ModelDescription
+
+
+def rot_z(angle: float) -> np.ndarray:
+    c, s = np.cos(angle), np.sin(angle)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def rot_rpy(rpy: Sequence[float]) -> np.ndarray:
+    """R = Rz(yaw) @ Ry(pitch) @ Rx(roll): rotations about fixed x, then y, then z."""
+    r, p, y = (float(a) for a in rpy)
+    cr, sr, cp, sp, cy, sy = np.cos(r), np.sin(r), np.cos(p), np.sin(p), np.cos(y), np.sin(y)
+    rx = np.array([[1, 0, 0], [0, cr, -sr], [0, sr, cr]])
+    ry = np.array([[cp, 0, sp], [0, 1, 0], [-sp, 0, cp]])
+    rz = np.array([[cy, -sy, 0], [sy, cy, 0], [0, 0, 1]])
+    return rz @ ry @ rx
+
+
+def quat_from_matrix(m: np.ndarray) -> np.ndarray:
+    """Unit quaternion (w, x, y, z) with w >= 0 of a rotation matrix."""
+    t = np.trace(m)
+    if t > 0:
+        s = np.sqrt(t + 1.0) * 2
+        q = np.array([0.25 * s, (m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s])
+    elif m[0, 0] > m[1, 1] and m[0, 0] > m[2, 2]:
+        s = np.sqrt(1.0 + m[0, 0] - m[1, 1] - m[2, 2]) * 2
+        q = np.array([(m[2, 1] - m[1, 2]) / s, 0.25 * s, (m[0, 1] + m[1, 0]) / s, (m[0, 2] + m[2, 0]) / s])
+    elif m[1, 1] > m[2, 2]:
+        s = np.sqrt(1.0 + m[1, 1] - m[0, 0] - m[2, 2]) * 2
+        q = np.array([(m[0, 2] - m[2, 0]) / s, (m[0, 1] + m[1, 0]) / s, 0.25 * s, (m[1, 2] + m[2, 1]) / s])
+    else:
+        s = np.sqrt(1.0 + m[2, 2] - m[0, 0] - m[1, 1]) * 2
+        q = np.array([(m[1, 0] - m[0, 1]) / s, (m[0, 2] + m[2, 0]) / s, (m[1, 2] + m[2, 1]) / s, 0.25 * s])
+    q /= np.linalg.norm(q)
+    return -q if q[0] < 0 else q
+
+
+def link_frames(
+    model: ModelDescription, values: Mapping[str, float], q: Sequence[float]
+) -> list[tuple[np.ndarray, np.ndarray]]:
+    """World (position, rotation matrix) of every link frame, then of the tool frame.
+
+    Link frame i sits at joint i after its rotation q_i and the link's initial rotation: its x axis
+    points along the link, which is where the link's shapes are drawn.
+    """
+    if len(q) != len(model.links):
+        raise ValueError(f"expected {len(model.links)} joint positions, got {len(q)}")
+    pos = np.asarray(model.base_translation, dtype=float)
+    rot = np.eye(3)
+    frames = []
+    for link, qi in zip(model.links, q, strict=True):
+        rot = rot @ rot_z(float(qi)) @ rot_rpy(link.initial_rotation_rpy)
+        frames.append((pos.copy(), rot.copy()))
+        length = float(values[link.length_param])
+        pos = pos + rot @ (np.array([length, 0.0, 0.0]) + np.asarray(link.final_translation, dtype=float))
+    pos = pos + rot @ np.asarray(model.tool_translation, dtype=float)
+    frames.append((pos, rot))
+    return frames
+
+
+def link_poses(model: ModelDescription, values: Mapping[str, float], q: Sequence[float]) -> np.ndarray:
+    """Array (n_links + 1, 7) of x, y, z, qw, qx, qy, qz: the layout of the `pose.*` columns."""
+    out = np.empty((len(model.links) + 1, 7))
+    for i, (p, r) in enumerate(link_frames(model, values, q)):
+        out[i, :3] = p
+        out[i, 3:] = quat_from_matrix(r)
+    return out
+
+
+POSE_FIELDS = ("x", "y", "z", "qw", "qx", "qy", "qz")
+
+
+def pose_column_names(model: ModelDescription) -> list[str]:
+    """Column names of the link poses in result frames: pose.<link>.<field>, then pose.tool.<field>."""
+    names = [link.name for link in model.links] + ["tool"]
+    return [f"pose.{n}.{f}" for n in names for f in POSE_FIELDS]

@@ -1,0 +1,362 @@
+"""The one runtime every simecs process uses: session, presence, logging, errors, clean exit.
+
+A node subclasses `Node`, declares what it serves in `start()`, and lets the runtime do the rest:
+it opens the zenoh session (retrying while the hub comes up), announces a liveliness token and a
+`NodeStatus`, turns SIGINT/SIGTERM into a normal exit that undeclares everything and closes the
+session (a declared callback otherwise keeps the process alive forever: STACK-NOTES), answers every
+bad request with an `Error` naming what was wrong, and keeps running whatever a handler raises.
+
+Callbacks from zenoh must return at once (a slow one stalls the whole link), so `subscribe()` hands
+samples to a worker thread through a bounded queue that drops the oldest sample when full.
+"""
+
+from __future__ import annotations
+
+import argparse
+import collections
+import json
+import logging
+import os
+import signal
+import socket
+import sys
+import threading
+import time
+import traceback
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+import zenoh
+import zenoh.ext
+
+from . import codec, keys
+from .config import MeshConfig
+from .config import load as load_config
+from .messages import Error, NodeStatus, Ok
+
+log = logging.getLogger("simecs")
+
+
+class RequestError(Exception):
+    """Raise in a handler to answer with an Error of this code, message and field."""
+
+    def __init__(self, code: str, message: str, field: str = "") -> None:
+        super().__init__(message)
+        self.code, self.message, self.field = code, message, field
+
+    def to_error(self) -> Error:
+        return Error(code=self.code, message=self.message, field=self.field)
+
+
+def error_of(exc: BaseException) -> Error:
+    """The Error reply for an exception raised while handling a request."""
+    if isinstance(exc, RequestError):
+        return exc.to_error()
+    if isinstance(exc, codec.DecodeError):
+        return Error(code="bad_request", message=str(exc), field=exc.field)
+    return Error(code="internal", message=f"{type(exc).__name__}: {exc}")
+
+
+@dataclass
+class Request:
+    """A query as a handler sees it."""
+
+    key: str
+    payload: bytes | None
+    parameters: dict[str, str]
+
+    def json(self, cls: Any) -> Any:
+        if self.payload is None:
+            raise RequestError("bad_request", "this request needs a JSON payload")
+        return codec.loads(cls, self.payload)
+
+
+@dataclass
+class Binary:
+    """A binary reply, with an optional JSON attachment describing it."""
+
+    payload: bytes
+    attachment: Any = None
+
+
+def setup_logging(name: str, level: str | None = None) -> None:
+    level = level or os.environ.get("SIMECS_LOG", "INFO")
+    fmt = f"%(asctime)s %(levelname)s {name} %(message)s"
+    logging.basicConfig(level=level.upper(), format=fmt, stream=sys.stderr, force=True)
+
+
+def open_session(cfg: MeshConfig, deadline_s: float = 20.0) -> zenoh.Session:
+    """Open a zenoh session, retrying while the hub is not up yet (it may start after us)."""
+    end = time.monotonic() + deadline_s
+    while True:
+        try:
+            return zenoh.open(cfg.to_zenoh())
+        except zenoh.ZError as exc:
+            if time.monotonic() > end:
+                raise RuntimeError(f"cannot join the mesh at {cfg.connect or cfg.listen}: {exc}") from None
+            time.sleep(0.1)
+
+
+class BoundedWorker:
+    """A worker thread fed by a bounded queue; when full the oldest item is dropped and counted."""
+
+    def __init__(self, name: str, handle: Callable[[Any], None], maxlen: int = 1024) -> None:
+        self._q: collections.deque[Any] = collections.deque(maxlen=maxlen)
+        self._cv = threading.Condition()
+        self._handle = handle
+        self._stopped = False
+        self.dropped = 0
+        self.name = name
+        self._thread = threading.Thread(target=self._loop, name=name, daemon=True)
+        self._thread.start()
+
+    def push(self, item: Any) -> None:
+        with self._cv:
+            if len(self._q) == self._q.maxlen:
+                self.dropped += 1
+            self._q.append(item)
+            self._cv.notify()
+
+    def _loop(self) -> None:
+        while True:
+            with self._cv:
+                while not self._q and not self._stopped:
+                    self._cv.wait()
+                if self._stopped and not self._q:
+                    return
+                item = self._q.popleft()
+            try:
+                self._handle(item)
+            except Exception:  # a bad sample must not kill the worker
+                log.error("handler %s failed:\n%s", self.name, traceback.format_exc())
+
+    def stop(self, timeout: float = 2.0) -> None:
+        with self._cv:
+            self._stopped = True
+            self._cv.notify()
+        self._thread.join(timeout)
+
+
+class Node:
+    """Base of every simecs process. Subclasses set `role` and override `start()` (and `stop()`)."""
+
+    role = "node"
+
+    def __init__(self, mesh: MeshConfig, node_id: str | None = None) -> None:
+        self.mesh = mesh
+        self.node_id = node_id or f"{socket.gethostname()[:20]}-{os.getpid()}".replace(".", "-")
+        keys.check_name(self.node_id, "node id")
+        self.stop_event = threading.Event()
+        self.session: zenoh.Session | None = None
+        self._declared: list[Any] = []
+        self._workers: list[BoundedWorker] = []
+        self._status_pub: Any = None
+        self.log = logging.getLogger(f"simecs.{self.role}")
+
+    @classmethod
+    def from_args(cls, args: argparse.Namespace) -> Node:
+        """Build the node from parsed command-line flags (override to read extra flags)."""
+        return cls(mesh_from_args(args), node_id=args.node_id)
+
+    # -- to override ---------------------------------------------------------------------------
+    def start(self) -> None:
+        """Declare subscribers, queryables and publishers."""
+
+    def stop(self) -> None:
+        """Release what `start()` took beyond zenoh declarations (those are undeclared for you)."""
+
+    def tick(self) -> None:
+        """Called about every `tick_s` seconds from the main thread."""
+
+    tick_s = 0.2
+
+    def status_detail(self) -> dict[str, Any]:
+        return {}
+
+    # -- helpers for subclasses ----------------------------------------------------------------
+    @property
+    def z(self) -> zenoh.Session:
+        assert self.session is not None, "node not started"
+        return self.session
+
+    def declare(self, entity: Any) -> Any:
+        self._declared.append(entity)
+        return entity
+
+    def publisher(self, key: str, latched: bool = False, **kwargs: Any) -> Any:
+        """A publisher; `latched` keeps the last sample for late joiners (advanced publisher cache)."""
+        if latched:
+            return self.declare(
+                zenoh.ext.declare_advanced_publisher(
+                    self.z, key, cache=zenoh.ext.CacheConfig(1), publisher_detection=True, **kwargs
+                )
+            )
+        return self.declare(self.z.declare_publisher(key, **kwargs))
+
+    def subscribe(
+        self,
+        key: str,
+        handle: Callable[[zenoh.Sample], None],
+        maxlen: int = 1024,
+        latched: bool = False,
+        remote_only: bool = False,
+    ) -> BoundedWorker:
+        """Run `handle(sample)` in a worker thread, never in zenoh's callback."""
+        worker = BoundedWorker(f"{self.role}:{key}", handle, maxlen)
+        self._workers.append(worker)
+        origin = zenoh.Locality.REMOTE if remote_only else zenoh.Locality.ANY
+        if latched:
+            history = zenoh.ext.HistoryConfig(detect_late_publishers=True)
+            self.declare(
+                zenoh.ext.declare_advanced_subscriber(
+                    self.z, key, worker.push, history=history, allowed_origin=origin
+                )
+            )
+        else:
+            self.declare(self.z.declare_subscriber(key, worker.push, allowed_origin=origin))
+        return worker
+
+    def serve(self, key: str, handle: Callable[[Request], Any], threaded: bool = False) -> None:
+        """Answer queries on `key`: `handle` returns a dataclass (sent as Ok if it is not already a
+        message with a `type`), plain JSON data (wrapped in Ok), or `Binary`; raising answers Error."""
+
+        def answer(query: zenoh.Query) -> None:
+            key_str = str(query.key_expr)
+            try:
+                payload = query.payload.to_bytes() if query.payload is not None else None
+                params = dict(query.selector.parameters.items()) if query.selector.parameters else {}
+                result = handle(Request(key_str, payload, params))
+                if isinstance(result, Binary):
+                    att = None if result.attachment is None else json.dumps(result.attachment).encode()
+                    query.reply(query.key_expr, result.payload, attachment=att)
+                else:
+                    if not hasattr(result, "type") or not hasattr(result, "v"):
+                        result = Ok(data=result)
+                    query.reply(query.key_expr, codec.dumps(result))
+            except Exception as exc:
+                err = error_of(exc)
+                if err.code == "internal":
+                    self.log.error("request on %s failed:\n%s", key_str, traceback.format_exc())
+                else:
+                    self.log.warning("refused request on %s: %s", key_str, err.message)
+                try:
+                    query.reply_err(codec.dumps(err))
+                except Exception:  # the querier may be gone
+                    pass
+            finally:
+                query.drop()
+
+        if threaded:
+            worker = BoundedWorker(f"{self.role}:q:{key}", answer, maxlen=4096)
+            self._workers.append(worker)
+            self.declare(self.z.declare_queryable(key, worker.push))
+        else:
+            self.declare(self.z.declare_queryable(key, answer))
+
+    def publish_status(self, state: str) -> None:
+        status = NodeStatus(
+            role=self.role,
+            node_id=self.node_id,
+            pid=os.getpid(),
+            host=socket.gethostname(),
+            state=state,  # type: ignore[arg-type]
+            detail=self.status_detail(),
+        )
+        if self._status_pub is not None:
+            self._status_pub.put(codec.dumps(status))
+
+    # -- lifecycle -----------------------------------------------------------------------------
+    def run(self) -> int:
+        """Run until SIGINT/SIGTERM or `stop_event`; returns the process exit code."""
+        self._install_signals()
+        self.session = open_session(self.mesh)
+        try:
+            self.declare(self.z.liveliness().declare_token(keys.node_token(self.role, self.node_id)))
+            self._status_pub = self.publisher(keys.node_status(self.role, self.node_id), latched=True)
+            self.publish_status("starting")
+            self.start()
+            self.publish_status("ready")
+            self.log.info("ready as %s/%s (pid %d)", self.role, self.node_id, os.getpid())
+            last_status = time.monotonic()
+            while not self.stop_event.wait(self.tick_s):
+                try:
+                    self.tick()
+                except Exception:
+                    self.log.error("tick failed:\n%s", traceback.format_exc())
+                if time.monotonic() - last_status > 5.0:
+                    self.publish_status("ready")
+                    last_status = time.monotonic()
+            self.publish_status("stopping")
+            return 0
+        finally:
+            self.shutdown()
+
+    def shutdown(self) -> None:
+        try:
+            self.stop()
+        except Exception:
+            self.log.error("stop failed:\n%s", traceback.format_exc())
+        for entity in reversed(self._declared):
+            try:
+                entity.undeclare()
+            except Exception:
+                pass
+        self._declared.clear()
+        for worker in self._workers:
+            worker.stop(timeout=1.0)
+        if self.session is not None:
+            try:
+                self.session.close()
+            except Exception:
+                pass
+            self.session = None
+        self.log.info("stopped")
+
+    def _install_signals(self) -> None:
+        if threading.current_thread() is not threading.main_thread():
+            return
+
+        def on_signal(signum: int, _frame: Any) -> None:
+            self.log.info("signal %d: stopping", signum)
+            self.stop_event.set()
+
+        signal.signal(signal.SIGINT, on_signal)
+        signal.signal(signal.SIGTERM, on_signal)
+
+
+def node_arguments(parser: argparse.ArgumentParser) -> None:
+    """The mesh flags every node takes."""
+    parser.add_argument(
+        "--connect", action="append", help="endpoint to connect to (repeatable), e.g. tcp/10.0.0.5:7447"
+    )
+    parser.add_argument("--listen", action="append", help="endpoint to listen on (repeatable)")
+    parser.add_argument("--mode", choices=["peer", "client", "router"], help="zenoh mode (default client)")
+    parser.add_argument("--mesh-config", help="JSON5 mesh configuration file (also SIMECS_MESH_CONFIG)")
+    parser.add_argument("--node-id", help="unique name of this node on the mesh (default host-pid)")
+    parser.add_argument("--log-level", default=None, help="DEBUG, INFO, WARNING (also SIMECS_LOG)")
+
+
+def mesh_from_args(args: argparse.Namespace) -> MeshConfig:
+    cfg = load_config(args.mesh_config)
+    return cfg.with_overrides(connect=args.connect, listen=args.listen, mode=args.mode)
+
+
+def main_for(node_cls: type[Node], argv: list[str] | None = None, **extra_args: Any) -> int:
+    """Entry point of a node module: parse flags, run, exit cleanly (no lingering threads)."""
+    parser = argparse.ArgumentParser(prog=f"simecs node {node_cls.role}", description=node_cls.__doc__)
+    node_arguments(parser)
+    add = getattr(node_cls, "add_arguments", None)
+    if add is not None:
+        add(parser)
+    args = parser.parse_args(argv)
+    setup_logging(f"{node_cls.role}", args.log_level)
+    try:
+        node = node_cls.from_args(args)
+        code = node.run()
+    except Exception as exc:
+        log.error("%s failed: %s\n%s", node_cls.role, exc, traceback.format_exc())
+        code = 1
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(code)  # zenoh's threads are closed with the session; do not wait on anything else

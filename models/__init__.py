@@ -1,0 +1,1 @@
+"""Robot models: physics built in Exudyn and their descriptions as data."""

@@ -1,0 +1,471 @@
+"""The compiled drive train: motor electrics, current loop, gear box, cascade control, trajectory.
+
+Everything here runs inside one Exudyn PreStep call per mechanics step: the drives of all joints are
+integrated with classical RK4 over `nsub` substeps while the load angles follow a local predictor
+(q_l'' = M(q)^-1 tau_gear, with M the chain mass matrix at the start of the step); the mean gear torque
+over the step is handed to Exudyn as the joint torque vector. See docs/MODELS.md, "Coupling".
+
+Per-joint parameters live in a float array P[joint, k] with the indices below; per-joint states in
+X[joint, k]. The order of `DRIVE_PARAMS` is the contract between this file and the descriptions.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+
+import numpy as np
+from numba import njit
+
+_CACHE = os.environ.get("SIMECS_NUMBA_CACHE", "1") != "0"
+
+# ---- per-joint parameter layout -------------------------------------------------------------------
+DRIVE_PARAMS = (
+    "motor.R",
+    "motor.L",
+    "motor.kt",
+    "motor.pole_pairs",
+    "motor.J_rotor",
+    "motor.b_visc",
+    "motor.detent",
+    "motor.unbalance",
+    "motor.shape_h3",
+    "motor.i_max",
+    "motor.u_max",
+    "motor.ideal",
+    "current.kp",
+    "current.ki",
+    "current.offset_a",
+    "current.offset_b",
+    "gear.ratio",
+    "gear.efficiency",
+    "gear.J_gear",
+    "gear.stiffness",
+    "gear.damping",
+    "gear.backlash",
+    "gear.fc",
+    "gear.fs",
+    "gear.vs",
+    "gear.sigma0",
+    "gear.sigma1",
+    "gear.sigma2",
+    "resolver.motor_error",
+    "resolver.load_error",
+    "ctrl.kp_pos",
+    "ctrl.kp_vel",
+    "ctrl.ki_vel",
+    "ctrl.ff_vel",
+    "traj.max_speed",
+    "traj.max_acc",
+)
+PI = {name: k for k, name in enumerate(DRIVE_PARAMS)}
+NP = len(DRIVE_PARAMS)
+(
+    P_R,
+    P_L,
+    P_KT,
+    P_POLES,
+    P_JR,
+    P_BM,
+    P_DET,
+    P_UNB,
+    P_H3,
+    P_IMAX,
+    P_UMAX,
+    P_IDEAL,
+    P_KPI,
+    P_KII,
+    P_OFFA,
+    P_OFFB,
+    P_N,
+    P_ETA,
+    P_JG,
+    P_K,
+    P_D,
+    P_BL,
+    P_FC,
+    P_FS,
+    P_VS,
+    P_S0,
+    P_S1,
+    P_S2,
+    P_EM,
+    P_EL,
+    P_KPP,
+    P_KPV,
+    P_KIV,
+    P_FF,
+    P_VMAX,
+    P_AMAX,
+) = range(NP)
+
+# ---- per-joint persistent states --------------------------------------------------------------------
+STATES = ("theta_m", "omega_m", "i_a", "i_b", "x_a", "x_b", "x_v", "z")
+NS = len(STATES)
+S_TH, S_OM, S_IA, S_IB, S_XA, S_XB, S_XV, S_Z = range(NS)
+# local (per step) states appended for integration: load angle, load speed, gear-torque impulse
+NL = NS + 3
+S_QL, S_QDL, S_IMP = NS, NS + 1, NS + 2
+
+# ---- per-joint outputs (the variable catalog order per joint) ----------------------------------------
+OUTPUTS = (
+    "q",
+    "qd",
+    "q_ref",
+    "qd_ref",
+    "q_motor",
+    "qd_motor",
+    "i_ref",
+    "i_a",
+    "i_b",
+    "u_a",
+    "tau_motor",
+    "tau_friction",
+    "tau_gear",
+    "twist",
+)
+NO = len(OUTPUTS)
+
+EFF_POWER_EPS = 1e-2  # W: width of the smooth switch between driving and driven efficiency
+
+
+# ---- trajectory: trapezoidal speed profiles, one segment per via point -------------------------------
+# segment table row: [t0, T, ta, q0[0..n-1], dq[0..n-1]]
+@njit(cache=_CACHE)
+def traj_eval(seg, hold, t, qr, qdr):
+    n = qr.shape[0]
+    nseg = seg.shape[0]
+    if nseg == 0 or t <= seg[0, 0]:
+        for j in range(n):
+            qr[j] = hold[j] if nseg == 0 else seg[0, 3 + j]
+            qdr[j] = 0.0
+        return
+    k = nseg - 1
+    for i in range(nseg):
+        if t < seg[i, 0] + seg[i, 1]:
+            k = i
+            break
+    t0, T, ta = seg[k, 0], seg[k, 1], seg[k, 2]
+    tau = t - t0
+    if tau >= T:
+        s, sd = 1.0, 0.0
+    else:
+        v = 1.0 / (T - ta)
+        if tau < ta:
+            s = 0.5 * v / ta * tau * tau
+            sd = v * tau / ta
+        elif tau < T - ta:
+            s = v * (tau - 0.5 * ta)
+            sd = v
+        else:
+            tr = T - tau
+            s = 1.0 - 0.5 * v / ta * tr * tr
+            sd = v * tr / ta
+    for j in range(n):
+        qr[j] = seg[k, 3 + j] + seg[k, 3 + n + j] * s
+        qdr[j] = seg[k, 3 + n + j] * sd
+
+
+def plan_segment(q0, q1, vmax, amax, t0):
+    """Synchronised trapezoid for all joints: one acceleration time, one duration, every limit kept."""
+    q0 = np.asarray(q0, float)
+    dq = np.asarray(q1, float) - q0
+    a = np.abs(dq)
+    if not np.any(a > 0.0):
+        return np.concatenate([[t0, 0.0, 0.0], q0, dq])
+    moving = a > 0.0
+    ta = 0.0
+    for j in np.nonzero(moving)[0]:
+        ta = max(ta, min(vmax[j] / amax[j], math.sqrt(a[j] / amax[j])))
+    cruise = max(ta, float(np.max(a[moving] / vmax[moving])), float(np.max(a[moving] / (amax[moving] * ta))))
+    return np.concatenate([[t0, cruise + ta, ta], q0, dq])
+
+
+# ---- chain mass matrix (for the load predictor and for energy checks) --------------------------------
+@njit(cache=_CACHE)
+def chain_frames(pre_R, pre_p, q, R_out, p_out):
+    """Joint frames after rotation: R_out[i], p_out[i] (world)."""
+    n = q.shape[0]
+    R = np.eye(3)
+    p = np.zeros(3)
+    for i in range(n):
+        # p = p + R @ pre_p[i]; R = R @ pre_R[i] @ Rz(q_i)
+        pn = p + R @ pre_p[i]
+        Rp = R @ pre_R[i]
+        c, s = math.cos(q[i]), math.sin(q[i])
+        Rz = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+        R = Rp @ Rz
+        p = pn
+        R_out[i] = R
+        p_out[i] = p
+
+
+@njit(cache=_CACHE)
+def mass_matrix(pre_R, pre_p, masses, coms, inertias, q, M):
+    """M(q) = sum_k m_k Jv_k^T Jv_k + Jw_k^T I_k Jw_k, for a serial chain of revolute z joints."""
+    n = q.shape[0]
+    R_all = np.empty((n, 3, 3))
+    p_all = np.empty((n, 3))
+    chain_frames(pre_R, pre_p, q, R_all, p_all)
+    z = np.empty((n, 3))
+    for i in range(n):
+        z[i] = R_all[i][:, 2]
+    for a in range(n):
+        for b in range(n):
+            M[a, b] = 0.0
+    Jv = np.empty((n, 3))
+    for k in range(n):
+        ck = p_all[k] + R_all[k] @ coms[k]
+        Iw = R_all[k] @ inertias[k] @ R_all[k].T
+        for i in range(k + 1):
+            r = ck - p_all[i]
+            zi = z[i]
+            Jv[i, 0] = zi[1] * r[2] - zi[2] * r[1]
+            Jv[i, 1] = zi[2] * r[0] - zi[0] * r[2]
+            Jv[i, 2] = zi[0] * r[1] - zi[1] * r[0]
+        for i in range(k + 1):
+            Iz = Iw @ z[i]
+            for j in range(i, k + 1):
+                v = masses[k] * (Jv[i, 0] * Jv[j, 0] + Jv[i, 1] * Jv[j, 1] + Jv[i, 2] * Jv[j, 2])
+                v += z[j, 0] * Iz[0] + z[j, 1] * Iz[1] + z[j, 2] * Iz[2]
+                M[i, j] += v
+    for i in range(n):
+        for j in range(i):
+            M[i, j] = M[j, i]
+
+
+# ---- drive right-hand side -------------------------------------------------------------------------
+@njit(cache=_CACHE, inline="always")
+def _sat(x, lim):
+    if x > lim:
+        return lim
+    if x < -lim:
+        return -lim
+    return x
+
+
+@njit(cache=_CACHE)
+def gear_torque(P, j, theta_m, omega_m, ql, qdl):
+    n = P[j, P_N]
+    d = theta_m / n - ql
+    dd = omega_m / n - qdl
+    b = 0.5 * P[j, P_BL]
+    if b <= 0.0:
+        return P[j, P_K] * d + P[j, P_D] * dd
+    if d > b:
+        e = d - b
+    elif d < -b:
+        e = d + b
+    else:
+        return 0.0
+    tau = P[j, P_K] * e + P[j, P_D] * dd
+    if tau * e < 0.0:  # a backlash contact pushes, it never pulls
+        return 0.0
+    return tau
+
+
+@njit(cache=_CACHE)
+def joint_signals(P, j, x, ql, qdl, qr, qdr, out):
+    """All algebraic signals of joint j; fills out[0..NO) in OUTPUTS order and returns nothing.
+
+    Extra slots: out[NO] = u_b, out[NO+1] = d x_v/dt, out[NO+2] = d x_a/dt, out[NO+3] = d x_b/dt,
+    out[NO+4] = z_dot, out[NO+5] = tau_in (gear reaction at motor shaft), out[NO+6] = tau_detent.
+    """
+    th = x[S_TH]
+    om = x[S_OM]
+    n = P[j, P_N]
+    p = P[j, P_POLES]
+    # resolvers
+    em = P[j, P_EM]
+    th_meas = th + em * math.sin(p * th)
+    om_meas = om * (1.0 + em * p * math.cos(p * th))
+    q_meas = ql + P[j, P_EL] * math.sin(ql)
+    # cascade joint control: P position (load side), PI motor speed with anti-windup and feed-forward
+    w_ref = n * (P[j, P_KPP] * (qr - q_meas) + P[j, P_FF] * qdr)
+    ev = w_ref - om_meas
+    kpv = P[j, P_KPV]
+    kiv = P[j, P_KIV]
+    iu = kpv * ev + x[S_XV]
+    iref = _sat(iu, P[j, P_IMAX])
+    dxv = 0.0
+    if kiv > 0.0:
+        dxv = kiv * ev
+        if kpv > 0.0:
+            dxv += (kiv / kpv) * (iref - iu)
+    # commutation from the motor resolver
+    the_m = p * th_meas
+    ia_s = -iref * math.sin(the_m)
+    ib_s = iref * math.cos(the_m)
+    # motor shape functions (true rotor angle), phase unbalance
+    te = p * th
+    h3 = P[j, P_H3]
+    sa = -(math.sin(te) + h3 * math.sin(3.0 * te))
+    sb = math.cos(te) + h3 * math.cos(3.0 * te)
+    kt = P[j, P_KT]
+    ka = kt * (1.0 - 0.5 * P[j, P_UNB])
+    kb = kt * (1.0 + 0.5 * P[j, P_UNB])
+    if P[j, P_IDEAL] > 0.5:
+        ia = ia_s
+        ib = ib_s
+        ua = P[j, P_R] * ia + ka * sa * om
+        ub = P[j, P_R] * ib + kb * sb * om
+        dxa = 0.0
+        dxb = 0.0
+    else:
+        ia = x[S_IA]
+        ib = x[S_IB]
+        kpi = P[j, P_KPI]
+        kii = P[j, P_KII]
+        umax = P[j, P_UMAX]
+        ea = ia_s - (ia + P[j, P_OFFA])
+        eb = ib_s - (ib + P[j, P_OFFB])
+        uau = kpi * ea + x[S_XA]
+        ubu = kpi * eb + x[S_XB]
+        ua = _sat(uau, umax)
+        ub = _sat(ubu, umax)
+        dxa = kii * ea + (kii / kpi) * (ua - uau)
+        dxb = kii * eb + (kii / kpi) * (ub - ubu)
+    tau_em = ka * sa * ia + kb * sb * ib
+    tau_det = P[j, P_DET] * math.sin(4.0 * p * th)
+    # LuGre friction at the gear input
+    fc = P[j, P_FC]
+    fs = P[j, P_FS]
+    z = x[S_Z]
+    if fc > 0.0 or fs > 0.0:
+        vs = P[j, P_VS]
+        g = fc + (fs - fc) * math.exp(-(om / vs) ** 2)
+        zd = om - P[j, P_S0] * abs(om) * z / g
+        tau_f = P[j, P_S0] * z + P[j, P_S1] * zd + P[j, P_S2] * om
+    else:
+        zd = 0.0
+        tau_f = P[j, P_S2] * om
+    # gear: elastic with backlash, efficiency depending on the power flow, ideal reducer
+    tau_g = gear_torque(P, j, th, om, ql, qdl)
+    eta = P[j, P_ETA]
+    sw = 0.5 * (1.0 + math.tanh(tau_g * om / n / EFF_POWER_EPS))
+    f = eta + (1.0 / eta - eta) * sw
+    tau_in = tau_g / n * f
+    out[0] = ql
+    out[1] = qdl
+    out[2] = qr
+    out[3] = qdr
+    out[4] = th
+    out[5] = om
+    out[6] = iref
+    out[7] = ia
+    out[8] = ib
+    out[9] = ua
+    out[10] = tau_em + tau_det
+    out[11] = tau_f
+    out[12] = tau_g
+    out[13] = th / n - ql
+    out[NO] = ub
+    out[NO + 1] = dxv
+    out[NO + 2] = dxa
+    out[NO + 3] = dxb
+    out[NO + 4] = zd
+    out[NO + 5] = tau_in
+    out[NO + 6] = tau_det
+
+
+@njit(cache=_CACHE)
+def drive_rhs(P, seg, hold, Minv, t, X, dX, sig, qr, qdr, tau):
+    n = X.shape[0]
+    traj_eval(seg, hold, t, qr, qdr)
+    for j in range(n):
+        x = X[j]
+        joint_signals(P, j, x, x[S_QL], x[S_QDL], qr[j], qdr[j], sig)
+        d = dX[j]
+        om = x[S_OM]
+        d[S_TH] = om
+        jm = P[j, P_JR] + P[j, P_JG]
+        d[S_OM] = (sig[10] - P[j, P_BM] * om - sig[11] - sig[NO + 5]) / jm
+        if P[j, P_IDEAL] > 0.5:
+            d[S_IA] = 0.0
+            d[S_IB] = 0.0
+        else:
+            L = P[j, P_L]
+            R = P[j, P_R]
+            te = P[j, P_POLES] * x[S_TH]
+            h3 = P[j, P_H3]
+            kt = P[j, P_KT]
+            ea = kt * (1.0 - 0.5 * P[j, P_UNB]) * (-(math.sin(te) + h3 * math.sin(3.0 * te))) * om
+            eb = kt * (1.0 + 0.5 * P[j, P_UNB]) * (math.cos(te) + h3 * math.cos(3.0 * te)) * om
+            d[S_IA] = (sig[9] - R * x[S_IA] - ea) / L
+            d[S_IB] = (sig[NO] - R * x[S_IB] - eb) / L
+        d[S_XA] = sig[NO + 2]
+        d[S_XB] = sig[NO + 3]
+        d[S_XV] = sig[NO + 1]
+        d[S_Z] = sig[NO + 4]
+        d[S_QL] = x[S_QDL]
+        d[S_IMP] = sig[12]
+        tau[j] = sig[12]
+    for j in range(n):
+        acc = 0.0
+        for k in range(n):
+            acc += Minv[j, k] * tau[k]
+        dX[j, S_QDL] = acc
+
+
+@njit(cache=_CACHE)
+def drive_step(P, seg, hold, pre_R, pre_p, masses, coms, inertias, X, q, qd, t, h, nsub, tau_out, work):
+    """Integrate all drives over [t, t+h] with nsub RK4 substeps; tau_out = mean gear torque."""
+    n = q.shape[0]
+    M = np.empty((n, n))
+    mass_matrix(pre_R, pre_p, masses, coms, inertias, q, M)
+    Minv = np.linalg.inv(M)
+    for j in range(n):
+        X[j, S_QL] = q[j]
+        X[j, S_QDL] = qd[j]
+        X[j, S_IMP] = 0.0
+    k1 = work[0]
+    k2 = work[1]
+    k3 = work[2]
+    k4 = work[3]
+    Xt = work[4]
+    sig = np.empty(NO + 8)
+    qr = np.empty(n)
+    qdr = np.empty(n)
+    tau = np.empty(n)
+    hs = h / nsub
+    for s in range(nsub):
+        ts = t + s * hs
+        drive_rhs(P, seg, hold, Minv, ts, X, k1, sig, qr, qdr, tau)
+        for j in range(n):
+            for k in range(NL):
+                Xt[j, k] = X[j, k] + 0.5 * hs * k1[j, k]
+        drive_rhs(P, seg, hold, Minv, ts + 0.5 * hs, Xt, k2, sig, qr, qdr, tau)
+        for j in range(n):
+            for k in range(NL):
+                Xt[j, k] = X[j, k] + 0.5 * hs * k2[j, k]
+        drive_rhs(P, seg, hold, Minv, ts + 0.5 * hs, Xt, k3, sig, qr, qdr, tau)
+        for j in range(n):
+            for k in range(NL):
+                Xt[j, k] = X[j, k] + hs * k3[j, k]
+        drive_rhs(P, seg, hold, Minv, ts + hs, Xt, k4, sig, qr, qdr, tau)
+        for j in range(n):
+            for k in range(NL):
+                X[j, k] += hs / 6.0 * (k1[j, k] + 2.0 * k2[j, k] + 2.0 * k3[j, k] + k4[j, k])
+    ok = True
+    for j in range(n):
+        tau_out[j] = X[j, S_IMP] / h
+        for k in range(NS):
+            if not math.isfinite(X[j, k]):
+                ok = False
+        if not math.isfinite(tau_out[j]):
+            ok = False
+    return ok
+
+
+@njit(cache=_CACHE)
+def drive_outputs(P, seg, hold, X, q, qd, t, out):
+    """Variables of every joint at time t from the drive states and the chain state: out[j, :NO]."""
+    n = q.shape[0]
+    qr = np.empty(n)
+    qdr = np.empty(n)
+    traj_eval(seg, hold, t, qr, qdr)
+    sig = np.empty(NO + 8)
+    for j in range(n):
+        joint_signals(P, j, X[j], q[j], qd[j], qr[j], qdr[j], sig)
+        for k in range(NO):
+            out[j, k] = sig[k]

@@ -1,0 +1,16 @@
+"""Errors raised by models/: a refused parameter value, a failed simulation."""
+
+from __future__ import annotations
+
+
+class ParameterError(ValueError):
+    """A parameter value was refused; `name` is the parameter, `reason` says why."""
+
+    def __init__(self, name: str, reason: str) -> None:
+        self.name = name
+        self.reason = reason
+        super().__init__(f"{name}: {reason}")
+
+
+class SimulationError(RuntimeError):
+    """A numerical failure: the message names what diverged and when."""

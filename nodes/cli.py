@@ -1,0 +1,216 @@
+"""`simecs`: the one command-line entry point (`simecs --help`, `simecs COMMAND --help`)."""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import importlib.util
+import json
+import os
+import sys
+import time
+
+from simecs.mesh.config import DEFAULT_HUB
+
+#: Node name -> module with a `main(argv)`. The viewer lives in its own package.
+NODES = {
+    "hub": "simecs.nodes.hub",
+    "proxy": "simecs.nodes.proxy",
+    "simulator": "simecs.nodes.simulator",
+    "hotfeedback": "simecs.nodes.hotfeedback",
+    "recorder": "simecs.nodes.recorder",
+    "viewer": "simecs.viewer.app",
+}
+
+#: Benchmark name -> "module:function(json_out: bool) -> dict".
+BENCHES = {
+    "model": "simecs.models.bench:run_model_bench",
+    "service": "simecs.nodes.bench_service:run_service_bench",
+    "viewer": "simecs.viewer.bench:run_viewer_bench",
+    "recorder": "simecs.nodes.bench_recorder:run_recorder_bench",
+}
+
+
+def _available(module: str) -> bool:
+    return importlib.util.find_spec(module) is not None
+
+
+def cmd_up(args: argparse.Namespace) -> int:
+    from simecs.nodes.supervisor import Child, Supervisor, node_argv
+
+    hub = args.hub
+    data = os.path.abspath(args.data_dir)
+    common = ["--connect", hub]
+    children = [
+        Child("hub", node_argv(NODES["hub"], ["--listen", hub])),
+        Child(
+            "proxy",
+            node_argv(
+                NODES["proxy"],
+                [*common, "--data-dir", data]
+                + (["--max-running", str(args.max_running)] if args.max_running else []),
+            ),
+        ),
+        Child(
+            "simulator",
+            node_argv(NODES["simulator"], [*common, "--results-dir", os.path.join(data, "results")]),
+        ),
+        Child("hotfeedback", node_argv(NODES["hotfeedback"], common)),
+    ]
+    roles = ["hub", "proxy", "simulator", "hotfeedback"]
+    if not args.no_recorder and _available(NODES["recorder"]):
+        children.append(Child("recorder", node_argv(NODES["recorder"], [*common, "--dir", args.recordings])))
+        roles.append("recorder")
+    url = ""
+    if not args.no_viewer and _available(NODES["viewer"]):
+        children.append(
+            Child(
+                "viewer", node_argv(NODES["viewer"], [*common, "--host", args.host, "--port", str(args.port)])
+            )
+        )
+        roles.append("viewer")
+        url = f"http://{'127.0.0.1' if args.host in ('0.0.0.0', '') else args.host}:{args.port}"
+    banner = f"simecs is up ({', '.join(roles)}) on hub {hub}"
+    if url:
+        banner += f"\nOpen the viewer: {url}"
+    return Supervisor(children, hub).run_forever(roles, banner)
+
+
+def cmd_node(args: argparse.Namespace, rest: list[str]) -> int:
+    module = importlib.import_module(NODES[args.name])
+    return int(module.main(rest) or 0)
+
+
+def cmd_ls(args: argparse.Namespace) -> int:
+    import zenoh.ext
+    from simecs.mesh import codec, keys
+    from simecs.mesh import messages as m
+    from simecs.mesh.config import load
+    from simecs.mesh.runtime import open_session
+
+    cfg = load(args.mesh_config).with_overrides(connect=[args.connect] if args.connect else None)
+    z = open_session(cfg, deadline_s=3.0)
+    try:
+        statuses: dict[str, m.NodeStatus] = {}
+        states: dict[str, m.SessionState] = {}
+
+        def on_status(s: zenoh.Sample) -> None:
+            st = codec.loads(m.NodeStatus, s.payload.to_bytes())
+            statuses[f"{st.role}/{st.node_id}"] = st
+
+        def on_state(s: zenoh.Sample) -> None:
+            st = codec.loads(m.SessionState, s.payload.to_bytes())
+            states[st.session] = st
+
+        history = zenoh.ext.HistoryConfig(detect_late_publishers=True)
+        subs = [
+            zenoh.ext.declare_advanced_subscriber(z, keys.NODES_STATUS, on_status, history=history),
+            zenoh.ext.declare_advanced_subscriber(z, keys.ALL_STATE, on_state, history=history),
+        ]
+        live = []
+        for reply in z.liveliness().get(keys.NODE_TOKENS, timeout=2.0):
+            if reply.ok is not None:
+                parts = str(reply.ok.key_expr).split("/")
+                live.append(f"{parts[2]}/{parts[3]}")
+        time.sleep(0.5)
+        for sub in subs:
+            sub.undeclare()
+        live_states = {k: v for k, v in states.items() if v.phase != "closed"}
+        if args.json:
+            print(
+                json.dumps({"nodes": sorted(live), "sessions": {k: v.phase for k, v in live_states.items()}})
+            )
+            return 0
+        print(f"{'NODE':40} {'PID':>7}  DETAIL")
+        for name in sorted(live):
+            st = statuses.get(name)
+            detail = " ".join(f"{k}={v}" for k, v in (st.detail if st else {}).items())
+            print(f"{name:40} {st.pid if st else '?':>7}  {detail}")
+        print(f"\n{'SESSION':24} {'PHASE':10} {'RUN':5} PROGRESS")
+        for sid, st in sorted(live_states.items()):
+            print(f"{sid:24} {st.phase:10} {st.run_id:5} {st.progress * 100:5.1f} %")
+        return 0
+    finally:
+        z.close()
+
+
+def cmd_bench(args: argparse.Namespace) -> int:
+    target = BENCHES[args.name]
+    module_name, func = target.split(":")
+    if not _available(module_name):
+        print(f"benchmark {args.name} is not available in this installation ({module_name})", file=sys.stderr)
+        return 2
+    result = getattr(importlib.import_module(module_name), func)(args.json)
+    return 0 if result is not None else 1
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="simecs",
+        description="Remote simulation environment for robot arms (Exudyn + Zenoh + viser + MCAP).",
+    )
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    up = sub.add_parser("up", help="start the hub and every node on this machine (Ctrl-C stops all)")
+    up.add_argument("--hub", default=DEFAULT_HUB, help=f"hub endpoint (default {DEFAULT_HUB})")
+    up.add_argument(
+        "--host", default="127.0.0.1", help="viewer address (default loopback; a LAN address on request)"
+    )
+    up.add_argument("--port", type=int, default=8080, help="viewer port")
+    up.add_argument(
+        "--data-dir",
+        default=os.environ.get("SIMECS_DATA", ".simecs"),
+        help="sessions, parameter sets, results",
+    )
+    up.add_argument("--recordings", default="recordings", help="where MCAP recordings go")
+    up.add_argument("--max-running", type=int, default=None, help="simultaneous runs (default: cores)")
+    up.add_argument("--no-viewer", action="store_true", help="headless: no web viewer")
+    up.add_argument("--no-recorder", action="store_true", help="do not record runs")
+
+    node = sub.add_parser(
+        "node", help="run one node (for a LAN: --connect tcp/HUB:7447); NAME --help for its flags"
+    )
+    node.add_argument("name", choices=sorted(NODES))
+
+    ls = sub.add_parser("ls", help="list live nodes and sessions")
+    ls.add_argument("--connect", default=None, help=f"hub endpoint (default {DEFAULT_HUB})")
+    ls.add_argument("--mesh-config", default=None)
+    ls.add_argument("--json", action="store_true")
+
+    bench = sub.add_parser("bench", help="run a benchmark: human table, and with --json one JSON line last")
+    bench.add_argument("name", choices=sorted(BENCHES))
+    bench.add_argument("--json", action="store_true")
+
+    for name, help_text in (
+        ("replay", "republish a recording onto the mesh"),
+        ("export", "export a recording"),
+    ):
+        p = sub.add_parser(name, help=help_text, add_help=False)
+        p.add_argument("rest", nargs=argparse.REMAINDER)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> None:
+    argv = sys.argv[1:] if argv is None else argv
+    parser = build_parser()
+    if argv and argv[0] == "node" and len(argv) >= 2:
+        args = parser.parse_args(argv[:2])
+        sys.exit(cmd_node(args, argv[2:]))
+    if argv and argv[0] in ("replay", "export"):
+        module = f"simecs.nodes.{argv[0]}"
+        if not _available(module):
+            print(f"{argv[0]} is not available in this installation", file=sys.stderr)
+            sys.exit(2)
+        sys.exit(int(importlib.import_module(module).main(argv[1:]) or 0))
+    args = parser.parse_args(argv)
+    if args.command == "up":
+        sys.exit(cmd_up(args))
+    if args.command == "ls":
+        sys.exit(cmd_ls(args))
+    if args.command == "bench":
+        sys.exit(cmd_bench(args))
+    parser.error(f"unknown command {args.command}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,123 @@
+"""The hot-feedback node: the paper's Hot Feedback Manager.
+
+It takes every session's full-rate frames and forwards at most R frames per wall second per session
+(R from the run's layout), each carrying the newest sample's live columns; the final sample of a run
+is always forwarded. Frames reach it through a bounded queue, so a slow viewer or a burst never
+stalls the simulator (a slow zenoh callback would stall the whole link: STACK-NOTES).
+A forwarded frame keeps the `wall_ns` of the full frame it came from, so any subscriber can measure
+the end-to-end latency from the simulator.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import zenoh
+from simecs.mesh import codec, frames, keys
+from simecs.mesh import messages as m
+from simecs.mesh.runtime import Node, main_for
+
+
+@dataclass
+class Stream:
+    layout: m.RunLayout
+    live_idx: np.ndarray
+    period_ns: int
+    last_sent_ns: int = 0
+    pending: frames.Frame | None = None
+    sent: int = 0
+    seq: int = 0
+    publisher: Any = field(default=None)
+
+
+class HotFeedback(Node):
+    """Decimates full-rate frames to at most R Hz per session."""
+
+    role = "hotfeedback"
+    tick_s = 0.01
+
+    def __init__(self, mesh: Any, node_id: str | None = None) -> None:
+        super().__init__(mesh, node_id)
+        self.lock = threading.Lock()
+        self.streams: dict[str, Stream] = {}
+        self.forwarded = 0
+
+    def status_detail(self) -> dict[str, Any]:
+        return {"streams": len(self.streams), "forwarded": self.forwarded}
+
+    def start(self) -> None:
+        self.subscribe(keys.ALL_LAYOUT, self._on_layout, maxlen=256, latched=True)
+        self.full_worker = self.subscribe(keys.ALL_FULL, self._on_full, maxlen=64)
+
+    def _on_layout(self, sample: zenoh.Sample) -> None:
+        try:
+            layout = codec.loads(m.RunLayout, sample.payload.to_bytes())
+            idx = np.array([layout.columns.index(c) for c in layout.live_columns], dtype=int)
+        except (codec.DecodeError, ValueError) as exc:
+            self.log.warning("bad layout on %s: %s", sample.key_expr, exc)
+            return
+        with self.lock:
+            old = self.streams.get(layout.session)
+            pub = old.publisher if old else self.publisher(keys.vars_live(layout.session))
+            self.streams[layout.session] = Stream(layout, idx, int(1e9 / layout.live_rate_hz), publisher=pub)
+
+    def _on_full(self, sample: zenoh.Sample) -> None:
+        try:
+            session = keys.session_of(str(sample.key_expr))
+            frame = frames.decode(sample.payload.to_bytes())
+        except (ValueError, frames.FrameError) as exc:
+            self.log.warning("bad frame on %s: %s", sample.key_expr, exc)
+            return
+        with self.lock:
+            stream = self.streams.get(session)
+            if stream is None or stream.layout.run_index != frame.run_index:
+                return  # layout not seen yet: nothing to decimate against
+            if frame.rows.shape[0]:
+                if frame.rows.shape[1] != len(stream.layout.columns):
+                    self.log.warning(
+                        "frame of %s has %d columns, layout %d",
+                        session,
+                        frame.rows.shape[1],
+                        len(stream.layout.columns),
+                    )
+                    return
+                frame.rows = frame.rows[-1:, stream.live_idx]
+                stream.pending = frame
+            elif stream.pending is None and frame.final:
+                stream.pending = frame
+            if frame.final and stream.pending is not None:
+                stream.pending.flags |= frames.FLAG_FINAL
+            self._maybe_send(stream, time.time_ns(), force=frame.final)
+
+    def _maybe_send(self, stream: Stream, now: int, force: bool = False) -> None:
+        pending = stream.pending
+        if pending is None or (not force and now - stream.last_sent_ns < stream.period_ns):
+            return
+        live = frames.Frame(
+            pending.run_index, stream.seq, pending.wall_ns, pending.rows, pending.flags | frames.FLAG_LIVE
+        )
+        stream.publisher.put(frames.encode(live))
+        stream.seq += 1
+        stream.sent += 1
+        stream.last_sent_ns = now
+        stream.pending = None
+        self.forwarded += 1
+
+    def tick(self) -> None:
+        """Forward a sample held back by the rate limit once its slot comes (e.g. on pause)."""
+        now = time.time_ns()
+        with self.lock:
+            for stream in self.streams.values():
+                self._maybe_send(stream, now)
+
+
+def main(argv: list[str] | None = None) -> int:
+    return main_for(HotFeedback, argv)
+
+
+if __name__ == "__main__":
+    main()

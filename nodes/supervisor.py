@@ -1,0 +1,152 @@
+"""`simecs up`: the hub and every node as separate processes, watched and restarted.
+
+Each node runs in its own process group (so a terminal's Ctrl-C reaches the supervisor alone, which
+then stops the nodes in order and kills whatever is left after a grace period: no orphans, also of the
+simulator's worker processes). A node that exits on its own is reported and restarted with backoff.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+from simecs.mesh import keys
+from simecs.mesh.config import MeshConfig
+from simecs.mesh.runtime import open_session
+
+GRACE_S = 3.0
+
+
+@dataclass
+class Child:
+    name: str
+    argv: list[str]
+    proc: subprocess.Popen[bytes] | None = None
+    started: float = 0.0
+    restarts: int = 0
+    backoff: float = 0.5
+    next_start: float = 0.0
+    log_lines: list[str] = field(default_factory=list)
+
+
+def node_argv(module: str, args: list[str]) -> list[str]:
+    return [sys.executable, "-m", module, *args]
+
+
+class Supervisor:
+    def __init__(self, children: list[Child], hub: str, say: Any = print) -> None:
+        self.children = children
+        self.hub = hub
+        self.say = say
+        self.stopping = threading.Event()
+
+    def _start(self, child: Child) -> None:
+        child.proc = subprocess.Popen(child.argv, start_new_session=True)
+        child.started = time.monotonic()
+
+    def start_all(self) -> None:
+        for child in self.children:
+            self._start(child)
+
+    def check(self) -> None:
+        """Restart children that exited while we were not stopping."""
+        now = time.monotonic()
+        for child in self.children:
+            proc = child.proc
+            if proc is None:
+                if now >= child.next_start:
+                    self._start(child)
+                    child.restarts += 1
+                    self.say(
+                        f"simecs: restarted {child.name} (pid {child.proc.pid}, restart {child.restarts})"
+                    )
+                continue
+            code = proc.poll()
+            if code is None:
+                if now - child.started > 30:
+                    child.backoff = 0.5
+                continue
+            self.say(f"simecs: {child.name} exited with code {code}; restarting in {child.backoff:.1f} s")
+            child.proc = None
+            child.next_start = now + child.backoff
+            child.backoff = min(child.backoff * 2, 10.0)
+
+    def wait_ready(self, roles: list[str], timeout: float = 60.0) -> bool:
+        """Wait until every role has a liveliness token on the hub."""
+        cfg = MeshConfig(mode="client", connect=[self.hub])
+        end = time.monotonic() + timeout
+        z = None
+        try:
+            while time.monotonic() < end and not self.stopping.is_set():
+                self.check()
+                try:
+                    if z is None:
+                        z = open_session(cfg, deadline_s=1.0)
+                    live = set()
+                    for reply in z.liveliness().get(keys.NODE_TOKENS, timeout=1.0):
+                        if reply.ok is not None:
+                            live.add(str(reply.ok.key_expr).split("/")[2])
+                    if all(r in live for r in roles):
+                        return True
+                except RuntimeError:
+                    pass
+                time.sleep(0.2)
+            return False
+        finally:
+            if z is not None:
+                z.close()
+
+    def stop_all(self) -> None:
+        """SIGTERM every process group, then SIGKILL what is left after the grace period."""
+        self.stopping.set()
+        for child in reversed(self.children):
+            if child.proc is not None and child.proc.poll() is None:
+                try:
+                    os.killpg(child.proc.pid, signal.SIGTERM)
+                except ProcessLookupError:
+                    pass
+        end = time.monotonic() + GRACE_S
+        for child in self.children:
+            if child.proc is None:
+                continue
+            try:
+                child.proc.wait(timeout=max(0.05, end - time.monotonic()))
+            except subprocess.TimeoutExpired:
+                pass
+        for child in self.children:
+            if child.proc is None:
+                continue
+            try:  # the group may hold grandchildren (simulator workers) even if the leader is gone
+                os.killpg(child.proc.pid, signal.SIGKILL)
+            except (ProcessLookupError, PermissionError):
+                pass
+            try:
+                child.proc.wait(timeout=1.0)
+            except subprocess.TimeoutExpired:
+                pass
+
+    def run_forever(self, roles: list[str], banner: str) -> int:
+        def on_signal(signum: int, _frame: Any) -> None:
+            self.stopping.set()
+
+        signal.signal(signal.SIGINT, on_signal)
+        signal.signal(signal.SIGTERM, on_signal)
+        self.start_all()
+        try:
+            if self.wait_ready(roles):
+                self.say(banner, flush=True) if self.say is print else self.say(banner)
+            elif not self.stopping.is_set():
+                self.say("simecs: some nodes did not come up within 60 s; still trying")
+            while not self.stopping.wait(0.2):
+                self.check()
+        finally:
+            self.say("simecs: stopping")
+            self.stop_all()
+            self.say("simecs: stopped")
+        return 0

@@ -1,0 +1,1 @@
+"""The viser web client; of simecs it imports only simecs.mesh."""
