@@ -56,6 +56,16 @@ def recording(name: str) -> str:
     return f"{RECORDINGS}/{check_name(name, 'recording name')}"
 
 
+def recording_replay(name: str) -> str:
+    """get with a ReplayRequest: replay one recording onto the mesh as a session; reply {session}."""
+    return f"{recording(name)}/replay"
+
+
+def recording_name(session: str, run_id: str) -> str:
+    """The name under which the recorder stores the run `run_id` of `session`."""
+    return f"{_sid(session)}_{check_name(run_id, 'run id')}"
+
+
 def node_token(role: str, node_id: str) -> str:
     return f"{ROOT}/@node/{check_name(role, 'role')}/{check_name(node_id, 'node id')}"
 
@@ -146,6 +156,7 @@ ALL_RESULTS_LIST = f"{ROOT}/*/results"
 ALL_DOCS = f"{LIBRARY}/*/doc/*"
 ALL_MODELS = f"{LIBRARY}/*"
 ALL_RECORDINGS = f"{RECORDINGS}/*"
+ALL_REPLAYS = f"{RECORDINGS}/*/replay"
 
 
 def session_of(key: str) -> str:

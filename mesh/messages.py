@@ -391,8 +391,9 @@ class RunRequest:
 
 @dataclass
 class RunControl:
-    op: Literal["pause", "resume", "abort"]
+    op: Literal["pause", "resume", "abort", "seek"]
     run_id: str
+    time: float = 0.0  # seek target in s (replays only)
     type: Literal["run_control"] = "run_control"
     v: int = VERSION
 
@@ -462,6 +463,21 @@ class RecordingInfo:
     model_id: str
     bytes: int
     recovered: bool = False
+
+
+@dataclass
+class ReplayRequest:
+    """Replay a recording as a session: `speed` x real time (0 = as fast as possible)."""
+
+    speed: float = 1.0
+    session: str = ""  # empty: a new session id
+    paused: bool = False
+    type: Literal["replay_request"] = "replay_request"
+    v: int = VERSION
+
+    def validate(self) -> None:
+        if not 0.0 <= self.speed <= 1000.0:
+            raise DecodeError("speed", f"{self.speed} is outside [0, 1000]")
 
 
 @dataclass
