@@ -144,7 +144,6 @@ def jog(session: str) -> str:
 
 # -- wildcards for nodes that serve every session ------------------------------------------------
 ALL_CMD = f"{ROOT}/*/cmd"
-ALL_CONTROL = f"{ROOT}/*/control"
 ALL_RUN_STATUS = f"{ROOT}/*/run"
 ALL_LAYOUT = f"{ROOT}/*/vars/layout"
 ALL_FULL = f"{ROOT}/*/vars/full"

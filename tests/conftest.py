@@ -47,14 +47,18 @@ class Mesh:
     def config(self) -> MeshConfig:
         return MeshConfig(mode="client", connect=[self.endpoint])
 
-    def spawn(self, name: str, module: str, *args: str, node_id: str | None = None) -> subprocess.Popen[bytes]:
+    def spawn(
+        self, name: str, module: str, *args: str, node_id: str | None = None
+    ) -> subprocess.Popen[bytes]:
         argv = [sys.executable, "-m", module, *args]
         if module != "simecs.nodes.hub":
             argv += ["--connect", self.endpoint]
         if node_id:
             argv += ["--node-id", node_id]
         log = open(self.folder / f"{name}.log", "ab")  # noqa: SIM115 - closed with the folder
-        proc = subprocess.Popen(argv, stdout=log, stderr=subprocess.STDOUT, env=mesh_env(), start_new_session=True)
+        proc = subprocess.Popen(
+            argv, stdout=log, stderr=subprocess.STDOUT, env=mesh_env(), start_new_session=True
+        )
         self.procs[name] = proc
         return proc
 

@@ -1,0 +1,74 @@
+"""Key builders refuse what could escape a session; mesh configuration is safe by default."""
+
+from __future__ import annotations
+
+import pytest
+
+from simecs.mesh import config, keys
+
+
+def test_session_ids_are_unguessable_and_valid() -> None:
+    ids = {keys.new_session_id() for _ in range(1000)}
+    assert len(ids) == 1000
+    assert all(keys.is_session_id(i) for i in ids)
+
+
+@pytest.mark.parametrize("bad", ["", "*", "**", "a/b", "$*", "@node", "x" * 22 + "/", "short"])
+def test_session_keys_refuse_bad_ids(bad: str) -> None:
+    with pytest.raises(ValueError):
+        keys.cmd(bad)
+
+
+@pytest.mark.parametrize("bad", ["", "*", "a/b", "../x", "-x", "x" * 65, "a b"])
+def test_names_refuse_wildcards_and_paths(bad: str) -> None:
+    with pytest.raises(ValueError):
+        keys.model(bad)
+
+
+def test_session_of_parses_back() -> None:
+    sid = keys.new_session_id()
+    for key in (keys.cmd(sid), keys.state(sid), keys.vars_full(sid), keys.results(sid, "r3")):
+        assert keys.session_of(key) == sid
+    with pytest.raises(ValueError):
+        keys.session_of(keys.LIBRARY)
+
+
+def test_liveliness_tokens_are_under_at_chunks() -> None:
+    assert "/@node/" in keys.node_token("proxy", "p1")
+    assert "/@run/" in keys.run_token(keys.new_session_id(), "r1")
+
+
+def test_defaults_are_safe() -> None:
+    entries = config.MeshConfig().zenoh_entries()
+    assert entries["scouting/multicast/enabled"] is False
+    assert entries["transport/shared_memory/enabled"] is False
+    assert entries["listen/endpoints"] == []
+    assert entries["connect/endpoints"] == [config.DEFAULT_HUB]
+    assert config.DEFAULT_HUB.startswith("tcp/127.0.0.1:")
+
+
+def test_file_then_environment(tmp_path) -> None:  # noqa: ANN001
+    path = tmp_path / "mesh.json5"
+    path.write_text("{ // comments allowed\n mode: 'peer', listen: ['tcp/127.0.0.1:0'], lease_ms: 500 }")
+    cfg = config.load(path, env={"SIMECS_CONNECT": "tcp/127.0.0.1:1,tcp/127.0.0.1:2", "SIMECS_USER": "ann"})
+    assert cfg.mode == "peer" and cfg.lease_ms == 500
+    assert cfg.connect == ["tcp/127.0.0.1:1", "tcp/127.0.0.1:2"]
+    assert cfg.zenoh_entries()["transport/auth/usrpwd/user"] == "ann"
+    cfg.to_zenoh()  # zenoh accepts every entry
+
+
+def test_bad_config_file_is_named(tmp_path) -> None:  # noqa: ANN001
+    path = tmp_path / "bad.json5"
+    path.write_text("{ mdoe: 'peer' }")
+    with pytest.raises(ValueError, match="unknown key 'mdoe'"):
+        config.load(path, env={})
+    path.write_text("{ not json")
+    with pytest.raises(ValueError, match="bad.json5"):
+        config.load(path, env={})
+
+
+def test_tls_entries() -> None:
+    cfg = config.MeshConfig(tls=config.TlsConfig(root_ca_certificate="/ca.pem", enable_mtls=True))
+    entries = cfg.zenoh_entries()
+    assert entries["transport/link/tls/root_ca_certificate"] == "/ca.pem"
+    assert entries["transport/link/tls/enable_mtls"] is True
