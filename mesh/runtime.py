@@ -218,20 +218,20 @@ class Node:
         return worker
 
     def serve(self, key: str, handle: Callable[[Request], Any], threaded: bool = False) -> None:
-        """Answer queries on `key`: `handle` returns a dataclass (sent as Ok if it is not already a
-        message with a `type`), plain JSON data (wrapped in Ok), or `Binary`; raising answers Error."""
+        """Answer queries on `key`: `handle` returns `Binary`, or anything JSON-able (dataclasses too),
+        sent as `Ok{data}`; raising answers an `Error` reply."""
 
         def answer(query: zenoh.Query) -> None:
             key_str = str(query.key_expr)
             try:
                 payload = query.payload.to_bytes() if query.payload is not None else None
-                params = dict(query.selector.parameters.items()) if query.selector.parameters else {}
+                params = dict(query.selector.parameters) if query.selector.parameters else {}
                 result = handle(Request(key_str, payload, params))
                 if isinstance(result, Binary):
                     att = None if result.attachment is None else json.dumps(result.attachment).encode()
                     query.reply(query.key_expr, result.payload, attachment=att)
                 else:
-                    if not hasattr(result, "type") or not hasattr(result, "v"):
+                    if not isinstance(result, Ok):
                         result = Ok(data=result)
                     query.reply(query.key_expr, codec.dumps(result))
             except Exception as exc:

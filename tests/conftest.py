@@ -19,7 +19,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import pytest
-
 from simecs.mesh import keys
 from simecs.mesh.client import MeshClient
 from simecs.mesh.config import MeshConfig

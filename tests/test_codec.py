@@ -9,7 +9,6 @@ import typing
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
-
 from simecs.mesh import codec, messages
 from simecs.mesh import model as model_types
 
@@ -35,7 +34,7 @@ def example(tp: typing.Any) -> typing.Any:
         return {"a": [1, 2]}
     if origin is typing.Literal:
         return typing.get_args(tp)[0]
-    if origin in (typing.Union, getattr(__import__("types"), "UnionType")):
+    if origin in (typing.Union, __import__("types").UnionType):
         return example(next(a for a in typing.get_args(tp) if a is not type(None)))
     if origin is list:
         return [example(typing.get_args(tp)[0])] * 3

@@ -7,7 +7,6 @@ import inspect
 from pathlib import Path
 
 import pytest
-
 from simecs.mesh import keys, messages, model
 
 DOC = (Path(__file__).resolve().parent.parent / "docs" / "PROTOCOL.md").read_text()
