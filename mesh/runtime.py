@@ -272,10 +272,11 @@ class Node:
         self._install_signals()
         self.session = open_session(self.mesh)
         try:
-            self.declare(self.z.liveliness().declare_token(keys.node_token(self.role, self.node_id)))
             self._status_pub = self.publisher(keys.node_status(self.role, self.node_id), latched=True)
             self.publish_status("starting")
             self.start()
+            # The token says "ready": declared only once everything `start()` serves is declared.
+            self.declare(self.z.liveliness().declare_token(keys.node_token(self.role, self.node_id)))
             self.publish_status("ready")
             self.log.info("ready as %s/%s (pid %d)", self.role, self.node_id, os.getpid())
             last_status = time.monotonic()

@@ -27,6 +27,7 @@ class Simulator(Node):
     """Runs simulations in worker processes and serves their results."""
 
     role = "simulator"
+    tick_s = 0.1
 
     def __init__(
         self,
@@ -96,7 +97,18 @@ class Simulator(Node):
                     del self.busy[key]
                     if code not in (0, 3):
                         self.log.warning("worker of %s exited with code %s", key, code)
+                        self._report_lost(key, code)
         self._refill()
+
+    def _report_lost(self, key: str, code: int) -> None:
+        """A worker that died (perhaps before its liveliness token was up) fails its run.
+
+        The proxy ignores this if the worker's own final status or the loss of its token came first.
+        """
+        session, run_id = key.split("/")
+        reason = f"the simulator process of run {run_id} disappeared (exit code {code})"
+        status = m.RunStatus(session=session, run_id=run_id, phase="failed", reason=reason)
+        self.z.put(keys.run_status(session), codec.dumps(status))
 
     def _on_run(self, req: Request) -> dict[str, Any]:
         run = req.json(m.RunRequest)

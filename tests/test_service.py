@@ -1,0 +1,289 @@
+"""The simulation service end to end: proxy, simulator, hot-feedback as real processes on a real mesh,
+driven by a client that uses only mesh/ types."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import threading
+import time
+
+import numpy as np
+import pytest
+from simecs.mesh import codec, frames, keys
+from simecs.mesh import messages as m
+from simecs.mesh.client import RemoteError, SessionClient
+
+from .conftest import Mesh, Service, start_service, wait_until
+
+TARGET = [0.3, -0.2, 0.2, 0.1, -0.1, 0.1, 0.0]
+
+
+def prepare(s: SessionClient, stop_time: float = 0.4, pacing: str = "fast", **settings: object) -> None:
+    s.set_settings(stop_time=stop_time, output_interval=0.002, pacing=pacing, **settings)
+    s.set_joint_path([(TARGET, 100, 100)])
+
+
+class Recorder:
+    """Collects what a session publishes, as any client would see it."""
+
+    def __init__(self, s: SessionClient) -> None:
+        self.full: list[frames.Frame] = []
+        self.live: list[tuple[float, frames.Frame]] = []
+        self.states: list[m.SessionState] = []
+        self.layouts: list[m.RunLayout] = []
+        self.watch = s.watch(
+            on_full=self.full.append,
+            on_live=lambda f: self.live.append((time.time(), f)),
+            on_state=self.states.append,
+            on_layout=self.layouts.append,
+        )
+
+    def close(self) -> None:
+        self.watch.close()
+
+
+def test_whole_run(service: Service) -> None:
+    c = service.client
+    assert {s.id for s in c.list_models()} >= {"spider"}
+    desc = c.describe("spider")
+    s = c.create_session("ann", "spider")
+    rec = Recorder(s)
+    prepare(s, stop_time=0.4)
+    run_id = s.run()
+    state = s.wait_for(["finished", "failed", "aborted"], timeout=120, run_id=run_id)
+    assert state.phase == "finished", state.reason
+    assert state.progress == pytest.approx(1.0)
+    wait_until(lambda: rec.full and rec.full[-1].final, what="final full frame")
+    wait_until(lambda: rec.live and rec.live[-1][1].final, what="final live frame")
+    rec.close()
+
+    layout = rec.layouts[-1]
+    assert layout.run_id == run_id and layout.columns[0] == "time"
+    assert [v.name for v in desc.variables] == layout.columns[1 : 1 + len(desc.variables)]
+    full = np.concatenate([f.rows for f in rec.full])
+    assert full.shape == (201, len(layout.columns))  # t = 0, 0.002, ..., 0.4
+    np.testing.assert_allclose(full[:, 0], np.linspace(0, 0.4, 201), atol=1e-9)
+
+    # Full-resolution reload equals what the simulator computed and streamed.
+    columns, rows = s.results(run_id)
+    assert columns == layout.columns
+    np.testing.assert_array_equal(rows, full)
+    cols, some = s.results(run_id, ["joint1.q", "joint2.q"], t0=0.1, t1=0.2, every=5)
+    assert cols == ["time", "joint1.q", "joint2.q"]
+    picked = [0, layout.columns.index("joint1.q"), layout.columns.index("joint2.q")]
+    np.testing.assert_array_equal(some, full[50:101:5][:, picked])
+    assert [r.run_id for r in s.runs()] == [run_id]
+
+    # The last live frame is the last sample, restricted to the live columns.
+    last_live = rec.live[-1][1].rows[-1]
+    idx = [layout.columns.index(name) for name in layout.live_columns]
+    np.testing.assert_array_equal(last_live, full[-1, idx])
+    phases = [st.phase for st in rec.states]
+    assert "running" in phases and phases[-1] == "finished"
+
+
+def test_two_sessions_are_isolated(service: Service) -> None:
+    c = service.client
+    a = c.create_session("ann", "spider")
+    b = c.create_session("bob", "spider")
+    a.set_settings(stop_time=0.3, output_interval=0.002, pacing="fast")
+    b.set_settings(stop_time=0.5, output_interval=0.005, pacing="fast")
+    a.set_joint_path([([0.3, 0, 0, 0, 0, 0, 0], 100, 100)])
+    b.set_joint_path([([-0.3, 0, 0, 0, 0, 0, 0], 100, 100)])
+    a.set_params({"joint1.ctrl.kp_pos": a.snapshot().values["joint1.ctrl.kp_pos"] * 0.5})
+    rec_a, rec_b = Recorder(a), Recorder(b)
+    ra, rb = a.run(), b.run()
+    assert a.wait_for(["finished", "failed"], 120, ra).phase == "finished"
+    assert b.wait_for(["finished", "failed"], 120, rb).phase == "finished"
+    _, rows_a = a.results(ra, ["joint1.q_ref"])
+    _, rows_b = b.results(rb, ["joint1.q_ref"])
+    assert rows_a.shape[0] == 151 and rows_b.shape[0] == 101
+    assert rows_a[-1, 1] > 0 > rows_b[-1, 1]
+    assert a.snapshot().values != b.snapshot().values
+    wait_until(lambda: rec_a.full and rec_a.full[-1].final and rec_b.full and rec_b.full[-1].final)
+    rec_a.close()
+    rec_b.close()
+    assert sum(f.rows.shape[0] for f in rec_a.full) == 151
+    assert sum(f.rows.shape[0] for f in rec_b.full) == 101
+    # Commands naming the other session's run are refused; a foreign session id is unknown.
+    with pytest.raises(RemoteError) as err:
+        c.session(keys.new_session_id()).snapshot()
+    assert err.value.code == "not_found"
+
+
+def test_pause_resume_abort_within_a_chunk(service: Service) -> None:
+    c = service.client
+    s = c.create_session("ann", "spider")
+    prepare(s, stop_time=4.0, pacing="realtime")
+    rec = Recorder(s)
+    run_id = s.run()
+    s.wait_for(["running"], 60, run_id)
+    wait_until(lambda: rec.full and rec.full[-1].rows[-1, 0] > 0.3, timeout=30, what="0.3 s simulated")
+    s.pause()
+    paused = s.wait_for(["paused"], 10, run_id)
+    n_at_pause = len(rec.full)
+    time.sleep(0.6)
+    # At most the chunk under way when the pause arrived follows.
+    assert len(rec.full) - n_at_pause <= 1
+    t_paused = rec.full[-1].rows[-1, 0]
+    assert abs(t_paused - paused.sim_time) <= 0.021
+    s.resume()
+    s.wait_for(["running"], 10, run_id)
+    wait_until(lambda: rec.full[-1].rows[-1, 0] > t_paused + 0.2, timeout=30, what="progress after resume")
+    s.abort()
+    state = s.wait_for(["aborted", "finished"], 10, run_id)
+    assert state.phase == "aborted"
+    wait_until(lambda: rec.full[-1].final, what="final frame after abort")
+    assert rec.full[-1].rows.shape[0] == 0
+    rec.close()
+    # The aborted run's results are still there, up to where it stopped.
+    _, rows = s.results(run_id, ["joint1.q"])
+    assert 0.5 < rows[-1, 0] < 4.0
+    with pytest.raises(RemoteError) as err:
+        s.pause()
+    assert err.value.code == "conflict"
+
+
+def test_decimated_rate_and_final_frame(service: Service) -> None:
+    c = service.client
+    s = c.create_session("ann", "spider")
+    prepare(s, stop_time=3.0, pacing="realtime", live_rate_hz=20.0, live_vars=["joint1.q", "joint2.q"])
+    rec = Recorder(s)
+    run_id = s.run()
+    assert s.wait_for(["finished", "failed"], 60, run_id).phase == "finished"
+    wait_until(lambda: rec.live and rec.live[-1][1].final, what="final live frame")
+    rec.close()
+    layout = rec.layouts[-1]
+    assert layout.live_columns[:3] == ["time", "joint1.q", "joint2.q"]
+    assert all(f.rows.shape[1] == len(layout.live_columns) for _, f in rec.live)
+    times = np.array([t for t, _ in rec.live])
+    steady = times[(times > times[0] + 0.5) & (times < times[-1] - 0.5)]
+    rate = (len(steady) - 1) / (steady[-1] - steady[0])
+    assert 18.0 <= rate <= 22.0, f"live rate {rate:.1f} Hz, wanted 20 Hz +- 10 %"
+    assert rec.live[-1][1].rows[-1, 0] == pytest.approx(3.0)
+
+
+def test_parameter_sets_and_sessions_survive_a_restart_of_every_node(mesh: Mesh) -> None:
+    svc = start_service(mesh)
+    c = svc.client
+    s = c.create_session("ann", "spider")
+    values = s.set_params({"joint2.ctrl.kp_pos": 33.0, "link2.length": 0.9})
+    s.save_param_set("stiff")
+    s.set_initial([0.1, 0, 0, 0, 0, 0, 0])
+    for name in ("hotfeedback", "simulator", "proxy"):
+        mesh.stop(name)
+    mesh.stop("hub")
+    mesh.clients.clear()
+    mesh.start_hub()
+    start_service(mesh)
+    c = mesh.client()
+    back = c.session(s.id).snapshot()
+    assert back.values == values and back.initial[0] == 0.1
+    other = c.create_session("ann", "spider")
+    assert other.list_param_sets() == ["stiff"]
+    assert other.load_param_set("stiff") == values
+    assert c.create_session("bob", "spider").list_param_sets() == []
+
+
+def test_bad_values_are_refused_with_the_reason_and_nothing_applied(service: Service) -> None:
+    s = service.client.create_session("ann", "spider")
+    before = s.snapshot().values
+    cases = [
+        ({"joint1.ctrl.kp_pos": 1e9}, "values.joint1.ctrl.kp_pos", "outside"),
+        ({"joint1.nope": 1.0}, "values.joint1.nope", "unknown parameter"),
+        ({"joint2.ctrl.kp_pos": 10.0, "link1.length": -5.0}, "values.link1.length", "outside"),
+    ]
+    for values, field, words in cases:
+        with pytest.raises(RemoteError) as err:
+            s.set_params(values)
+        assert (
+            err.value.code == "bad_request" and err.value.field == field and words in err.value.error.message
+        )
+    assert s.snapshot().values == before
+    with pytest.raises(RemoteError) as err:
+        s.set_initial([0.0] * 6)
+    assert err.value.field == "joints"
+    with pytest.raises(RemoteError) as err:
+        s.set_initial([100.0] + [0.0] * 6)
+    assert err.value.field == "joints[0]"
+    with pytest.raises(RemoteError) as err:
+        s.run()
+    assert "no command" in err.value.error.message
+    with pytest.raises(RemoteError) as err:
+        s.command(m.SetCommand(m.CartesianPath([m.CartesianNode([1, 0, 0], [0, 0, 0])])))
+    assert err.value.code == "unsupported"
+    with pytest.raises(RemoteError) as err:
+        s.load_param_set("never-saved")
+    assert err.value.code == "not_found"
+
+
+def worker_pids(parent: int) -> list[int]:
+    out = subprocess.run(["ps", "-o", "pid=,args=", "--ppid", str(parent)], capture_output=True, text=True)
+    return [int(line.split()[0]) for line in out.stdout.splitlines() if "simworker" in line]
+
+
+def test_killed_simulation_fails_its_session_within_a_second(service: Service) -> None:
+    c = service.client
+    sim_pid = service.mesh.procs["simulator"].pid
+    a = c.create_session("ann", "spider")
+    b = c.create_session("bob", "spider")
+    prepare(a, stop_time=5.0, pacing="realtime")
+    prepare(b, stop_time=1.5, pacing="realtime")
+    before = set(worker_pids(sim_pid))
+    ra = a.run()
+    a.wait_for(["running"], 30, ra)
+    victim = wait_until(lambda: set(worker_pids(sim_pid)) & before, what="worker of run a")
+    rb = b.run()
+    b.wait_for(["running"], 30, rb)
+    wait_until(lambda: a.snapshot().state.sim_time > 0.2, timeout=30, what="run a under way")
+    failed = threading.Event()
+    seen: list[m.SessionState] = []
+
+    def on_state(st: m.SessionState) -> None:
+        seen.append(st)
+        if st.phase == "failed":
+            failed.set()
+
+    with a.watch(on_state=on_state):
+        time.sleep(0.3)
+        t0 = time.monotonic()
+        os.kill(victim.pop(), signal.SIGKILL)
+        assert failed.wait(5.0), service.mesh.log("proxy") + service.mesh.log("simulator")
+        assert time.monotonic() - t0 < 1.0
+    assert "disappeared" in seen[-1].reason
+    assert b.wait_for(["finished", "failed"], 60, rb).phase == "finished"
+    assert c.live_nodes().count(("simulator", "simulator-t")) == 1
+
+
+def test_admission_queues_and_refuses(mesh: Mesh) -> None:
+    mesh.start("proxy", "--data-dir", str(mesh.folder / "d"), "--max-running", "1", "--max-queue", "1")
+    mesh.start("simulator", "--results-dir", str(mesh.folder / "d" / "results"))
+    c = mesh.client()
+    sessions = [c.create_session(f"u{i}", "spider") for i in range(3)]
+    for i, s in enumerate(sessions):
+        prepare(s, stop_time=1.0 if i == 0 else 0.2, pacing="realtime")
+    r0 = sessions[0].run()
+    sessions[0].wait_for(["running"], 30, r0)
+    reply = sessions[1].command(m.Run())
+    assert reply["phase"] == "queued" and reply["queue_position"] == 1
+    with pytest.raises(RemoteError) as err:
+        sessions[2].run()
+    assert err.value.code == "busy" and "waiting" in err.value.error.message
+    assert sessions[1].snapshot().state.phase == "queued"
+    assert sessions[0].wait_for(["finished"], 60, r0).phase == "finished"
+    assert sessions[1].wait_for(["finished"], 60, reply["run_id"]).phase == "finished"
+
+
+@pytest.mark.parametrize("payload", [b"", b"\x00\xff", b"{}", b'{"op":"run","v":2}', b"[" * 5000])
+def test_hostile_payloads_get_errors_and_nodes_survive(service: Service, payload: bytes) -> None:
+    c = service.client
+    s = c.create_session("ann", "spider")
+    for key in (keys.cmd(s.id), keys.SESSIONS, keys.simulator_run("simulator-t")):
+        replies = list(c.z.get(key, payload=payload or None, timeout=5))
+        assert replies and all(r.err is not None for r in replies)
+        err = codec.loads(m.Error, replies[0].err.payload.to_bytes())
+        assert err.code == "bad_request" and err.message
+    assert {r for r, _ in c.live_nodes()} >= {"proxy", "simulator", "hotfeedback"}
+    assert s.snapshot().state.phase == "created"
