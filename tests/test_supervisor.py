@@ -1,0 +1,157 @@
+"""`simecs up` headless: ready, restarts a killed node, stops everything on Ctrl-C; the CLI's help."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+import pytest
+
+from simecs.mesh.client import MeshClient
+from simecs.mesh.config import MeshConfig
+
+from .conftest import mesh_env, wait_until
+
+SIMECS = [sys.executable, "-m", "simecs.nodes.cli"]
+
+
+def descendants(pid: int) -> set[int]:
+    """Every living process whose ancestry leads to `pid`."""
+    parents: dict[int, int] = {}
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit():
+            try:
+                stat = (entry / "stat").read_text()
+                parents[int(entry.name)] = int(stat.rsplit(")", 1)[1].split()[1])
+            except (OSError, ValueError, IndexError):
+                continue
+    out, frontier = set(), {pid}
+    while frontier:
+        frontier = {p for p, pp in parents.items() if pp in frontier} - out
+        out |= frontier
+    return out
+
+
+def alive(pid: int) -> bool:
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:
+        return False
+    return stat.rsplit(")", 1)[1].split()[0] != "Z"
+
+
+class Up:
+    def __init__(self, folder: Path) -> None:
+        self.hub = f"unixsock-stream/{folder}/hub.sock"
+        argv = [
+            *SIMECS,
+            "up",
+            "--hub",
+            self.hub,
+            "--no-viewer",
+            "--data-dir",
+            str(folder / "data"),
+            "--recordings",
+            str(folder / "rec"),
+        ]
+        self.proc = subprocess.Popen(
+            argv, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, env=mesh_env(), text=True
+        )
+        self.lines: list[str] = []
+        threading.Thread(target=self._read, daemon=True).start()
+
+    def _read(self) -> None:
+        assert self.proc.stdout is not None
+        for line in self.proc.stdout:
+            self.lines.append(line.rstrip())
+
+    def text(self) -> str:
+        return "\n".join(self.lines)
+
+
+@pytest.fixture
+def up() -> Up:
+    folder = Path(tempfile.mkdtemp(prefix="smu"))
+    u = Up(folder)
+    try:
+        yield u
+    finally:
+        if u.proc.poll() is None:
+            for pid in descendants(u.proc.pid):
+                try:
+                    os.kill(pid, signal.SIGKILL)
+                except ProcessLookupError:
+                    pass
+            u.proc.kill()
+        u.proc.wait(5)
+        shutil.rmtree(folder, ignore_errors=True)
+
+
+def test_up_ready_restart_and_clean_stop(up: Up) -> None:
+    wait_until(lambda: "simecs is up" in up.text(), timeout=90, what="banner")
+    client = MeshClient.open(MeshConfig(connect=[up.hub]))
+    try:
+        roles = {r for r, _ in client.live_nodes()}
+        assert roles >= {"hub", "proxy", "simulator", "hotfeedback"}
+        assert client.list_models()
+        # SIGKILL a node: the supervisor reports it and starts it again.
+        node = next(n for r, n in client.live_nodes() if r == "hotfeedback")
+        pid = int(node.rsplit("-", 1)[1])
+        os.kill(pid, signal.SIGKILL)
+        wait_until(lambda: "hotfeedback exited" in up.text(), timeout=10, what="crash report")
+        wait_until(
+            lambda: any(r == "hotfeedback" and n != node for r, n in client.live_nodes()),
+            timeout=60,
+            what="hotfeedback restarted",
+        )
+        assert "restarted hotfeedback" in up.text()
+    finally:
+        client.close()
+    family = descendants(up.proc.pid)
+    assert len(family) >= 5  # hub, proxy, simulator (+ warm worker), hotfeedback
+    t0 = time.monotonic()
+    up.proc.send_signal(signal.SIGINT)
+    up.proc.wait(10)
+    assert time.monotonic() - t0 < 5.0
+    assert up.proc.returncode == 0
+    wait_until(lambda: not any(alive(p) for p in family), timeout=2, what="no process left")
+    assert "simecs: stopped" in up.text()
+
+
+def test_ls_lists_nodes_and_sessions(up: Up) -> None:
+    wait_until(lambda: "simecs is up" in up.text(), timeout=90, what="banner")
+    with MeshClient.open(MeshConfig(connect=[up.hub])) as client:
+        s = client.create_session("ann", "spider")
+        out = subprocess.run(
+            [*SIMECS, "ls", "--connect", up.hub], capture_output=True, text=True, timeout=30, env=mesh_env()
+        )
+    assert out.returncode == 0, out.stderr
+    for role in ("hub/", "proxy/", "simulator/", "hotfeedback/"):
+        assert role in out.stdout
+    assert s.id in out.stdout and "created" in out.stdout
+
+
+@pytest.mark.parametrize(
+    "args",
+    [
+        ["--help"],
+        ["up", "--help"],
+        ["ls", "--help"],
+        ["bench", "--help"],
+        ["node", "proxy", "--help"],
+        ["node", "simulator", "--help"],
+        ["node", "hotfeedback", "--help"],
+        ["node", "hub", "--help"],
+    ],
+)
+def test_help_everywhere(args: list[str]) -> None:
+    out = subprocess.run([*SIMECS, *args], capture_output=True, text=True, timeout=60, env=mesh_env())
+    assert out.returncode == 0, out.stderr
+    assert "usage" in out.stdout.lower()
