@@ -13,7 +13,6 @@ import time
 from pathlib import Path
 
 import pytest
-
 from simecs.mesh.client import MeshClient
 from simecs.mesh.config import MeshConfig
 
