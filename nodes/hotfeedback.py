@@ -1,8 +1,9 @@
 """The hot-feedback node: the paper's Hot Feedback Manager.
 
 It takes every session's full-rate frames and forwards at most R frames per wall second per session
-(R from the run's layout), each carrying the newest sample's live columns; the final sample of a run
-is always forwarded. Frames reach it through a bounded queue, so a slow viewer or a burst never
+(R from the run's layout; a token bucket of depth 2, so frames arriving at about R Hz pass at once),
+each carrying the newest sample's live columns; the final sample of a run is always forwarded.
+Frames reach it through a bounded queue, so a slow viewer or a burst never
 stalls the simulator (a slow zenoh callback would stall the whole link: STACK-NOTES).
 A forwarded frame keeps the `wall_ns` of the full frame it came from, so any subscriber can measure
 the end-to-end latency from the simulator.
@@ -21,13 +22,18 @@ from simecs.mesh import codec, frames, keys
 from simecs.mesh import messages as m
 from simecs.mesh.runtime import Node, main_for
 
+#: Tokens a stream may save up: absorbs the jitter of frames that arrive at about R Hz (real-time
+#: pacing) so each is forwarded at once, while the long-run rate stays at most R.
+BURST = 2.0
+
 
 @dataclass
 class Stream:
     layout: m.RunLayout
     live_idx: np.ndarray
     period_ns: int
-    last_sent_ns: int = 0
+    tokens: float = BURST
+    refilled_ns: int = 0
     pending: frames.Frame | None = None
     sent: int = 0
     seq: int = 0
@@ -62,7 +68,7 @@ class HotFeedback(Node):
             return
         with self.lock:
             old = self.streams.get(layout.session)
-            pub = old.publisher if old else self.publisher(keys.vars_live(layout.session))
+            pub = old.publisher if old else self.publisher(keys.vars_live(layout.session), express=True)
             self.streams[layout.session] = Stream(layout, idx, int(1e9 / layout.live_rate_hz), publisher=pub)
 
     def _on_full(self, sample: zenoh.Sample) -> None:
@@ -94,16 +100,20 @@ class HotFeedback(Node):
             self._maybe_send(stream, time.time_ns(), force=frame.final)
 
     def _maybe_send(self, stream: Stream, now: int, force: bool = False) -> None:
+        """Token bucket: one token per period, at most BURST saved; the final frame always goes."""
+        if stream.refilled_ns:
+            stream.tokens = min(BURST, stream.tokens + (now - stream.refilled_ns) / stream.period_ns)
+        stream.refilled_ns = now
         pending = stream.pending
-        if pending is None or (not force and now - stream.last_sent_ns < stream.period_ns):
+        if pending is None or (not force and stream.tokens < 1.0):
             return
+        stream.tokens = max(0.0, stream.tokens - 1.0)
         live = frames.Frame(
             pending.run_index, stream.seq, pending.wall_ns, pending.rows, pending.flags | frames.FLAG_LIVE
         )
         stream.publisher.put(frames.encode(live))
         stream.seq += 1
         stream.sent += 1
-        stream.last_sent_ns = now
         stream.pending = None
         self.forwarded += 1
 

@@ -232,6 +232,9 @@ def main(argv: list[str] | None = None) -> None:
 
     log = logging.getLogger("simecs.simworker")
     code = 0
+    # Warming up (imports, compiling) is background work: it must not slow the runs going on.
+    # Once a run is ours we take normal priority back (possible as root or within RLIMIT_NICE).
+    os.nice(10)
     try:
         from simecs import models
 
@@ -242,6 +245,10 @@ def main(argv: list[str] | None = None) -> None:
         try:
             line = sys.stdin.readline()
             if line.strip():
+                try:
+                    os.setpriority(os.PRIO_PROCESS, 0, 0)
+                except OSError:
+                    log.info("running at nice 10: no right to raise the priority back")
                 req = codec.loads(m.RunRequest, line)
                 code = run_request(z, req, Path(args.results_dir), log)
         finally:
