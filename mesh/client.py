@@ -85,7 +85,8 @@ class MeshClient:
             if reply.ok is not None:
                 ok = codec.loads(m.Ok, reply.ok.payload.to_bytes())
                 return ok.data
-            errors.append(_decode_error(reply.err.payload.to_bytes()))
+            elif reply.err is not None:
+                errors.append(_decode_error(reply.err.payload.to_bytes()))
         if errors:
             raise RemoteError(errors[0])
         raise NoReply(f"no node answered {key} within {timeout or self.timeout} s")
@@ -97,7 +98,8 @@ class MeshClient:
             if reply.ok is not None:
                 att = reply.ok.attachment
                 return reply.ok.payload.to_bytes(), (json.loads(att.to_bytes()) if att is not None else None)
-            errors.append(_decode_error(reply.err.payload.to_bytes()))
+            if reply.err is not None:
+                errors.append(_decode_error(reply.err.payload.to_bytes()))
         if errors:
             raise RemoteError(errors[0])
         raise NoReply(f"no node answered {key} within {timeout or self.timeout} s")

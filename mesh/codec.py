@@ -99,7 +99,7 @@ def _decode(tp: Any, value: Any, path: str) -> Any:
             raise DecodeError(path, f"object with more than {MAX_LIST_LEN} entries")
         _key_tp, val_tp = get_args(tp)
         return {str(k): _decode(val_tp, v, f"{path}.{k}") for k, v in value.items()}
-    if dataclasses.is_dataclass(tp):
+    if isinstance(tp, type) and dataclasses.is_dataclass(tp):
         return _decode_dataclass(tp, value, path)
     raise DecodeError(path, f"unsupported type {_type_name(tp)}")  # pragma: no cover - a bug in mesh/
 
@@ -110,15 +110,15 @@ def _decode_tagged(options: list[Any], value: Any, path: str) -> Any:
         raise DecodeError(path, f"must be an object, got {type(value).__name__}")
     for tag in ("kind", "type", "op"):
         if tag in value:
+            allowed: list[str] = []
             for cls in options:
-                if dataclasses.is_dataclass(cls):
+                if isinstance(cls, type) and dataclasses.is_dataclass(cls):
                     field = next((f for f in dataclasses.fields(cls) if f.name == tag), None)
-                    if field is not None and field.default == value[tag]:
+                    if field is None or not isinstance(field.default, str):
+                        continue
+                    if field.default == value[tag]:
                         return _decode_dataclass(cls, value, path)
-            allowed = [
-                f.default for cls in options if dataclasses.is_dataclass(cls) for f in dataclasses.fields(cls)
-            ]
-            allowed = [a for a in allowed if isinstance(a, str) and a]
+                    allowed.append(field.default)
             raise DecodeError(
                 f"{path}.{tag}" if path else tag,
                 f"unknown {tag} {value[tag]!r:.60} (known: {', '.join(allowed)})",

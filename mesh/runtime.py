@@ -225,7 +225,7 @@ class Node:
             key_str = str(query.key_expr)
             try:
                 payload = query.payload.to_bytes() if query.payload is not None else None
-                params = dict(query.selector.parameters) if query.selector.parameters else {}
+                params = dict(list(query.selector.parameters)) if query.selector.parameters else {}  # type: ignore[call-overload]
                 result = handle(Request(key_str, payload, params))
                 if isinstance(result, Binary):
                     att = None if result.attachment is None else json.dumps(result.attachment).encode()

@@ -1,1 +1,59 @@
-"""Robot models: physics built in Exudyn and their descriptions as data."""
+"""Robot models: physics built in Exudyn and their descriptions as data.
+
+from simecs.models import list_models, get_model
+pkg = get_model("spider"); sim = pkg.build({}); sim.set_initial([0]*7)
+sim.set_joint_path([([0.5]*7, 100, 100)]); sim.start(5.0, 0.01); rows = sim.advance(0.02) ...
+"""
+
+from __future__ import annotations
+
+from simecs.mesh.model import ModelSummary
+
+from .arm import ModelPackage, Simulation
+from .errors import ParameterError, SimulationError
+
+__all__ = [
+    "list_models",
+    "get_model",
+    "ModelPackage",
+    "Simulation",
+    "ParameterError",
+    "SimulationError",
+    "warmup",
+]
+
+_REGISTRY: dict[str, ModelPackage] = {}
+
+
+def _load() -> dict[str, ModelPackage]:
+    if not _REGISTRY:
+        from . import puma, spider
+
+        for spec in (spider.spec(), puma.spec()):
+            _REGISTRY[spec.id] = ModelPackage(spec)
+    return _REGISTRY
+
+
+def list_models() -> list[ModelSummary]:
+    return [p.describe().summary_entry() for p in _load().values()]
+
+
+def get_model(model_id: str) -> ModelPackage:
+    reg = _load()
+    if model_id not in reg:
+        raise KeyError(f"unknown model {model_id!r}; known: {', '.join(sorted(reg))}")
+    return reg[model_id]
+
+
+def warmup() -> float:
+    """Compile (or load from the numba cache) the drive kernels; returns the seconds it took."""
+    import time
+
+    t0 = time.perf_counter()
+    sim = get_model("spider").build({})
+    sim.set_initial([0.0] * sim.n)
+    sim.set_joint_path([([0.01] * sim.n, 100.0, 100.0)])
+    sim.start(0.004, 0.002)
+    sim.advance(0.004)
+    sim.close()
+    return time.perf_counter() - t0

@@ -18,6 +18,7 @@ import numpy as np
 from numba import njit
 
 _CACHE = os.environ.get("SIMECS_NUMBA_CACHE", "1") != "0"
+_FAST = {"nsz", "arcp", "contract", "afn", "reassoc"}  # no "nnan"/"ninf": NaN detection must survive
 
 # ---- per-joint parameter layout -------------------------------------------------------------------
 DRIVE_PARAMS = (
@@ -131,7 +132,7 @@ EFF_POWER_EPS = 1e-2  # W: width of the smooth switch between driving and driven
 
 # ---- trajectory: trapezoidal speed profiles, one segment per via point -------------------------------
 # segment table row: [t0, T, ta, q0[0..n-1], dq[0..n-1]]
-@njit(cache=_CACHE)
+@njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
 def traj_eval(seg, hold, t, qr, qdr):
     n = qr.shape[0]
     nseg = seg.shape[0]
@@ -182,60 +183,111 @@ def plan_segment(q0, q1, vmax, amax, t0):
 
 
 # ---- chain mass matrix (for the load predictor and for energy checks) --------------------------------
-@njit(cache=_CACHE)
+@njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
 def chain_frames(pre_R, pre_p, q, R_out, p_out):
-    """Joint frames after rotation: R_out[i], p_out[i] (world)."""
+    """Joint frames after rotation: R_out[i], p_out[i] (world); scalar loops, no allocation."""
     n = q.shape[0]
     R = np.eye(3)
     p = np.zeros(3)
+    Rp = np.empty((3, 3))
     for i in range(n):
-        # p = p + R @ pre_p[i]; R = R @ pre_R[i] @ Rz(q_i)
-        pn = p + R @ pre_p[i]
-        Rp = R @ pre_R[i]
+        for a in range(3):
+            p[a] += R[a, 0] * pre_p[i, 0] + R[a, 1] * pre_p[i, 1] + R[a, 2] * pre_p[i, 2]
+        for a in range(3):
+            for b in range(3):
+                Rp[a, b] = R[a, 0] * pre_R[i, 0, b] + R[a, 1] * pre_R[i, 1, b] + R[a, 2] * pre_R[i, 2, b]
         c, s = math.cos(q[i]), math.sin(q[i])
-        Rz = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-        R = Rp @ Rz
-        p = pn
-        R_out[i] = R
-        p_out[i] = p
+        for a in range(3):
+            R[a, 0] = Rp[a, 0] * c + Rp[a, 1] * s
+            R[a, 1] = -Rp[a, 0] * s + Rp[a, 1] * c
+            R[a, 2] = Rp[a, 2]
+        for a in range(3):
+            p_out[i, a] = p[a]
+            for b in range(3):
+                R_out[i, a, b] = R[a, b]
 
 
-@njit(cache=_CACHE)
+@njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
 def mass_matrix(pre_R, pre_p, masses, coms, inertias, q, M):
     """M(q) = sum_k m_k Jv_k^T Jv_k + Jw_k^T I_k Jw_k, for a serial chain of revolute z joints."""
     n = q.shape[0]
     R_all = np.empty((n, 3, 3))
     p_all = np.empty((n, 3))
     chain_frames(pre_R, pre_p, q, R_all, p_all)
-    z = np.empty((n, 3))
-    for i in range(n):
-        z[i] = R_all[i][:, 2]
     for a in range(n):
         for b in range(n):
             M[a, b] = 0.0
     Jv = np.empty((n, 3))
+    ck = np.empty(3)
+    T = np.empty((3, 3))
+    Iw = np.empty((3, 3))
+    Iz = np.empty(3)
     for k in range(n):
-        ck = p_all[k] + R_all[k] @ coms[k]
-        Iw = R_all[k] @ inertias[k] @ R_all[k].T
+        for a in range(3):
+            ck[a] = p_all[k, a]
+            for b in range(3):
+                ck[a] += R_all[k, a, b] * coms[k, b]
+        # Iw = R I R^T
+        for a in range(3):
+            for b in range(3):
+                T[a, b] = (
+                    R_all[k, a, 0] * inertias[k, 0, b]
+                    + R_all[k, a, 1] * inertias[k, 1, b]
+                    + (R_all[k, a, 2] * inertias[k, 2, b])
+                )
+        for a in range(3):
+            for b in range(3):
+                Iw[a, b] = T[a, 0] * R_all[k, b, 0] + T[a, 1] * R_all[k, b, 1] + T[a, 2] * R_all[k, b, 2]
         for i in range(k + 1):
-            r = ck - p_all[i]
-            zi = z[i]
-            Jv[i, 0] = zi[1] * r[2] - zi[2] * r[1]
-            Jv[i, 1] = zi[2] * r[0] - zi[0] * r[2]
-            Jv[i, 2] = zi[0] * r[1] - zi[1] * r[0]
+            r0 = ck[0] - p_all[i, 0]
+            r1 = ck[1] - p_all[i, 1]
+            r2 = ck[2] - p_all[i, 2]
+            z0, z1, z2 = R_all[i, 0, 2], R_all[i, 1, 2], R_all[i, 2, 2]
+            Jv[i, 0] = z1 * r2 - z2 * r1
+            Jv[i, 1] = z2 * r0 - z0 * r2
+            Jv[i, 2] = z0 * r1 - z1 * r0
+        mk = masses[k]
         for i in range(k + 1):
-            Iz = Iw @ z[i]
+            for a in range(3):
+                Iz[a] = Iw[a, 0] * R_all[i, 0, 2] + Iw[a, 1] * R_all[i, 1, 2] + Iw[a, 2] * R_all[i, 2, 2]
             for j in range(i, k + 1):
-                v = masses[k] * (Jv[i, 0] * Jv[j, 0] + Jv[i, 1] * Jv[j, 1] + Jv[i, 2] * Jv[j, 2])
-                v += z[j, 0] * Iz[0] + z[j, 1] * Iz[1] + z[j, 2] * Iz[2]
+                v = mk * (Jv[i, 0] * Jv[j, 0] + Jv[i, 1] * Jv[j, 1] + Jv[i, 2] * Jv[j, 2])
+                v += R_all[j, 0, 2] * Iz[0] + R_all[j, 1, 2] * Iz[1] + R_all[j, 2, 2] * Iz[2]
                 M[i, j] += v
     for i in range(n):
         for j in range(i):
             M[i, j] = M[j, i]
 
 
+@njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
+def quats_from_matrices(Rs, out):
+    """Unit quaternions (w, x, y, z), w >= 0, of rotation matrices Rs[k] into out[k]."""
+    for k in range(Rs.shape[0]):
+        m = Rs[k]
+        t = m[0, 0] + m[1, 1] + m[2, 2]
+        if t > 0:
+            s = math.sqrt(t + 1.0) * 2
+            w, x, y, z = 0.25 * s, (m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s
+        elif m[0, 0] > m[1, 1] and m[0, 0] > m[2, 2]:
+            s = math.sqrt(1.0 + m[0, 0] - m[1, 1] - m[2, 2]) * 2
+            w, x, y, z = (m[2, 1] - m[1, 2]) / s, 0.25 * s, (m[0, 1] + m[1, 0]) / s, (m[0, 2] + m[2, 0]) / s
+        elif m[1, 1] > m[2, 2]:
+            s = math.sqrt(1.0 + m[1, 1] - m[0, 0] - m[2, 2]) * 2
+            w, x, y, z = (m[0, 2] - m[2, 0]) / s, (m[0, 1] + m[1, 0]) / s, 0.25 * s, (m[1, 2] + m[2, 1]) / s
+        else:
+            s = math.sqrt(1.0 + m[2, 2] - m[0, 0] - m[1, 1]) * 2
+            w, x, y, z = (m[1, 0] - m[0, 1]) / s, (m[0, 2] + m[2, 0]) / s, (m[1, 2] + m[2, 1]) / s, 0.25 * s
+        nrm = math.sqrt(w * w + x * x + y * y + z * z)
+        if w < 0:
+            nrm = -nrm
+        out[k, 0] = w / nrm
+        out[k, 1] = x / nrm
+        out[k, 2] = y / nrm
+        out[k, 3] = z / nrm
+
+
 # ---- drive right-hand side -------------------------------------------------------------------------
-@njit(cache=_CACHE, inline="always")
+@njit(cache=_CACHE, inline="always", error_model="numpy", fastmath=_FAST)
 def _sat(x, lim):
     if x > lim:
         return lim
@@ -244,7 +296,7 @@ def _sat(x, lim):
     return x
 
 
-@njit(cache=_CACHE)
+@njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
 def gear_torque(P, j, theta_m, omega_m, ql, qdl):
     n = P[j, P_N]
     d = theta_m / n - ql
@@ -264,7 +316,7 @@ def gear_torque(P, j, theta_m, omega_m, ql, qdl):
     return tau
 
 
-@njit(cache=_CACHE)
+@njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
 def joint_signals(P, j, x, ql, qdl, qr, qdr, out):
     """All algebraic signals of joint j; fills out[0..NO) in OUTPUTS order and returns nothing.
 
@@ -275,11 +327,22 @@ def joint_signals(P, j, x, ql, qdl, qr, qdr, out):
     om = x[S_OM]
     n = P[j, P_N]
     p = P[j, P_POLES]
+    te = p * th
+    s1 = math.sin(te)
+    c1 = math.cos(te)
     # resolvers
     em = P[j, P_EM]
-    th_meas = th + em * math.sin(p * th)
-    om_meas = om * (1.0 + em * p * math.cos(p * th))
-    q_meas = ql + P[j, P_EL] * math.sin(ql)
+    if em != 0.0:
+        tem = te + p * em * s1
+        sm = math.sin(tem)
+        cm = math.cos(tem)
+        om_meas = om * (1.0 + em * p * c1)
+    else:
+        sm = s1
+        cm = c1
+        om_meas = om
+    el = P[j, P_EL]
+    q_meas = ql + el * math.sin(ql) if el != 0.0 else ql
     # cascade joint control: P position (load side), PI motor speed with anti-windup and feed-forward
     w_ref = n * (P[j, P_KPP] * (qr - q_meas) + P[j, P_FF] * qdr)
     ev = w_ref - om_meas
@@ -293,22 +356,24 @@ def joint_signals(P, j, x, ql, qdl, qr, qdr, out):
         if kpv > 0.0:
             dxv += (kiv / kpv) * (iref - iu)
     # commutation from the motor resolver
-    the_m = p * th_meas
-    ia_s = -iref * math.sin(the_m)
-    ib_s = iref * math.cos(the_m)
+    ia_s = -iref * sm
+    ib_s = iref * cm
     # motor shape functions (true rotor angle), phase unbalance
-    te = p * th
     h3 = P[j, P_H3]
-    sa = -(math.sin(te) + h3 * math.sin(3.0 * te))
-    sb = math.cos(te) + h3 * math.cos(3.0 * te)
+    s3 = 3.0 * s1 - 4.0 * s1 * s1 * s1
+    c3 = 4.0 * c1 * c1 * c1 - 3.0 * c1
+    sa = -(s1 + h3 * s3)
+    sb = c1 + h3 * c3
     kt = P[j, P_KT]
     ka = kt * (1.0 - 0.5 * P[j, P_UNB])
     kb = kt * (1.0 + 0.5 * P[j, P_UNB])
+    emf_a = ka * sa * om
+    emf_b = kb * sb * om
     if P[j, P_IDEAL] > 0.5:
         ia = ia_s
         ib = ib_s
-        ua = P[j, P_R] * ia + ka * sa * om
-        ub = P[j, P_R] * ib + kb * sb * om
+        ua = P[j, P_R] * ia + emf_a
+        ub = P[j, P_R] * ib + emf_b
         dxa = 0.0
         dxb = 0.0
     else:
@@ -326,14 +391,14 @@ def joint_signals(P, j, x, ql, qdl, qr, qdr, out):
         dxa = kii * ea + (kii / kpi) * (ua - uau)
         dxb = kii * eb + (kii / kpi) * (ub - ubu)
     tau_em = ka * sa * ia + kb * sb * ib
-    tau_det = P[j, P_DET] * math.sin(4.0 * p * th)
+    tau_det = P[j, P_DET] * 4.0 * s1 * c1 * (c1 * c1 - s1 * s1)  # T_det sin(4 p th)
     # LuGre friction at the gear input
     fc = P[j, P_FC]
     fs = P[j, P_FS]
     z = x[S_Z]
     if fc > 0.0 or fs > 0.0:
         vs = P[j, P_VS]
-        g = fc + (fs - fc) * math.exp(-(om / vs) ** 2)
+        g = fc + (fs - fc) * math.exp(-((om / vs) ** 2))
         zd = om - P[j, P_S0] * abs(om) * z / g
         tau_f = P[j, P_S0] * z + P[j, P_S1] * zd + P[j, P_S2] * om
     else:
@@ -366,9 +431,11 @@ def joint_signals(P, j, x, ql, qdl, qr, qdr, out):
     out[NO + 4] = zd
     out[NO + 5] = tau_in
     out[NO + 6] = tau_det
+    out[NO + 7] = emf_a
+    out[NO + 8] = emf_b
 
 
-@njit(cache=_CACHE)
+@njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
 def drive_rhs(P, seg, hold, Minv, t, X, dX, sig, qr, qdr, tau):
     n = X.shape[0]
     traj_eval(seg, hold, t, qr, qdr)
@@ -386,13 +453,8 @@ def drive_rhs(P, seg, hold, Minv, t, X, dX, sig, qr, qdr, tau):
         else:
             L = P[j, P_L]
             R = P[j, P_R]
-            te = P[j, P_POLES] * x[S_TH]
-            h3 = P[j, P_H3]
-            kt = P[j, P_KT]
-            ea = kt * (1.0 - 0.5 * P[j, P_UNB]) * (-(math.sin(te) + h3 * math.sin(3.0 * te))) * om
-            eb = kt * (1.0 + 0.5 * P[j, P_UNB]) * (math.cos(te) + h3 * math.cos(3.0 * te)) * om
-            d[S_IA] = (sig[9] - R * x[S_IA] - ea) / L
-            d[S_IB] = (sig[NO] - R * x[S_IB] - eb) / L
+            d[S_IA] = (sig[9] - R * x[S_IA] - sig[NO + 7]) / L
+            d[S_IB] = (sig[NO] - R * x[S_IB] - sig[NO + 8]) / L
         d[S_XA] = sig[NO + 2]
         d[S_XB] = sig[NO + 3]
         d[S_XV] = sig[NO + 1]
@@ -407,7 +469,7 @@ def drive_rhs(P, seg, hold, Minv, t, X, dX, sig, qr, qdr, tau):
         dX[j, S_QDL] = acc
 
 
-@njit(cache=_CACHE)
+@njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
 def drive_step(P, seg, hold, pre_R, pre_p, masses, coms, inertias, X, q, qd, t, h, nsub, tau_out, work):
     """Integrate all drives over [t, t+h] with nsub RK4 substeps; tau_out = mean gear torque."""
     n = q.shape[0]
@@ -423,7 +485,7 @@ def drive_step(P, seg, hold, pre_R, pre_p, masses, coms, inertias, X, q, qd, t, 
     k3 = work[2]
     k4 = work[3]
     Xt = work[4]
-    sig = np.empty(NO + 8)
+    sig = np.empty(NO + 10)
     qr = np.empty(n)
     qdr = np.empty(n)
     tau = np.empty(n)
@@ -457,14 +519,14 @@ def drive_step(P, seg, hold, pre_R, pre_p, masses, coms, inertias, X, q, qd, t, 
     return ok
 
 
-@njit(cache=_CACHE)
+@njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
 def drive_outputs(P, seg, hold, X, q, qd, t, out):
     """Variables of every joint at time t from the drive states and the chain state: out[j, :NO]."""
     n = q.shape[0]
     qr = np.empty(n)
     qdr = np.empty(n)
     traj_eval(seg, hold, t, qr, qdr)
-    sig = np.empty(NO + 8)
+    sig = np.empty(NO + 10)
     for j in range(n):
         joint_signals(P, j, X[j], q[j], qd[j], qr[j], qdr[j], sig)
         for k in range(NO):

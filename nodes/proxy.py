@@ -56,11 +56,12 @@ class SessionRecord:
         )
 
 
-def load_library() -> dict[str, ModelDescription]:
-    """Model descriptions, from the models installed with this server."""
+def load_library() -> dict[str, Any]:
+    """The models installed with this server. The proxy uses their descriptions and value checks
+    only; simulations run in simulator nodes, reached over the mesh."""
     from simecs import models
 
-    return {s.id: models.get_model(s.id).describe() for s in models.list_models()}
+    return {s.id: models.get_model(s.id) for s in models.list_models()}
 
 
 class Proxy(Node):
@@ -86,6 +87,7 @@ class Proxy(Node):
         self.sessions: dict[str, SessionRecord] = {}
         self.queue: collections.deque[str] = collections.deque()
         self.library: dict[str, ModelDescription] = {}
+        self.packages: dict[str, Any] = {}
         self._rr = 0
 
     @staticmethod
@@ -109,7 +111,8 @@ class Proxy(Node):
 
     # -- startup ---------------------------------------------------------------------------------
     def start(self) -> None:
-        self.library = load_library()
+        self.packages = load_library()
+        self.library = {model_id: pkg.describe() for model_id, pkg in self.packages.items()}
         self._load_sessions()
         self.serve(keys.LIBRARY, self._on_library)
         self.serve(keys.ALL_MODELS, self._on_model)
@@ -304,9 +307,18 @@ class Proxy(Node):
         else:
             self._persist(rec)
 
+    def _checked(self, rec: SessionRecord, changes: dict[str, Any]) -> dict[str, float]:
+        """The session's values with `changes` applied, if the model accepts them all."""
+        values = check_values(self.library[rec.model_id], changes, rec.values)
+        try:
+            return dict(self.packages[rec.model_id].check_values(values))
+        except ValueError as exc:  # the model's cross-checks (models.ParameterError)
+            name = getattr(exc, "name", "")
+            raise RequestError("bad_request", str(exc), f"values.{name}" if name else "values") from None
+
     def _cmd_set_params(self, rec: SessionRecord, cmd: m.SetParams) -> dict[str, float]:
         self._editable(rec, "parameters")
-        rec.values = check_values(self.library[rec.model_id], dict(cmd.values), rec.values)
+        rec.values = self._checked(rec, dict(cmd.values))
         self._publish_params(rec, sorted(cmd.values))
         self._configured(rec)
         return rec.values
@@ -319,7 +331,7 @@ class Proxy(Node):
         if unknown:
             raise RequestError("bad_request", f"unknown parameter {unknown[0]!r}", f"names.{unknown[0]}")
         names = cmd.names or list(defaults)
-        rec.values = check_values(desc, {n: defaults[n] for n in names}, rec.values)
+        rec.values = self._checked(rec, {n: defaults[n] for n in names})
         self._publish_params(rec, sorted(names))
         self._configured(rec)
         return rec.values
@@ -420,8 +432,8 @@ class Proxy(Node):
             desc = self.library[rec.model_id]
             # Parameters added to the model since the set was saved keep their current values.
             known = {k: v for k, v in stored.items() if any(p.name == k for p in desc.parameters)}
-            new_values = check_values(desc, known, rec.values)
-        except (OSError, ValueError, KeyError, TypeError, codec.DecodeError) as exc:
+            new_values = self._checked(rec, known)
+        except (OSError, ValueError, KeyError, TypeError, codec.DecodeError, RequestError) as exc:
             raise RequestError(
                 "bad_request", f"parameter set {cmd.name!r} is unusable: {exc}", "name"
             ) from None

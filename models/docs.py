@@ -1,0 +1,308 @@
+"""Hypertext documentation of an arm model: components, sub-components, connections, equations, constants.
+
+Pages link to each other with `doc:<id>` markdown links. Constants tables are generated from the
+parameter defaults, so the documentation never disagrees with the model.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+from simecs.mesh.model import DocPage
+
+from . import drive as dr
+
+if TYPE_CHECKING:
+    from .arm import ModelPackage
+
+SUBS = {
+    "motor": (
+        "Brushless two-phase motor",
+        """Electrical dynamics of both phases, electro-mechanical conversion with torque disturbances,
+rotor inertia and viscous friction. Electrical angle `th_e = p * q_m`.
+
+Shape functions (3rd-harmonic imperfection h3) and phase constants (unbalance d):
+
+    s_a = -(sin th_e + h3 sin 3 th_e)        s_b = cos th_e + h3 cos 3 th_e
+    k_a = kt (1 - d/2)                        k_b = kt (1 + d/2)
+
+Phase equations (back-EMF e = k s w_m, power-consistent with the torque):
+
+    L di_a/dt = u_a - R i_a - k_a s_a w_m
+    L di_b/dt = u_b - R i_b - k_b s_b w_m
+
+Torque: `tau_motor = k_a s_a i_a + k_b s_b i_b + T_det sin(4 p q_m)`: the unbalance gives a ripple at
+2x and the shape error at 4x the electrical frequency; the detent term exists at zero current.
+
+Rotor (with the gear train inertia of doc:{id}.gear on the same shaft):
+
+    (J_rotor + J_gear) dw_m/dt = tau_motor - b_visc w_m - tau_friction - tau_in
+
+With `motor.ideal = 1` the phase currents equal their set points (no electrics, no offsets).
+Connections: voltages from doc:{id}.current, angle to doc:{id}.resolver, shaft to doc:{id}.gear.""",
+    ),
+    "current": (
+        "Analog current controller",
+        """Two PI regulators (one per phase) with anti-windup by back-calculation and a current offset
+that models sensor polarisation. Set points come from the commutation of the speed controller output:
+
+    i_a* = -i_ref sin(p q_m')     i_b* = i_ref cos(p q_m')     (q_m': motor resolver angle)
+    e_x = i_x* - (i_x + offset_x)
+    u_x = sat(kp e_x + x_x, u_max)
+    dx_x/dt = ki e_x + (ki/kp) (u_x - (kp e_x + x_x))
+
+Default gains cancel the electrical pole: kp = L wc, ki = R wc (wc: current-loop bandwidth).
+An offset makes the true current differ from the set point: a torque disturbance at the motor.""",
+    ),
+    "gear": (
+        "Gear box",
+        """Input shaft (motor side) -> LuGre friction -> efficiency -> ideal reducer n -> torsion spring
+and damper with backlash -> output (load side). Gear train inertia is referred to the input shaft.
+
+LuGre friction (input shaft speed w = w_m):
+
+    g(w) = fc + (fs - fc) exp(-(w/vs)^2)
+    dz/dt = w - sigma0 |w| z / g(w)
+    tau_friction = sigma0 z + sigma1 dz/dt + sigma2 w
+
+Twist and elastic torque with backlash b (dead zone |twist| <= b/2, contact only pushes):
+
+    twist = q_m / n - q
+    e = twist - b/2 (twist > b/2),  twist + b/2 (twist < -b/2),  else no contact
+    tau_gear = K e + D d(twist)/dt  in contact, and 0 if it would pull
+
+Efficiency on the power flow: the motor sees `tau_in = tau_gear / n * f`, f = 1/eta when the motor
+drives the load, eta when the load drives the motor (smooth switch over 10 mW). tau_gear acts on the
+chain joint (doc:{id}.chain).""",
+    ),
+    "resolver": (
+        "Resolvers",
+        """One resolver at the motor, one at the load. Optional periodic errors:
+
+    q_m' = q_m + e_m sin(p q_m)          w_m' = w_m (1 + e_m p cos(p q_m))
+    q'   = q + e_l sin(q)
+
+q' closes the position loop, q_m' commutates the phases and w_m' closes the speed loop.""",
+    ),
+    "ctrl": (
+        "Cascade joint controller",
+        """Outer P position loop on the load resolver, inner PI motor-speed loop with anti-windup and
+velocity feed-forward:
+
+    w_ref = n (kp_pos (q_ref - q') + ff_vel qd_ref)
+    e_v = w_ref - w_m'
+    i_ref = sat(kp_vel e_v + x_v, i_max)
+    dx_v/dt = ki_vel e_v + (ki_vel/kp_vel) (i_ref - (kp_vel e_v + x_v))
+
+i_ref goes to the commutation of doc:{id}.current. With ki_vel = 0 a constant disturbance torque
+tau_d leaves a position error tau_d / (kt n kp_vel n kp_pos) (at the gear input).""",
+    ),
+    "traj": (
+        "Trajectory generator",
+        """Joint-space trapezoidal speed profiles. A path is a list of nodes (destination, speed %,
+acceleration %); every node is executed, one after the other, stopping at each. Per segment with
+distances d_j and limits V_j = max_speed_j * speed%, A_j = max_acc_j * acc%:
+
+    t_a = max_j min(V_j / A_j, sqrt(d_j / A_j))
+    T - t_a = max(t_a, max_j d_j / V_j, max_j d_j / (A_j t_a))
+
+All joints share t_a and T (synchronised), none exceeds its limits. The profile gives q_ref and the
+feed-forward speed qd_ref.""",
+    ),
+}
+
+
+def _const_table(pkg: ModelPackage, sub: str) -> str:
+    names = [n for n in dr.DRIVE_PARAMS if n.startswith(sub + ".")]
+    head = (
+        "| parameter | unit | "
+        + " | ".join(f"j{i}" for i in range(1, pkg.n + 1))
+        + " | bounds | description |"
+    )
+    sep = "|" + "---|" * (pkg.n + 4)
+    rows = [head, sep]
+    by = {p.name: p for p in pkg.parameters()}
+    for nm in names:
+        ps = [by[f"joint{i}.{nm}"] for i in range(1, pkg.n + 1)]
+        vals = " | ".join(f"{p.value:.4g}" for p in ps)
+        rows.append(
+            f"| {nm} | {ps[0].unit} | {vals} | [{ps[0].min:g}, {ps[0].max:g}] | {ps[0].description} |"
+        )
+    return "\n".join(rows)
+
+
+def build_docs(pkg: ModelPackage) -> list[DocPage]:
+    s = pkg.spec
+    mid = s.id
+    pages: list[DocPage] = []
+    sub_ids = [f"{mid}.{k}" for k in SUBS]
+    children = [
+        f"{mid}.chain",
+        f"{mid}.joint",
+        f"{mid}.payload",
+        f"{mid}.init",
+        f"{mid}.numerics",
+        f"{mid}.assumptions",
+    ]
+    target = ", ".join(f"{v:g}" for v in s.standard_target)
+    pages.append(
+        DocPage(
+            mid,
+            s.name,
+            f"""# {s.name}
+
+{s.summary}.
+
+## Components
+- [Mechanical chain](doc:{mid}.chain): {pkg.n} revolute joints, links in the Link convention, Exudyn
+  KinematicTree.
+- [Joint drive](doc:{mid}.joint), one per joint: [motor](doc:{mid}.motor),
+  [current controller](doc:{mid}.current), [gear box](doc:{mid}.gear),
+  [resolvers](doc:{mid}.resolver), [cascade controller](doc:{mid}.ctrl),
+  [trajectory generator](doc:{mid}.traj).
+- [Payload](doc:{mid}.payload) at the tool.
+
+## Using it
+- [Initialisation equations](doc:{mid}.init): joint positions at rest -> every internal state.
+- [Numerics](doc:{mid}.numerics): how Exudyn and the compiled drives are coupled; steps and errors.
+- [Assumptions](doc:{mid}.assumptions) behind the parameter values.
+
+Standard case (`simecs bench model`): from q = 0 to q = ({target}) rad at 100 % speed and acceleration.
+""",
+            children=children,
+        )
+    )
+    link_rows = [
+        "| link | initial rotation rpy (rad) | length (m) | final translation (m) | mass (kg) "
+        "| joint range (rad) |",
+        "|---|---|---|---|---|---|",
+    ]
+    for i, lk in enumerate(s.links, start=1):
+        link_rows.append(
+            f"| link{i} | ({lk.rpy[0]:.3f}, {lk.rpy[1]:.3f}, {lk.rpy[2]:.3f}) | {lk.length:g} | "
+            f"({lk.final[0]:g}, {lk.final[1]:g}, {lk.final[2]:g}) | {lk.mass:g} | [{lk.joint_min:.3f}, "
+            f"{lk.joint_max:.3f}] |"
+        )
+    pages.append(
+        DocPage(
+            f"{mid}.chain",
+            "Mechanical chain",
+            f"""# Mechanical chain
+
+Link convention (paper §5.1): joint i turns about the local z axis by q_i; link i then applies an
+**initial rotation** (roll-pitch-yaw, none about the joint axis), a **central translation** along x equal
+to the link length (`linkN.length`), and a **final translation** without x component. The link frame
+sits at the joint, x along the link; shapes hang on it, and one pipe per link is resized with the length.
+
+{s.chain_doc}
+
+{chr(10).join(link_rows)}
+
+Base at {list(s.base_translation)}, tool point {list(s.tool_translation)} in the last link's frame after
+its final translation. Zero gravity.
+
+Equations of motion (Exudyn ObjectKinematicTree, minimal coordinates q):
+
+    M(q) q'' + c(q, q') = tau_gear
+
+with tau_gear from the [gear boxes](doc:{mid}.gear). Link inertias: `linkN.mass`, `linkN.radius`
+(thin-walled tube, COM at mid-length, unless the model tabulates them). Back to [{s.name}](doc:{mid}).
+""",
+            parent=mid,
+        )
+    )
+    pages.append(
+        DocPage(
+            f"{mid}.joint",
+            "Joint drive",
+            f"""# Joint drive
+
+Connections (signal flow of one joint):
+
+    trajectory -> q_ref, qd_ref -> cascade controller (P position on q', PI speed on w_m') -> i_ref
+    i_ref -> commutation (q_m') -> current controller (two PI) -> phase voltages u_a, u_b
+    u_a, u_b -> motor electrics -> currents -> torque -> rotor shaft
+    rotor shaft -> gear box (LuGre, efficiency, reducer n, spring/damper/backlash) -> chain joint q
+    resolvers: motor (q_m', w_m') and load (q')
+
+Sub-components: [motor](doc:{mid}.motor), [current controller](doc:{mid}.current),
+[gear box](doc:{mid}.gear), [resolvers](doc:{mid}.resolver), [controller](doc:{mid}.ctrl),
+[trajectory](doc:{mid}.traj). Parameters are per joint (`jointN.<sub>.<name>`), so one joint can be tuned
+alone. States per joint: q_m, w_m, i_a, i_b, two current integrators, speed integrator, LuGre z.
+""",
+            parent=mid,
+            children=sub_ids,
+        )
+    )
+    for key, (title, body) in SUBS.items():
+        pages.append(
+            DocPage(
+                f"{mid}.{key}",
+                title,
+                f"# {title}\n\n{body.format(id=mid)}\n\n## Constants\n\n{_const_table(pkg, key)}\n\n"
+                f"Part of the [joint drive](doc:{mid}.joint).\n",
+                parent=f"{mid}.joint",
+            )
+        )
+    pages.append(
+        DocPage(
+            f"{mid}.payload",
+            "Payload",
+            f"""# Payload
+
+A homogeneous cube of mass `payload.mass` and edge `payload.size`, centred on the tool point and rigidly
+attached to the last link (its inertia m a^2/6 about every axis is added to that link's).
+Default {s.payload_mass:g} kg, {s.payload_size:g} m. Back to [{s.name}](doc:{mid}).
+""",
+            parent=mid,
+        )
+    )
+    eqs = "\n".join(f"- `{e.state} = {e.expression}`: {e.description}" for e in pkg.init_equations())
+    pages.append(
+        DocPage(
+            f"{mid}.init",
+            "Initialisation equations",
+            f"""# Initialisation equations
+
+The user only chooses joint positions of a robot at rest (paper §5.2). Zero gravity: no static gear
+load, so the gear is untwisted and centred in its backlash. The remaining unknowns follow from "every
+derivative is zero":
+
+{eqs}
+
+with, at the motor angle q_m = n q and its resolver reading q_m' (p pole pairs):
+
+    A = -k_a s_a sin(p q_m') + k_b s_b cos(p q_m')
+    B = -(k_a s_a offset_a + k_b s_b offset_b)
+    tau_motor = A i_ref + B = -T_det sin(4 p q_m)
+
+so the detent torque and the current-sensor offsets are held by the speed-loop integrator from t = 0,
+and the run starts without transients. See [the motor](doc:{mid}.motor) for s_a, s_b, k_a, k_b.
+""",
+            parent=mid,
+        )
+    )
+    pages.append(
+        DocPage(
+            f"{mid}.numerics",
+            "Numerics",
+            f"""# Numerics
+
+- **Exudyn** integrates the kinematic tree (ObjectKinematicTree, explicit RK4) with the mechanics step h
+  (default {s.default_step * 1e3:g} ms, `step` of a run).
+- A **PreStep** user function integrates the drives of all joints, compiled with numba, over [t, t+h]
+  with {s.substeps} classical RK4 substeps (h/{s.substeps}): electrics, current loops, LuGre, gear, control,
+  trajectory. Inside the step the load angles follow a predictor q'' = M(q(t))^-1 tau_gear (M from the
+  same link data as the Exudyn chain), which keeps the stiff gear stable; Exudyn then receives the mean
+  gear torque over the step as `jointForceVector`. The next step starts again from Exudyn's q, q'.
+- Output samples are taken every `output_interval` (rounded to a multiple of h) after the step.
+- A NaN in the drive or the chain stops the run with an error naming the joint and the time.
+- Accuracy of the standard case: see `simecs bench model` and docs/MODELS.md.
+""",
+            parent=mid,
+        )
+    )
+    pages.append(
+        DocPage(f"{mid}.assumptions", "Assumptions", "# Assumptions\n\n" + s.assumptions, parent=mid)
+    )
+    return pages

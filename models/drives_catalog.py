@@ -1,0 +1,194 @@
+"""Drive parameter sets (per size class) with units, descriptions and bounds.
+
+Values are assumptions for a ~2 m, 7-joint space manipulator driven by frameless two-phase brushless
+motors through harmonic-drive-like reducers; docs/MODELS.md lists the reasoning.
+"""
+
+from __future__ import annotations
+
+import math
+
+from .arm import ParamInfo
+
+# (unit, description, min, max, integer)
+META = {
+    "motor.R": ("ohm", "phase resistance", 0.01, 100.0, False),
+    "motor.L": ("H", "phase inductance", 1e-5, 0.1, False),
+    "motor.kt": ("N*m/A", "torque constant (= back-EMF constant, V*s/rad) per phase", 1e-3, 5.0, False),
+    "motor.pole_pairs": ("-", "pole pairs p (electrical angle = p * rotor angle)", 1, 50, True),
+    "motor.J_rotor": ("kg*m^2", "rotor inertia", 1e-7, 1e-2, False),
+    "motor.b_visc": ("N*m*s/rad", "motor viscous friction", 0.0, 1e-2, False),
+    "motor.detent": (
+        "N*m",
+        "detent (cogging) torque amplitude, 4p periods per turn, present at zero current",
+        0.0,
+        0.5,
+        False,
+    ),
+    "motor.unbalance": (
+        "-",
+        "relative torque-constant unbalance between the phases (ripple at 2x electrical frequency)",
+        0.0,
+        0.5,
+        False,
+    ),
+    "motor.shape_h3": (
+        "-",
+        "3rd-harmonic content of the phase shape functions (ripple at 4x electrical frequency)",
+        0.0,
+        0.3,
+        False,
+    ),
+    "motor.i_max": ("A", "current amplitude limit of the speed controller output", 0.1, 100.0, False),
+    "motor.u_max": ("V", "phase voltage limit of the current amplifier", 1.0, 600.0, False),
+    "motor.ideal": (
+        "-",
+        "1: ideal motor, phase currents equal their set points (no electrics, no offsets)",
+        0,
+        1,
+        True,
+    ),
+    "current.kp": ("V/A", "proportional gain of each phase PI current regulator", 0.0, 1000.0, False),
+    "current.ki": (
+        "V/(A*s)",
+        "integral gain of each phase PI current regulator (anti-windup by "
+        "back-calculation, tracking time kp/ki)",
+        0.0,
+        1e6,
+        False,
+    ),
+    "current.offset_a": ("A", "current sensor offset of phase A (sensor polarisation)", -1.0, 1.0, False),
+    "current.offset_b": ("A", "current sensor offset of phase B (sensor polarisation)", -1.0, 1.0, False),
+    "gear.ratio": ("-", "reduction ratio n (motor angle = n * load angle)", 1.0, 1000.0, False),
+    "gear.efficiency": ("-", "mechanical efficiency (applied on the power flow direction)", 0.3, 1.0, False),
+    "gear.J_gear": ("kg*m^2", "gear train inertia referred to the input (motor) shaft", 0.0, 1e-2, False),
+    "gear.stiffness": ("N*m/rad", "torsion stiffness at the output", 10.0, 1e8, False),
+    "gear.damping": ("N*m*s/rad", "torsion damping at the output", 0.0, 1e5, False),
+    "gear.backlash": ("rad", "total backlash at the output (dead zone of width b)", 0.0, 0.05, False),
+    "gear.fc": ("N*m", "LuGre Coulomb friction at the input shaft", 0.0, 10.0, False),
+    "gear.fs": ("N*m", "LuGre static (stiction) friction at the input shaft", 0.0, 10.0, False),
+    "gear.vs": ("rad/s", "LuGre Stribeck speed (input shaft)", 1e-3, 100.0, False),
+    "gear.sigma0": ("N*m/rad", "LuGre bristle stiffness", 1e-3, 1e6, False),
+    "gear.sigma1": ("N*m*s/rad", "LuGre bristle damping", 0.0, 100.0, False),
+    "gear.sigma2": ("N*m*s/rad", "LuGre viscous friction (input shaft)", 0.0, 1.0, False),
+    "resolver.motor_error": (
+        "rad",
+        "motor resolver error amplitude (one period per electrical turn)",
+        0.0,
+        0.05,
+        False,
+    ),
+    "resolver.load_error": ("rad", "load resolver error amplitude (one period per turn)", 0.0, 0.01, False),
+    "ctrl.kp_pos": (
+        "1/s",
+        "outer loop: proportional gain of the joint position loop (load resolver)",
+        0.0,
+        1000.0,
+        False,
+    ),
+    "ctrl.kp_vel": ("A*s/rad", "inner loop: proportional gain of the motor speed PI", 0.0, 100.0, False),
+    "ctrl.ki_vel": (
+        "A/rad",
+        "inner loop: integral gain of the motor speed PI (0: P only; anti-windup by back-calculation)",
+        0.0,
+        1e4,
+        False,
+    ),
+    "ctrl.ff_vel": ("-", "velocity feed-forward weight (0..1) of the trajectory speed", 0.0, 1.0, False),
+    "traj.max_speed": ("rad/s", "maximum joint speed (100 % of a path node's speed)", 1e-3, 10.0, False),
+    "traj.max_acc": (
+        "rad/s^2",
+        "maximum joint acceleration (100 % of a path node's acceleration)",
+        1e-3,
+        100.0,
+        False,
+    ),
+}
+
+
+def drive_table(**values: float) -> dict[str, ParamInfo]:
+    from .drive import DRIVE_PARAMS
+
+    out = {}
+    for name in DRIVE_PARAMS:
+        unit, desc, lo, hi, integer = META[name]
+        out[name] = ParamInfo(
+            float(values[name.replace(".", "_")]), unit, desc, float(lo), float(hi), integer
+        )
+    return out
+
+
+def size_class(
+    *,
+    R: float,
+    L: float,
+    kt: float,
+    poles: int,
+    J_rotor: float,
+    ratio: float,
+    J_gear: float,
+    stiffness: float,
+    damping: float,
+    backlash: float,
+    fc: float,
+    i_max: float,
+    load_inertia: float,
+    max_speed: float,
+    max_acc: float,
+    efficiency: float = 0.85,
+    detent: float = 0.0,
+    current_bw_hz: float = 400.0,
+    speed_bw: float = 600.0,
+    kp_pos: float = 5.0,
+    u_max: float = 48.0,
+    offset_a: float = 0.0,
+    offset_b: float = 0.0,
+) -> dict[str, ParamInfo]:
+    """A drive from a few design quantities; controller gains follow documented tuning rules.
+
+    Current PI: pole-zero cancellation, kp = L*wc, ki = R*wc with wc = 2 pi current_bw_hz.
+    Speed PI: kp_vel = speed_bw * J_motor_side / kt (rotor-only crossover speed_bw rad/s), integral
+    corner at 10 rad/s. LuGre bristles: 10 mrad presliding at the input (fc / sigma0).
+    """
+    wc = 2 * math.pi * current_bw_hz
+    jm = J_rotor + J_gear
+    kp_vel = speed_bw * jm / kt
+    sigma0 = fc / 0.01 if fc > 0 else 1.0
+    return drive_table(
+        motor_R=R,
+        motor_L=L,
+        motor_kt=kt,
+        motor_pole_pairs=poles,
+        motor_J_rotor=J_rotor,
+        motor_b_visc=J_rotor * 0.3,
+        motor_detent=detent,
+        motor_unbalance=0.02,
+        motor_shape_h3=0.01,
+        motor_i_max=i_max,
+        motor_u_max=u_max,
+        motor_ideal=0,
+        current_kp=L * wc,
+        current_ki=R * wc,
+        current_offset_a=offset_a,
+        current_offset_b=offset_b,
+        gear_ratio=ratio,
+        gear_efficiency=efficiency,
+        gear_J_gear=J_gear,
+        gear_stiffness=stiffness,
+        gear_damping=damping,
+        gear_backlash=backlash,
+        gear_fc=fc,
+        gear_fs=1.5 * fc,
+        gear_vs=2.0,
+        gear_sigma0=sigma0,
+        gear_sigma1=2 * math.sqrt(sigma0 * jm),
+        gear_sigma2=0.005 * fc if fc > 0 else 0.0,
+        resolver_motor_error=0.0,
+        resolver_load_error=0.0,
+        ctrl_kp_pos=kp_pos,
+        ctrl_kp_vel=kp_vel,
+        ctrl_ki_vel=10.0 * kp_vel,
+        ctrl_ff_vel=1.0,
+        traj_max_speed=max_speed,
+        traj_max_acc=max_acc,
+    )
