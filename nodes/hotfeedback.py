@@ -25,6 +25,8 @@ from simecs.mesh.runtime import Node, main_for
 #: Tokens a stream may save up: absorbs the jitter of frames that arrive at about R Hz (real-time
 #: pacing) so each is forwarded at once, while the long-run rate stays at most R.
 BURST = 2.0
+#: How long an ended stream keeps its publisher, in case the session runs again.
+STREAM_LINGER_NS = 60 * 10**9
 
 
 @dataclass
@@ -35,6 +37,7 @@ class Stream:
     tokens: float = BURST
     refilled_ns: int = 0
     pending: frames.Frame | None = None
+    ended_ns: int = 0  # when the final frame went out
     sent: int = 0
     seq: int = 0
     publisher: Any = field(default=None)
@@ -116,13 +119,20 @@ class HotFeedback(Node):
         stream.sent += 1
         stream.pending = None
         self.forwarded += 1
+        if live.final:
+            stream.ended_ns = now
 
     def tick(self) -> None:
         """Forward a sample held back by the rate limit once its slot comes (e.g. on pause)."""
         now = time.time_ns()
         with self.lock:
-            for stream in self.streams.values():
+            for session, stream in list(self.streams.items()):
                 self._maybe_send(stream, now)
+                if stream.ended_ns and now - stream.ended_ns > STREAM_LINGER_NS:
+                    # Ended a while ago and no new run: free its publisher (no leak per session).
+                    del self.streams[session]
+                    self._declared.remove(stream.publisher)
+                    stream.publisher.undeclare()
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -182,13 +182,32 @@ class Proxy(Node):
         with self.lock:
             for rec in self.sessions.values():
                 if rec.state.phase in ACTIVE and (rec.id, rec.state.run_id) not in alive:
-                    self._end_run(rec, "failed", "the run was lost while the proxy was down")
+                    self._settle_ended_run(rec)
                 elif rec.state.phase == "queued":
                     self.queue.append(rec.id)
                 else:
                     self._publish_state(rec)
                     self._publish_params(rec, [])
             self._update_queue()
+
+    def _settle_ended_run(self, rec: SessionRecord) -> None:
+        """A run that ended while the proxy was down: its stored results tell how it ended."""
+        run_id = rec.state.run_id
+        try:
+            replies = list(self.z.get(keys.results(rec.id), timeout=3.0))
+            infos = [
+                i
+                for r in replies
+                if r.ok is not None
+                for i in codec.loads(m.Ok, r.ok.payload.to_bytes()).data
+            ]
+            info = next(codec.from_obj(m.RunInfo, i) for i in infos if i.get("run_id") == run_id)
+        except (StopIteration, codec.DecodeError, zenoh.ZError, TypeError, AttributeError):
+            self._end_run(rec, "failed", "the run was lost while the proxy was down")
+            return
+        rec.state.sim_time = info.sim_time
+        rec.state.progress = min(1.0, info.sim_time / info.stop_time) if info.stop_time else 0.0
+        self._end_run(rec, info.phase, info.reason)
 
     # -- publishing --------------------------------------------------------------------------------
     def _declare_pubs(self, rec: SessionRecord) -> None:

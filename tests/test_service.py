@@ -287,3 +287,20 @@ def test_hostile_payloads_get_errors_and_nodes_survive(service: Service, payload
         assert err.code == "bad_request" and err.message
     assert {r for r, _ in c.live_nodes()} >= {"proxy", "simulator", "hotfeedback"}
     assert s.snapshot().state.phase == "created"
+
+
+def test_proxy_restart_during_a_run_loses_nothing(mesh: Mesh) -> None:
+    svc = start_service(mesh)
+    c = svc.client
+    a = c.create_session("ann", "spider")
+    b = c.create_session("bob", "spider")
+    prepare(a, stop_time=0.6, pacing="realtime")
+    prepare(b, stop_time=3.0, pacing="realtime")
+    ra, rb = a.run(), b.run()
+    wait_until(lambda: b.snapshot().state.sim_time > 0.1, timeout=30, what="runs under way")
+    mesh.stop("proxy", signal.SIGKILL)
+    time.sleep(1.0)  # run a ends while the proxy is down; run b goes on
+    mesh.start("proxy", "--data-dir", str(svc.data_dir), name="proxy2")
+    state_a = a.snapshot().state
+    assert (state_a.run_id, state_a.phase, state_a.sim_time) == (ra, "finished", pytest.approx(0.6))
+    assert b.wait_for(["finished", "failed"], 60, rb).phase == "finished"
