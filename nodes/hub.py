@@ -21,7 +21,7 @@ class Hub(Node):
     @classmethod
     def from_args(cls, args: argparse.Namespace) -> Hub:
         base = load(args.mesh_config)
-        endpoints = args.listen or (base.listen if base.mode == "router" and base.listen else [DEFAULT_HUB])
+        endpoints = args.listen or base.listen or [DEFAULT_HUB]
         cfg = hub_config(endpoints[0], base)
         cfg.listen = list(endpoints)
         return cls(cfg, node_id=args.node_id)
