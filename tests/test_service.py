@@ -304,3 +304,16 @@ def test_proxy_restart_during_a_run_loses_nothing(mesh: Mesh) -> None:
     state_a = a.snapshot().state
     assert (state_a.run_id, state_a.phase, state_a.sim_time) == (ra, "finished", pytest.approx(0.6))
     assert b.wait_for(["finished", "failed"], 60, rb).phase == "finished"
+
+
+def test_numerical_failure_ends_the_run_with_the_reason(service: Service) -> None:
+    s = service.client.create_session("ann", "spider")
+    prepare(s, stop_time=1.0, step=0.01)  # far beyond the drives' stability limit
+    run_id = s.run()
+    state = s.wait_for(["finished", "failed"], 60, run_id)
+    assert state.phase == "failed"
+    assert "not finite" in state.reason and "t = " in state.reason
+    assert s.runs()[-1].phase == "failed"
+    # The session is usable again at once.
+    prepare(s, stop_time=0.1)
+    assert s.wait_for(["finished", "failed"], 60, s.run()).phase == "finished"
