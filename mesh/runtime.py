@@ -280,14 +280,22 @@ class Node:
         else:
             self.declare(self.z.declare_queryable(key, answer))
 
-    def publish_status(self, state: str) -> None:
+    def full_status_detail(self) -> dict[str, Any]:
+        """The subclass's detail plus what every node has: live declarations and dropped samples."""
+        return {
+            **self.status_detail(),
+            "declared": len(self._declared),
+            "dropped": sum(w.dropped for w in self._workers),
+        }
+
+    def publish_status(self, state: str, detail: dict[str, Any] | None = None) -> None:
         status = NodeStatus(
             role=self.role,
             node_id=self.node_id,
             pid=os.getpid(),
             host=socket.gethostname(),
             state=state,  # type: ignore[arg-type]
-            detail=self.status_detail(),
+            detail=self.full_status_detail() if detail is None else detail,
         )
         if self._status_pub is not None:
             self._status_pub.put(codec.dumps(status))
@@ -305,15 +313,19 @@ class Node:
             self.declare(self.z.liveliness().declare_token(keys.node_token(self.role, self.node_id)))
             self.publish_status("ready")
             self.log.info("ready as %s/%s (pid %d)", self.role, self.node_id, os.getpid())
-            last_status = time.monotonic()
+            last_status, last_detail = time.monotonic(), self.full_status_detail()
             while not self.stop_event.wait(self.tick_s):
                 try:
                     self.tick()
                 except Exception:
                     self.log.error("tick failed:\n%s", traceback.format_exc())
-                if time.monotonic() - last_status > 5.0:
-                    self.publish_status("ready")
-                    last_status = time.monotonic()
+                # Status on every change of its detail (at most 5 per second), and every 5 s anyway.
+                now = time.monotonic()
+                if now - last_status > 0.2:
+                    detail = self.full_status_detail()
+                    if detail != last_detail or now - last_status > 5.0:
+                        self.publish_status("ready", detail)
+                        last_status, last_detail = now, detail
             self.publish_status("stopping")
             return 0
         finally:

@@ -423,6 +423,8 @@ class Proxy(Node):
             except Exception:
                 pass
         del self.sessions[rec.id]
+        # Closing is the user's explicit end of the session; parameter sets and results stay.
+        self._session_path(rec.id).unlink(missing_ok=True)
         self._update_queue()
         return rec.id
 
