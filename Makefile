@@ -23,13 +23,13 @@ up: $(STAMP)
 	$(BIN)/simecs up
 
 lint: $(TEST_STAMP)
-	$(BIN)/ruff check mesh models nodes viewer tests
-	$(BIN)/ruff format --check mesh models nodes viewer tests
+	$(BIN)/ruff check mesh models nodes viewer tests docs/examples
+	$(BIN)/ruff format --check mesh models nodes viewer tests docs/examples
 	$(BIN)/mypy
 
 format: $(TEST_STAMP)
-	$(BIN)/ruff check --fix mesh models nodes viewer tests
-	$(BIN)/ruff format mesh models nodes viewer tests
+	$(BIN)/ruff check --fix mesh models nodes viewer tests docs/examples
+	$(BIN)/ruff format mesh models nodes viewer tests docs/examples
 
 test: lint
 	$(BIN)/python -m pytest -q -n 2 --dist loadfile
