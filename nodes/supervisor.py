@@ -13,7 +13,7 @@ import subprocess
 import sys
 import threading
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 from simecs.mesh import keys
@@ -32,7 +32,6 @@ class Child:
     restarts: int = 0
     backoff: float = 0.5
     next_start: float = 0.0
-    log_lines: list[str] = field(default_factory=list)
 
 
 def node_argv(module: str, args: list[str]) -> list[str]:
@@ -40,11 +39,14 @@ def node_argv(module: str, args: list[str]) -> list[str]:
 
 
 class Supervisor:
-    def __init__(self, children: list[Child], hub: str, say: Any = print) -> None:
+    def __init__(self, children: list[Child], hub: str) -> None:
         self.children = children
         self.hub = hub
-        self.say = say
         self.stopping = threading.Event()
+
+    @staticmethod
+    def say(text: str) -> None:
+        print(text, flush=True)
 
     def _start(self, child: Child) -> None:
         child.proc = subprocess.Popen(child.argv, start_new_session=True)
@@ -140,7 +142,7 @@ class Supervisor:
         self.start_all()
         try:
             if self.wait_ready(roles):
-                self.say(banner, flush=True) if self.say is print else self.say(banner)
+                self.say(banner)
             elif not self.stopping.is_set():
                 self.say("simecs: some nodes did not come up within 60 s; still trying")
             while not self.stopping.wait(0.2):
