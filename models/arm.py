@@ -509,8 +509,11 @@ class Simulation:
         self._time = 0.0
         self.timing = {"mechanics+drive": 0.0, "drive": 0.0, "output": 0.0}
         self._Rrpy = np.array([rot_rpy(lk.rpy) for lk in package.spec.links])
-        self._Rs = np.zeros((self.n + 1, 3, 3))
-        self._quats = np.zeros((self.n + 1, 4))
+        self._tool_loc = np.zeros(3)
+        self._rows = np.zeros((0, len(self.columns)))
+        self._nrows = 0
+        self._k_next = 0
+        self._t_next = 0.0
         self._build_exudyn()
 
     # ---- Exudyn ----
@@ -710,6 +713,9 @@ class Simulation:
         ss.timeIntegration.endTime = self.n_steps * h
         ss.timeIntegration.startTime = 0.0
         ss.timeIntegration.solverType = exu.DynamicSolverType.RK44
+        # fixed steps: Exudyn takes t = startTime + i*h instead of summing (and clipping) the steps, so
+        # every step is exactly h, wherever a chunk ends; advance() sets startTime per chunk
+        ss.timeIntegration.adaptiveStep = False
         ss.timeIntegration.verboseMode = 0
         ss.timeIntegration.explicit.computeEndOfStepAccelerations = False
         ss.solution.file.write = False
@@ -723,47 +729,63 @@ class Simulation:
         self._nodes_copy = list(self._nodes)
         self.seg = self._plan(0.0) if self._nodes else np.zeros((0, 3 + 2 * self.n))
         self._Xbak = self.X.copy()
-        self._last_t = -1.0
+        self._last_k = -1
         self._tau = np.zeros(self.n)
         self._work = np.zeros((5, self.n, dr.NL))
-        self._out = np.zeros((self.n, dr.NO))
         self._fail: str | None = None
         self._drives_on = self.values["drives.enabled"] > 0.5
         self._mech_arrays = self._mech
+        self._tool_loc = self._tool_local()
         self._solver = exu.MainSolverExplicit()
         self._solver.InitializeSolver(mbs, ss)
+        self._it = self._solver.it
+        self._sd = mbs.systemData
         self._running = True
         self._time = 0.0
-        self._k_next = 0
+        self._k_next = 0  # index of the next output sample; its time is _t_next
+        self._t_next = 0.0
         self.timing = {"mechanics+drive": 0.0, "drive": 0.0, "output": 0.0}
 
     def _prestep(self, mbs, t: float) -> bool:
-        if not self._drives_on:
+        """Once per mechanics step, before it: the output row at the step start when one is due, then
+        the drives over the step. Exudyn passes the time at the END of the coming step."""
+        h = self._it.currentStepSize
+        ts = t - h  # the step start: the chain state and the drive states are those of ts
+        due = ts >= self._t_next - 0.5 * self.h
+        if not (due or self._drives_on):
             return True
         t0 = _time.perf_counter()
-        if t <= self._last_t:
-            self.X[:] = self._Xbak  # repeated step: restore the drive state of the step start
-        else:
-            self._Xbak[:] = self.X
-            self._last_t = t
-        q = mbs.systemData.GetODE2Coordinates()
-        qd = mbs.systemData.GetODE2Coordinates_t()
-        h = self._solver.it.currentStepSize
-        t = t - h  # Exudyn calls the PreStep with the time at the END of the coming step
-        pre_R, pre_p, masses, coms, inertias = self._mech_arrays
-        ok = dr.drive_step(
+        out0 = self.timing["output"]
+        sd = self._sd
+        q = sd.GetODE2Coordinates()
+        qd = sd.GetODE2Coordinates_t()
+        if due:
+            if ts > self._t_next + 0.5 * self.h:
+                self._fail = f"output sample at t = {self._t_next:.6f} s missed (step at {ts:.6f} s)"
+                return False
+            if not self._emit_row(q, qd):
+                return False
+        if not self._drives_on:
+            return True
+        k = round(ts / self.h)  # the step index: the drive time comes from the grid, not from a sum
+        repeat = k <= self._last_k  # the same step again (a step reduction): restore the drive states
+        self._last_k = k
+        m = self._mech_arrays
+        ok = dr.drive_prestep(
             self.P,
             self.seg,
             self.hold,
-            pre_R,
-            pre_p,
-            masses,
-            coms,
-            inertias,
+            m[0],
+            m[1],
+            m[2],
+            m[3],
+            m[4],
             self.X,
+            self._Xbak,
+            repeat,
             q,
             qd,
-            t,
+            k * self.h,
             h,
             self.nsub,
             self._tau,
@@ -771,86 +793,116 @@ class Simulation:
         )
         if not ok:
             bad = [j + 1 for j in range(self.n) if not np.all(np.isfinite(self.X[j, : dr.NS]))]
-            self._fail = f"drive states of joint(s) {bad or '?'} not finite at t = {t:.6f} s"
+            self._fail = f"drive states of joint(s) {bad or '?'} not finite at t = {ts:.6f} s"
             return False
         mbs.SetObjectParameter(self._kt, "jointForceVector", self._tau)
-        self.timing["drive"] += _time.perf_counter() - t0
+        self.timing["drive"] += _time.perf_counter() - t0 - (self.timing["output"] - out0)
         return True
 
-    def _row(self, t: float) -> np.ndarray:
+    def _emit_row(self, q, qd) -> bool:
+        """The output row of sample `_k_next` (time `_t_next`) from the chain state q, qd and the drive
+        states into the chunk buffer; False (with `_fail` set) when something is not finite."""
         t0 = _time.perf_counter()
-        mbs = self._mbs
-        q = np.asarray(mbs.systemData.GetODE2Coordinates())
-        qd = np.asarray(mbs.systemData.GetODE2Coordinates_t())
-        if not (np.all(np.isfinite(q)) and np.all(np.isfinite(qd))):
-            bad = [j + 1 for j in range(self.n) if not (math.isfinite(q[j]) and math.isfinite(qd[j]))]
-            raise SimulationError(f"chain coordinates of joint(s) {bad} not finite at t = {t:.6f} s")
-        dr.drive_outputs(self.P, self.seg, self.hold, self.X, q, qd, t, self._out)
-        row = np.empty(len(self.columns))
-        row[0] = t
-        nv = self.n * dr.NO
-        row[1 : 1 + nv] = self._out.reshape(-1)
-        k = 1 + nv
-        Rs = self._Rs
-        for i in range(self.n):
-            row[k + 7 * i : k + 7 * i + 3] = mbs.GetSensorValues(self._sens_p[i])
-            Rs[i] = np.asarray(mbs.GetSensorValues(self._sens_r[i])).reshape(3, 3) @ self._Rrpy[i]
-        Rs[self.n] = Rs[self.n - 1]
-        dr.quats_from_matrices(Rs, self._quats)
-        for i in range(self.n + 1):
-            row[k + 7 * i + 3 : k + 7 * i + 7] = self._quats[i]
-        kt = k + 7 * self.n
-        row[kt : kt + 3] = mbs.GetSensorValues(self._sens_tool)
-        if not np.all(np.isfinite(row)):
-            raise SimulationError(f"non-finite output at t = {t:.6f} s")
+        t = self._t_next
+        k = self._nrows
+        if k >= self._rows.shape[0]:  # never with the size advance() reserves; kept safe anyway
+            self._rows = np.concatenate([self._rows, np.empty((k + 8, self._rows.shape[1]))])
+        m = self._mech_arrays
+        status = dr.output_row(
+            self.P,
+            self.seg,
+            self.hold,
+            self.X,
+            q,
+            qd,
+            t,
+            m[0],
+            m[1],
+            self._Rrpy,
+            self._tool_loc,
+            self._rows,
+            k,
+        )
+        if status:
+            if status == 1:
+                bad = [j + 1 for j in range(self.n) if not (math.isfinite(q[j]) and math.isfinite(qd[j]))]
+                self._fail = f"chain coordinates of joint(s) {bad} not finite at t = {t:.6f} s"
+            else:
+                self._fail = f"non-finite output at t = {t:.6f} s"
+            return False
+        self._nrows = k + 1
+        self._k_next += 1
+        self._t_next = min(self._k_next * self.dt_out, self.n_steps * self.h)
         self.timing["output"] += _time.perf_counter() - t0
-        return row
+        return True
+
+    def _row_now(self) -> None:
+        """The due output row from the current chain state (between solver calls)."""
+        sd = self._sd
+        if not self._emit_row(sd.GetODE2Coordinates(), sd.GetODE2Coordinates_t()):
+            raise SimulationError(self._fail)
+
+    def _sensor_poses(self) -> np.ndarray:
+        """Link and tool poses now, read from the Exudyn sensors: the cross-check of `dr.pose_rows`."""
+        mbs = self._mbs
+        n = self.n
+        Rs = np.zeros((n + 1, 3, 3))
+        out = np.zeros((n + 1, 7))
+        for i in range(n):
+            out[i, :3] = mbs.GetSensorValues(self._sens_p[i])
+            Rs[i] = np.asarray(mbs.GetSensorValues(self._sens_r[i])).reshape(3, 3) @ self._Rrpy[i]
+        Rs[n] = Rs[n - 1]
+        out[n, :3] = mbs.GetSensorValues(self._sens_tool)
+        quats = np.zeros((n + 1, 4))
+        dr.quats_from_matrices(Rs, quats)
+        out[:, 3:] = quats
+        return out
 
     def advance(self, until: float) -> np.ndarray:
+        """Simulate up to `until` (on the step grid); the output rows with time in (previous until, until],
+        the t = 0 row on the first call. One solver call per chunk: the rows inside the chunk are taken
+        in the PreStep at the start of the step that begins at their time."""
         if not self._running:
             raise SimulationError("advance() before start()")
-        t_end = self.n_steps * self.h
+        t_wall = _time.perf_counter()
+        out_before = self.timing["output"]
+        h = self.h
+        t_end = self.n_steps * h
         until = float(until)
         if until >= self._stop_time - 1e-12:
             until = t_end  # the run ends on the step grid, at or just after stop_time
         until = min(until, t_end)
-        rows = []
+        n_max = int(max(until - self._time, 0.0) / self.dt_out) + 3
+        self._rows = np.empty((n_max, len(self.columns)))
+        self._nrows = 0
         if self._k_next == 0:
-            rows.append(self._row(0.0))
-            self._k_next = 1
-        solver = self._solver
-        t_wall = _time.perf_counter()
-        while True:
-            t_target = min(self._k_next * self.dt_out, self.n_steps * self.h)
-            if t_target > until + 1e-9 * self.h:
-                break
-            solver.it.endTime = t_target
+            self._row_now()  # t = 0
+        # the chunk ends on the last grid point within `until`; at an output sample, exactly on its time
+        t_mid = math.floor(until / h + 1e-9) * h
+        t_row = t_end if t_mid > t_end - 0.5 * h else round(t_mid / self.dt_out) * self.dt_out
+        row_end = abs(t_row - t_mid) < 0.5 * h and t_row > self._time + 0.5 * h
+        t_stop = t_row if row_end else t_mid
+        if t_stop > self._time + 0.5 * h:
+            self._it.startTime = self._time
+            self._it.endTime = t_stop
             try:
-                solver.SolveSteps(self._mbs, self._ss)
+                self._solver.SolveSteps(self._mbs, self._ss)
             except Exception as e:  # the solver's own errors
-                raise SimulationError(f"Exudyn solver failed before t = {t_target:.6f} s: {e}") from e
-            t_now = self._mbs.systemData.GetTime()
+                raise SimulationError(f"Exudyn solver failed before t = {t_stop:.6f} s: {e}") from e
             if self._fail:
                 raise SimulationError(self._fail)
-            if t_now < t_target - 1e-9:
-                raise SimulationError(f"Exudyn stopped at t = {t_now:.6f} s before {t_target:.6f} s")
-            self.timing["mechanics+drive"] += _time.perf_counter() - t_wall
-            rows.append(self._row(t_target))
-            t_wall = _time.perf_counter()
-            self._time = t_target
-            self._k_next += 1
-            if t_target >= self.n_steps * self.h - 1e-12:
-                break
-        # advance to `until` between output samples (no row)
-        t_mid = math.floor(until / self.h + 1e-9) * self.h
-        if t_mid > self._time + 0.5 * self.h:
-            solver.it.endTime = t_mid
-            solver.SolveSteps(self._mbs, self._ss)
-            if self._fail:
-                raise SimulationError(self._fail)
-            self._time = self._mbs.systemData.GetTime()
-        self.timing["mechanics+drive"] += _time.perf_counter() - t_wall
-        return np.array(rows) if rows else np.zeros((0, len(self.columns)))
+            t_now = self._sd.GetTime()
+            if t_now < t_stop - 1e-9:
+                raise SimulationError(f"Exudyn stopped at t = {t_now:.6f} s before {t_stop:.6f} s")
+            self._time = t_stop  # the grid time (Exudyn's startTime + i*h may differ by rounding)
+            if row_end:
+                if abs(self._t_next - t_stop) > 0.5 * h:
+                    raise SimulationError(f"output sample at t = {self._t_next:.6f} s missed")
+                self._row_now()
+        out = self._rows[: self._nrows]
+        wall = _time.perf_counter() - t_wall
+        self.timing["mechanics+drive"] += wall - (self.timing["output"] - out_before)
+        return out
 
     @property
     def time(self) -> float:

@@ -4,6 +4,10 @@ Standard case: the Spider, all 7 joints, from q = 0 at rest to `spider.STANDARD_
 and 100 % acceleration, 5 s simulated, full drive fidelity (default parameters), output every 10 ms.
 Error: max over joints and output samples of |q - q_ref_run| against the same run at a 10x finer
 mechanics step (and so 10x finer drive substeps).
+
+The machine may be shared: the case is timed REPEATS times (bounded by TIME_BUDGET_S of wall time) at
+output 10 ms and at output 2 ms (the live service's interval); `rtf` is the best, `rtf_median` the
+median of the 10 ms runs, `rtf_output_2ms` the best at 2 ms output.
 """
 
 from __future__ import annotations
@@ -16,16 +20,25 @@ import numpy as np
 
 STOP = 5.0
 OUT = 0.01
+OUT_LIVE = 0.002  # the live service's output interval
+REPEATS = 5
+TIME_BUDGET_S = 30.0  # wall time for the timed runs of one output interval, at least 2 runs
 
 
-def run_case(step: float | None = None, model: str = "spider", values: dict | None = None, substeps=None):
+def run_case(
+    step: float | None = None,
+    model: str = "spider",
+    values: dict | None = None,
+    substeps=None,
+    out: float = OUT,
+):
     from . import get_model
 
     pkg = get_model(model)
     sim = pkg.build(values or {})
     sim.set_initial([0.0] * sim.n)
     sim.set_joint_path([(list(pkg.spec.standard_target), 100.0, 100.0)])
-    sim.start(STOP, OUT, step, substeps)
+    sim.start(STOP, out, step, substeps)
     t0 = time.perf_counter()
     rows = [sim.advance(0.0)]
     while not sim.finished:
@@ -38,24 +51,40 @@ def run_case(step: float | None = None, model: str = "spider", values: dict | No
     return data, cols, wall, timing
 
 
+def timed_runs(step: float, model: str, out: float) -> list[tuple]:
+    """REPEATS runs of the standard case (fewer when they exceed TIME_BUDGET_S, never fewer than 2),
+    sorted by wall time: the best first."""
+    runs = []
+    t0 = time.perf_counter()
+    for k in range(REPEATS):
+        runs.append(run_case(step, model, out=out))
+        if k >= 1 and time.perf_counter() - t0 > TIME_BUDGET_S:
+            break
+    return sorted(runs, key=lambda r: r[2])
+
+
 def run_model_bench(json_out: bool = False, model: str = "spider") -> dict:
     from . import get_model, warmup
 
     t_warm = warmup()
     pkg = get_model(model)
     step = pkg.spec.default_step
-    # best of two timed runs: the machine is shared
-    best = None
-    for _ in range(2):
-        data, cols, wall, timing = run_case(step, model)
-        if best is None or wall < best[2]:
-            best = (data, cols, wall, timing)
-    data, cols, wall, timing = best
+    # the machine is shared: best (and median) of several timed runs per output interval
+    runs = timed_runs(step, model, OUT)
+    runs_live = timed_runs(step, model, OUT_LIVE)
+    data, cols, wall, timing = runs[0]
+    wall_median = float(np.median([r[2] for r in runs]))
+    data_live, _, wall_live, timing_live = runs_live[0]
+    wall_live_median = float(np.median([r[2] for r in runs_live]))
     ref, _, wall_ref, _ = run_case(step / 10.0, model)
     n = pkg.n
     qi = [cols.index(f"joint{j}.q") for j in range(1, n + 1)]
     err = np.abs(data[:, qi] - ref[:, qi])
     per_joint = err.max(axis=0)
+    # the output interval only picks samples: the 2 ms run holds the 10 ms rows, identical
+    k = int(round(OUT / OUT_LIVE))
+    same_rows = data_live.shape[0] == (data.shape[0] - 1) * k + 1
+    same_rows = bool(same_rows and np.array_equal(data_live[::k], data))
     drive = timing["drive"]
     output = timing["output"]
     mech = max(wall - drive - output, 0.0)
@@ -68,11 +97,18 @@ def run_model_bench(json_out: bool = False, model: str = "spider") -> dict:
         "sim_time_s": STOP,
         "wall_s": round(wall, 4),
         "rtf": round(STOP / wall, 2),
+        "rtf_median": round(STOP / wall_median, 2),
+        "timed_runs": len(runs),
+        "rtf_output_2ms": round(STOP / wall_live, 2),
+        "rtf_output_2ms_median": round(STOP / wall_live_median, 2),
+        "timed_runs_output_2ms": len(runs_live),
         "cost_s_per_sim_s": {
             "mechanics_exudyn": round(mech / STOP, 5),
             "drive_numba_prestep": round(drive / STOP, 5),
             "output_rows": round(output / STOP, 5),
         },
+        "output_rows_cost_2ms_s_per_sim_s": round(timing_live["output"] / STOP, 5),
+        "rows_2ms_equal_10ms": same_rows,
         "max_joint_error_mrad": round(float(per_joint.max()) * 1e3, 4),
         "joint_error_mrad": [round(float(e) * 1e3, 4) for e in per_joint],
         "reference_step_ms": step * 1e2,
@@ -85,10 +121,20 @@ def run_model_bench(json_out: bool = False, model: str = "spider") -> dict:
     res["pass"] = bool(res["rtf"] >= 10 and res["max_joint_error_mrad"] <= 1.0)
     print(f"model bench: {res['case']}")
     print(f"  mechanics step {res['step_ms']:g} ms, drive substeps {res['drive_substeps']} (RK4)")
-    print(f"  {'real-time factor (1 core)':34s} {res['rtf']:8.2f}   (target >= 10)")
+    print(
+        f"  {'real-time factor (1 core)':34s} {res['rtf']:8.2f}   (target >= 10; best of {len(runs)}, "
+        f"median {res['rtf_median']:.2f})"
+    )
+    print(
+        f"  {'real-time factor, output 2 ms':34s} {res['rtf_output_2ms']:8.2f}   (best of {len(runs_live)}, "
+        f"median {res['rtf_output_2ms_median']:.2f})"
+    )
     print(f"  {'wall time for 5 s simulated':34s} {res['wall_s']:8.3f} s")
     for k, v in res["cost_s_per_sim_s"].items():
         print(f"  {'cost ' + k:34s} {v * 1e3:8.1f} ms per simulated s")
+    out2 = res["output_rows_cost_2ms_s_per_sim_s"]
+    print(f"  {'cost output_rows at 2 ms output':34s} {out2 * 1e3:8.1f} ms per simulated s")
+    print(f"  {'2 ms rows at 10 ms = 10 ms rows':34s} {'yes' if same_rows else 'NO'}")
     print(
         f"  {'max joint error vs 10x finer step':34s} {res['max_joint_error_mrad']:8.4f} mrad (target <= 1)"
     )

@@ -295,7 +295,10 @@ and the run starts without transients. See [the motor](doc:{mid}.motor) for s_a,
   trajectory. Inside the step the load angles follow a predictor q'' = M(q(t))^-1 tau_gear (M from the
   same link data as the Exudyn chain), which keeps the stiff gear stable; Exudyn then receives the mean
   gear torque over the step as `jointForceVector`. The next step starts again from Exudyn's q, q'.
-- Output samples are taken every `output_interval` (rounded to a multiple of h) after the step.
+- Output samples are taken every `output_interval` (rounded to a multiple of h): the state after the
+  step that ends at the sample time, read inside the step loop (one Exudyn call per chunk of a run, so
+  the output interval and the chunking change no result). Link poses come from q by the forward
+  kinematics of the chain handed to Exudyn (checked against Exudyn's own sensors to 1e-9).
 - A NaN in the drive or the chain stops the run with an error naming the joint and the time.
 - Accuracy of the standard case: see `simecs bench model` and docs/MODELS.md.
 """,

@@ -296,7 +296,7 @@ def _sat(x, lim):
     return x
 
 
-@njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
+@njit(cache=_CACHE, inline="always", error_model="numpy", fastmath=_FAST)
 def gear_torque(P, j, theta_m, omega_m, ql, qdl):
     n = P[j, P_N]
     d = theta_m / n - ql
@@ -316,7 +316,7 @@ def gear_torque(P, j, theta_m, omega_m, ql, qdl):
     return tau
 
 
-@njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
+@njit(cache=_CACHE, inline="always", error_model="numpy", fastmath=_FAST)
 def joint_signals(P, j, x, ql, qdl, qr, qdr, out):
     """All algebraic signals of joint j; fills out[0..NO) in OUTPUTS order and returns nothing.
 
@@ -436,9 +436,12 @@ def joint_signals(P, j, x, ql, qdl, qr, qdr, out):
 
 
 @njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
-def drive_rhs(P, seg, hold, Minv, t, X, dX, sig, qr, qdr, tau):
+def drive_rhs(P, seg, hold, Minv, t, X, dX, sig, qr, qdr, tau, new_t=True):
+    """dX = f(t, X); the set points qr, qdr are evaluated at t unless `new_t` is False (same t as the
+    previous call: RK4 stages 2 and 3)."""
     n = X.shape[0]
-    traj_eval(seg, hold, t, qr, qdr)
+    if new_t:
+        traj_eval(seg, hold, t, qr, qdr)
     for j in range(n):
         x = X[j]
         joint_signals(P, j, x, x[S_QL], x[S_QDL], qr[j], qdr[j], sig)
@@ -500,7 +503,7 @@ def drive_step(P, seg, hold, pre_R, pre_p, masses, coms, inertias, X, q, qd, t, 
         for j in range(n):
             for k in range(NL):
                 Xt[j, k] = X[j, k] + 0.5 * hs * k2[j, k]
-        drive_rhs(P, seg, hold, Minv, ts + 0.5 * hs, Xt, k3, sig, qr, qdr, tau)
+        drive_rhs(P, seg, hold, Minv, ts + 0.5 * hs, Xt, k3, sig, qr, qdr, tau, False)
         for j in range(n):
             for k in range(NL):
                 Xt[j, k] = X[j, k] + hs * k3[j, k]
@@ -520,6 +523,19 @@ def drive_step(P, seg, hold, pre_R, pre_p, masses, coms, inertias, X, q, qd, t, 
 
 
 @njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
+def drive_prestep(
+    P, seg, hold, pre_R, pre_p, masses, coms, inertias, X, Xbak, repeat, q, qd, t, h, nsub, tau_out, work
+):
+    """`drive_step` with the drive state kept for a repeated step: `repeat` (the solver takes the same
+    step again) restores X from Xbak, else Xbak saves X before the step."""
+    if repeat:
+        X[:, :] = Xbak
+    else:
+        Xbak[:, :] = X
+    return drive_step(P, seg, hold, pre_R, pre_p, masses, coms, inertias, X, q, qd, t, h, nsub, tau_out, work)
+
+
+@njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
 def drive_outputs(P, seg, hold, X, q, qd, t, out):
     """Variables of every joint at time t from the drive states and the chain state: out[j, :NO]."""
     n = q.shape[0]
@@ -531,3 +547,70 @@ def drive_outputs(P, seg, hold, X, q, qd, t, out):
         joint_signals(P, j, X[j], q[j], qd[j], qr[j], qdr[j], sig)
         for k in range(NO):
             out[j, k] = sig[k]
+
+
+# ---- output rows: variables and link poses, no Exudyn call -------------------------------------------
+@njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
+def pose_rows(pre_R, pre_p, Rrpy, tool_local, q, out):
+    """World poses (x, y, z, qw, qx, qy, qz) of every link frame, then of the tool: out[n + 1, 7].
+
+    The chain of `chain_frames` (the one handed to Exudyn as joint transforms): link frame i = joint
+    frame i after its rotation q_i, times the link's initial rotation Rrpy[i]; the tool sits at
+    `tool_local` (joint frame n-1 coordinates) and takes the last link's orientation.
+    """
+    n = q.shape[0]
+    R_all = np.empty((n, 3, 3))
+    p_all = np.empty((n, 3))
+    chain_frames(pre_R, pre_p, q, R_all, p_all)
+    Rs = np.empty((n + 1, 3, 3))
+    for i in range(n):
+        for a in range(3):
+            out[i, a] = p_all[i, a]
+            for b in range(3):
+                Rs[i, a, b] = (
+                    R_all[i, a, 0] * Rrpy[i, 0, b]
+                    + R_all[i, a, 1] * Rrpy[i, 1, b]
+                    + R_all[i, a, 2] * Rrpy[i, 2, b]
+                )
+    for a in range(3):
+        out[n, a] = p_all[n - 1, a] + (
+            R_all[n - 1, a, 0] * tool_local[0]
+            + R_all[n - 1, a, 1] * tool_local[1]
+            + R_all[n - 1, a, 2] * tool_local[2]
+        )
+        for b in range(3):
+            Rs[n, a, b] = Rs[n - 1, a, b]
+    quats = np.empty((n + 1, 4))
+    quats_from_matrices(Rs, quats)
+    for i in range(n + 1):
+        for c in range(4):
+            out[i, 3 + c] = quats[i, c]
+
+
+@njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
+def output_row(P, seg, hold, X, q, qd, t, pre_R, pre_p, Rrpy, tool_local, rows, k):
+    """One result row into rows[k]: time, the variables of every joint, the link and tool poses.
+
+    Returns 0, or 1 when the chain coordinates are not finite (row untouched), 2 when an output is not.
+    """
+    n = q.shape[0]
+    for j in range(n):
+        if not (math.isfinite(q[j]) and math.isfinite(qd[j])):
+            return 1
+    row = rows[k]
+    row[0] = t
+    out = np.empty((n, NO))
+    drive_outputs(P, seg, hold, X, q, qd, t, out)
+    for j in range(n):
+        for c in range(NO):
+            row[1 + j * NO + c] = out[j, c]
+    poses = np.empty((n + 1, 7))
+    pose_rows(pre_R, pre_p, Rrpy, tool_local, q, poses)
+    k0 = 1 + n * NO
+    for i in range(n + 1):
+        for c in range(7):
+            row[k0 + 7 * i + c] = poses[i, c]
+    for c in range(row.shape[0]):
+        if not math.isfinite(row[c]):
+            return 2
+    return 0
