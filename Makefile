@@ -37,6 +37,8 @@ test: lint
 bench: $(STAMP)
 	$(BIN)/simecs bench model
 	$(BIN)/simecs bench service
+	$(BIN)/simecs bench recorder
+	$(BIN)/simecs bench viewer
 
 clean:
 	rm -rf $(VENV) .simecs artifacts .pytest_cache .ruff_cache .mypy_cache

@@ -1,0 +1,180 @@
+"""The MCAP format on its own: written, read back with CRC validation, schemas, torn files, export."""
+
+from __future__ import annotations
+
+import io
+import json
+import os
+import shutil
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import jsonschema
+import numpy as np
+import pytest
+from mcap.writer import Writer
+from simecs.mesh import frames
+from simecs.nodes import export, mcapread
+from simecs.nodes import mcapfmt as fmt
+
+from .test_recorder_support import arm_model, check_file, layout_for, make_rows
+
+SID = "AbCdEfGhIjKlMnOpQrStUv"
+
+
+def write_run(
+    path: Path, n_frames: int = 40, rows_per_frame: int = 10, chunk_size: int = fmt.CHUNK_SIZE
+) -> list[frames.Frame]:
+    lay = layout_for(SID)
+    model = arm_model()
+    w = fmt.RunWriter(path, lay, chunk_size=chunk_size)
+    w.write_log(fmt.LOG_INFO, "started", 0.0)
+    w.write_metadata(fmt.META_PARAMS, {k: repr(v) for k, v in model.default_values().items()})
+    w.write_scene(model, model.default_values())
+    sent = []
+    rows = make_rows(model, n_frames * rows_per_frame)
+    for s in range(n_frames):
+        fr = frames.Frame(1, s, time.time_ns(), rows[s * rows_per_frame : (s + 1) * rows_per_frame])
+        fr.flags = frames.FLAG_FINAL if s == n_frames - 1 else 0
+        w.write_frame(fr)
+        sent.append(fr)
+    w.close({"phase": "finished"})
+    return sent
+
+
+def test_written_run_reads_back_exactly_with_valid_schemas(tmp_path: Path) -> None:
+    path = tmp_path / "run.mcap"
+    sent = write_run(path)
+    v, rec = check_file(path)
+    n_rows = sum(f.rows.shape[0] for f in sent)
+    assert v.per_topic[fmt.TOPIC_VARS] == n_rows
+    assert v.per_topic[fmt.TOPIC_SCENE] == 1
+    # /tf and /joint_states at 50 samples per simulated second: 0.8 s of data -> 40 (+ the final sample)
+    assert 39 <= v.per_topic[fmt.TOPIC_TF] <= 42
+    assert v.per_topic[fmt.TOPIC_JOINTS] == v.per_topic[fmt.TOPIC_TF]
+    assert np.array_equal(rec.rows, np.concatenate([f.rows for f in sent]))  # bit-exact
+    grouped = list(rec.frames())
+    assert [g[0] for g in grouped] == [f.seq for f in sent]
+    assert [g[2] - g[1] for g in grouped] == [f.rows.shape[0] for f in sent]
+    assert rec.complete and not rec.recovered
+    assert rec.layout.columns == layout_for(SID).columns
+    assert rec.params() == arm_model().default_values()
+    assert set(v.metadata) >= {fmt.META_RUN, fmt.META_PARAMS, fmt.META_END}
+    info = mcapread.info(path)
+    assert (info.session, info.run_id, info.model_id, info.recovered) == (SID, "r1", "testarm", False)
+
+
+def test_scene_uses_link_frames_and_resized_lengths() -> None:
+    model = arm_model()
+    values = dict(model.default_values(), **{"link1.length": 0.7})
+    scene = fmt.scene_update(model, values, 1_000_000_123)
+    jsonschema.Draft202012Validator(json.loads(fmt.foxglove_schema("foxglove.SceneUpdate"))).validate(scene)
+    ents = {e["id"]: e for e in scene["entities"]}
+    assert set(ents) == {"link1", "link2", "environment"}
+    assert ents["link1"]["frame_locked"] and ents["link1"]["frame_id"] == "link1"
+    pipe = ents["link1"]["cylinders"][1]
+    assert pipe["size"]["z"] == pytest.approx(0.7) and pipe["pose"]["position"]["x"] == pytest.approx(0.35)
+    assert len(ents["link2"]["spheres"]) == 1 and len(ents["link2"]["cubes"]) == 1
+    assert ents["environment"]["frame_id"] == fmt.WORLD_FRAME
+
+
+def test_vars_schema_is_ros2_and_fields_map_to_columns() -> None:
+    lay = layout_for(SID)
+    codec_ = fmt.build_vars_codec(lay.columns + ["odd name!", "a", "a.b"], lay.units + ["", "", ""])
+    assert sorted(codec_.order.tolist()) == list(range(len(lay.columns) + 3))
+    paths = fmt.ros2_field_paths(codec_)
+    assert paths["joint1.q"] == "/vars.joint1.q" and paths["pose.link2.qw"] == "/vars.pose.link2.qw"
+    for line in codec_.schema.splitlines():
+        if line and not line.startswith(("=", "MSG: ")):
+            typ, name = line.split(" ")
+            assert typ == "float64" or typ.startswith("simecs/"), line
+            assert name.replace("_", "").isalnum() and name[0].isalpha() and name == name.lower(), line
+    row = np.arange(len(codec_.columns), dtype=float)[None, :]
+    out = np.empty(len(codec_.columns))
+    codec_.decode_into(codec_.encode(row)[0], out)
+    assert np.array_equal(out, row[0])
+
+
+def test_torn_file_is_recovered_up_to_the_last_flush(tmp_path: Path) -> None:
+    """A writer process SIGKILLed right after a flush: every flushed row comes back, marked recovered."""
+    path = tmp_path / "torn.mcap"
+    script = f"""
+import os, signal, time, sys
+sys.path.insert(0, {str(Path(__file__).parent.parent)!r})
+from tests.test_recorder_support import layout_for, make_rows, arm_model
+from simecs.mesh import frames
+from simecs.nodes import mcapfmt as fmt
+w = fmt.RunWriter({str(path)!r}, layout_for({SID!r}))
+rows = make_rows(arm_model(), 400)
+for s in range(40):
+    w.write_frame(frames.Frame(1, s, time.time_ns(), rows[s * 10:(s + 1) * 10]))
+    if s == 24:
+        w.flush()
+os.kill(os.getpid(), signal.SIGKILL)
+"""
+    proc = subprocess.run([sys.executable, "-c", script], capture_output=True, timeout=60)
+    assert proc.returncode == -9, proc.stderr.decode()
+    assert not mcapread.has_footer(path)
+    torn = tmp_path / "copy.mcap"
+    shutil.copy(path, torn)
+    result = mcapread.recover(path)
+    assert result is not None and result.original_bytes == torn.stat().st_size
+    v, rec = check_file(path)
+    expected = make_rows(arm_model(), 400)
+    assert rec.recovered and fmt.META_RECOVERY in v.metadata
+    assert len(rec.rows) >= 250 and np.array_equal(rec.rows, expected[: len(rec.rows)])
+    assert "recovered" in rec.logs[-1]["message"]
+    assert mcapread.recover(path) is None  # already complete: nothing to do
+
+
+@pytest.mark.parametrize("cut", [0.35, 0.6, 0.97])
+def test_truncated_anywhere_keeps_every_complete_chunk(tmp_path: Path, cut: float) -> None:
+    full = tmp_path / "full.mcap"
+    sent = write_run(full, n_frames=200, chunk_size=32 * 1024)
+    data = full.read_bytes()
+    path = tmp_path / "cut.mcap"
+    path.write_bytes(data[: int(len(data) * cut)])
+    assert mcapread.recover(path) is not None
+    _v, rec = check_file(path)
+    allrows = np.concatenate([f.rows for f in sent])
+    assert np.array_equal(rec.rows, allrows[: len(rec.rows)])
+    assert len(rec.rows) > 0
+
+
+def test_bad_files_are_refused_with_their_name(tmp_path: Path) -> None:
+    junk = tmp_path / "junk.mcap"
+    junk.write_bytes(b"hello, not a recording" * 10)
+    with pytest.raises(mcapread.RecordingError, match=r"junk\.mcap: not an MCAP file"):
+        mcapread.load(junk)
+    foreign = tmp_path / "foreign.mcap"
+    with open(foreign, "wb") as fh:
+        w = Writer(fh)
+        w.start()
+        w.finish()
+    with pytest.raises(mcapread.RecordingError, match=r"foreign\.mcap: not a simecs recording"):
+        mcapread.load(foreign)
+    good = tmp_path / "good.mcap"
+    write_run(good, n_frames=5)
+    data = bytearray(good.read_bytes())
+    data[len(data) // 2] ^= 0xFF  # one flipped bit inside a chunk
+    with pytest.raises(mcapread.RecordingError, match="uploaded file"):
+        mcapread.validate(bytes(data))
+
+
+def test_export_csv_round_trip(tmp_path: Path) -> None:
+    path = tmp_path / "run.mcap"
+    sent = write_run(path, n_frames=12)
+    out = tmp_path / "run.csv"
+    assert export.main([str(path), "--csv", "-o", str(out)]) == 0
+    header = out.read_text().splitlines()[0].split(",")
+    table = np.loadtxt(out, delimiter=",", skiprows=1)
+    assert header == layout_for(SID).columns
+    assert np.array_equal(table, np.concatenate([f.rows for f in sent]))
+    buf = io.StringIO()
+    n = export.write_csv(mcapread.load(path), buf, ["joint2.*"], units=True, t0=0.1)
+    lines = buf.getvalue().splitlines()
+    assert lines[0] == "time,joint2.q,joint2.qd,joint2.tau_gear,joint2.i_a" and lines[1].startswith("s,rad,")
+    assert n == len(lines) - 2 and float(lines[2].split(",")[0]) >= 0.1
+    assert export.main([str(path), "--csv", "--vars", "nosuch.*", "-o", os.devnull]) == 2

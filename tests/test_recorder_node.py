@@ -1,0 +1,214 @@
+"""The recorder node in its own process: runs published on the mesh become valid MCAP files; a SIGKILL
+loses at most the last second; the files are listed, downloaded and uploaded over the mesh."""
+
+from __future__ import annotations
+
+import json
+import signal
+import time
+
+import numpy as np
+import pytest
+import zenoh
+import zenoh.ext
+from simecs.mesh import keys
+from simecs.mesh.client import RemoteError
+from simecs.nodes import mcapfmt as fmt
+from simecs.nodes import mcapread
+
+from .conftest import Mesh, start_service, wait_until
+from .test_recorder_support import FakeProxy, FakeRun, arm_model, check_file, make_rows, wait_file_closed
+
+SID = "Rec0rderTestSess10n-Ab"
+
+
+def test_published_run_is_recorded_listed_downloaded_uploaded(mesh: Mesh) -> None:
+    rec_dir = mesh.folder / "rec"
+    mesh.start("recorder", "--dir", str(rec_dir))
+    client = mesh.new_client()
+    proxy = FakeProxy(client.z, [SID])
+    run = FakeRun(client.z, SID)
+    try:
+        run.announce()
+        time.sleep(0.3)
+        run.state("running")
+        rows = make_rows(arm_model(), 300)
+        for k in range(30):
+            run.frame(rows[k * 10 : (k + 1) * 10], final=k == 29)
+        run.state("finished", float(rows[-1, 0]))
+        path = rec_dir / f"{keys.recording_name(SID, 'r1')}.mcap"
+        wait_file_closed(path)
+    finally:
+        run.close()
+        proxy.close()
+    v, rec = check_file(path)
+    assert v.per_topic[fmt.TOPIC_VARS] == 300 and np.array_equal(rec.rows, rows)
+    assert [g[0] for g in rec.frames()] == list(range(30))
+    assert v.per_topic[fmt.TOPIC_SCENE] == 1 and "model.json" in v.attachments
+    assert rec.metadata[fmt.META_SESSION]["user"] == "tester"
+    assert '"joint_path"' in rec.metadata[fmt.META_SESSION]["command"]
+    assert rec.metadata[fmt.META_END]["phase"] == "finished"
+    assert rec.metadata[fmt.META_END]["dropped_frames"] == "0"
+    texts = [log["message"] for log in rec.logs]
+    assert any("recording started" in t for t in texts) and any("finished" in t for t in texts)
+
+    name = path.stem
+    listed = {r.name: r for r in client.recordings()}
+    assert listed[name].session == SID and listed[name].run_id == "r1" and not listed[name].recovered
+    data, att = client.request_binary(keys.recording(name))
+    assert data == path.read_bytes() and att["name"] == name
+
+    info = client.request(keys.recording("uploaded-copy"), data)
+    assert info["name"] == "uploaded-copy" and (rec_dir / "uploaded-copy.mcap").read_bytes() == data
+    with pytest.raises(RemoteError, match="already exists") as err:
+        client.request(keys.recording("uploaded-copy"), data)
+    assert err.value.code == "conflict"
+    with pytest.raises(RemoteError, match="not an MCAP file") as err:
+        client.request(keys.recording("junk"), b"PK\x03\x04 a zip file, not a recording")
+    assert err.value.code == "bad_request"
+    with pytest.raises(RemoteError, match="incomplete MCAP"):
+        client.request(keys.recording("torn"), data[: len(data) // 2])
+    with pytest.raises(RemoteError) as err:
+        client.request_binary(keys.recording("nosuch"))
+    assert err.value.code == "not_found"
+    assert not (rec_dir / "junk.mcap").exists() and not (rec_dir / "torn.mcap").exists()
+
+
+def test_sigkill_mid_run_keeps_everything_up_to_the_last_flush(mesh: Mesh) -> None:
+    rec_dir = mesh.folder / "rec"
+    mesh.start("recorder", "--dir", str(rec_dir))
+    client = mesh.new_client()
+    run = FakeRun(client.z, SID)
+    rows = make_rows(arm_model(), 1500)
+    sent_at: list[tuple[float, int]] = []
+    try:
+        run.announce()
+        time.sleep(0.3)
+        for k in range(120):  # 10 rows per 20 ms frame: real-time pacing, 2.4 s
+            run.frame(rows[k * 10 : (k + 1) * 10])
+            sent_at.append((time.monotonic(), (k + 1) * 10))
+            time.sleep(0.02)
+        mesh.stop("recorder", signal.SIGKILL)
+        killed = time.monotonic()
+        path = rec_dir / f"{keys.recording_name(SID, 'r1')}.mcap"
+        assert path.exists() and not mcapread.has_footer(path)
+        mesh.start("recorder", "--dir", str(rec_dir), name="recorder2")
+        wait_until(lambda: mcapread.has_footer(path), 15, what="recovery at start")
+        # The run goes on: the restarted recorder continues it in a second file.
+        for k in range(120, 150):
+            run.frame(rows[k * 10 : (k + 1) * 10], final=k == 149)
+        cont = rec_dir / f"{path.stem}.2.mcap"
+        wait_file_closed(cont)
+    finally:
+        run.close()
+    v, rec = check_file(path)
+    assert rec.recovered and fmt.META_RECOVERY in v.metadata
+    flushed_by = max(n for t, n in sent_at if t <= killed - 1.5)  # flush period 1 s, plus transport slack
+    assert len(rec.rows) >= flushed_by, (len(rec.rows), flushed_by)
+    assert np.array_equal(rec.rows, rows[: len(rec.rows)])
+    assert any("recovered" in log["message"] for log in rec.logs)
+    assert client.recordings()[0].name in (path.stem, cont.stem)
+    assert {r.name: r.recovered for r in client.recordings()}[path.stem] is True
+    _v2, rec2 = check_file(cont)
+    assert rec2.metadata[fmt.META_RUN]["continues"] == path.stem
+    assert np.array_equal(rec2.rows[-300:], rows[1200:1500])
+
+
+@pytest.mark.timeout(120)
+def test_real_run_leaves_a_valid_recording(mesh: Mesh) -> None:
+    """A Spider run through the whole service: the recording equals the simulator's own results."""
+    service = start_service(mesh)
+    rec_dir = mesh.folder / "rec"
+    mesh.start("recorder", "--dir", str(rec_dir))
+    client = service.client
+    s = client.create_session("tester", "spider")
+    s.set_settings(stop_time=0.5, output_interval=0.002, pacing="fast")
+    from simecs.models.spider import STANDARD_TARGET
+
+    s.set_joint_path([(list(STANDARD_TARGET), 100.0, 100.0)])
+    run_id = s.run()
+    s.wait_for(["finished", "failed", "aborted"], 90, run_id)
+    path = rec_dir / f"{keys.recording_name(s.id, run_id)}.mcap"
+    wait_file_closed(path)
+    v, rec = check_file(path)
+    columns, results = s.results(run_id)
+    assert rec.columns == columns
+    assert np.array_equal(rec.rows, results)
+    assert v.per_topic[fmt.TOPIC_VARS] == len(results) == 251
+    assert rec.metadata[fmt.META_END]["phase"] == "finished"
+    assert rec.metadata[fmt.META_RUN]["model_id"] == "spider"
+    assert json.loads(rec.metadata[fmt.META_SESSION]["command"])["kind"] == "joint_path"
+    assert len(rec.params()) == len(client.describe("spider").parameters)
+    sc = mcapread.scan(path)
+    scene = next(msg for msg in sc.messages if sc.channels[msg.channel_id].topic == fmt.TOPIC_SCENE)
+    ids = {e["id"] for e in json.loads(scene.data)["entities"]}
+    assert {f"link{i}" for i in range(1, 8)} <= ids
+    name = path.stem
+    assert name in {r.name for r in client.recordings()}
+    data, _att = client.request_binary(keys.recording(name))
+    assert mcapread.validate(data).messages == v.messages
+
+
+def test_aborted_run_and_dropped_frames_are_marked_in_the_file(mesh: Mesh) -> None:
+    """A recorder that must drop says so: in the file's /log, in simecs.end, and in its node status."""
+    rec_dir = mesh.folder / "rec"
+    node_id = mesh.start("recorder", "--dir", str(rec_dir), "--queue-frames", "4")
+    client = mesh.new_client()
+    statuses: list[dict] = []
+    status_sub = zenoh.ext.declare_advanced_subscriber(
+        client.z,
+        keys.node_status("recorder", node_id),
+        lambda s: statuses.append(json.loads(s.payload.to_bytes())),
+        history=zenoh.ext.HistoryConfig(detect_late_publishers=True),
+    )
+    run = FakeRun(client.z, SID)
+    rows = make_rows(arm_model(), 1000)
+    try:
+        run.announce()
+        time.sleep(0.3)
+        for k in range(100):  # a burst far beyond a 4-frame queue
+            run.frame(rows[k * 10 : (k + 1) * 10])
+        run.frame(np.empty((0, rows.shape[1])), final=True)  # how a worker ends an aborted run
+        run.state("aborted", float(rows[-1, 0]), "aborted by the user")
+        path = rec_dir / f"{keys.recording_name(SID, 'r1')}.mcap"
+        wait_file_closed(path)
+        wait_until(lambda: statuses and statuses[-1]["detail"]["dropped_frames"] > 0, 10, what="status")
+    finally:
+        status_sub.undeclare()
+        run.close()
+    _v, rec = check_file(path)
+    end = rec.metadata[fmt.META_END]
+    assert end["phase"] == "aborted" and end["reason"] == "aborted by the user"
+    dropped = int(end["dropped_frames"])
+    kept_frames = len(list(rec.frames()))
+    assert dropped > 0 and len(rec.rows) == 10 * kept_frames
+    assert 100 <= dropped + kept_frames <= 101  # 100 data frames + the empty final one (kept or dropped)
+    kept = {tuple(r) for r in rec.rows.tolist()}
+    assert kept <= {tuple(r) for r in rows.tolist()}  # every stored sample is a real one, unchanged
+    errors = [log["message"] for log in rec.logs if log["level"] == fmt.LOG_ERROR]
+    assert any("queue full" in t for t in errors)  # when and how many, as it happened
+    assert any(f"at least {dropped} frames DROPPED" in t for t in errors)  # the summary at the end
+
+
+def test_frames_lost_on_the_way_show_as_a_gap(mesh: Mesh) -> None:
+    rec_dir = mesh.folder / "rec"
+    mesh.start("recorder", "--dir", str(rec_dir))
+    client = mesh.new_client()
+    run = FakeRun(client.z, SID)
+    rows = make_rows(arm_model(), 70)
+    try:
+        run.announce()
+        time.sleep(0.3)
+        for k in range(7):
+            if k in (3, 4):
+                run.seq += 1  # lost between the simulator and the recorder
+                continue
+            run.frame(rows[k * 10 : (k + 1) * 10], final=k == 6)
+        path = rec_dir / f"{keys.recording_name(SID, 'r1')}.mcap"
+        wait_file_closed(path)
+    finally:
+        run.close()
+    _v, rec = check_file(path)
+    assert rec.metadata[fmt.META_END]["dropped_frames"] == "2"
+    assert np.array_equal(rec.rows, np.concatenate([rows[:30], rows[50:]]))
+    assert any("MISSING frames 3..4" in log["message"] for log in rec.logs)
