@@ -1,0 +1,241 @@
+"""The viewer in a real browser (Debian chromium + Playwright): the paper's use case step by step
+(§2.2 steps 1-11) through the UI, and one session per browser tab.
+
+Skips with its reason when chromium or Playwright is missing (.ci/run installs chromium).
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import math
+import socket
+import time
+from collections.abc import Iterator
+from typing import Any
+
+import pytest
+from simecs.mesh.client import MeshClient
+from simecs.viewer import headless
+
+from .conftest import ARTIFACTS, Mesh, start_service, wait_until
+
+MISSING = headless.browser_missing()
+pytestmark = pytest.mark.skipif(bool(MISSING), reason=f"browser tests need chromium: {MISSING}")
+
+SPIDER = "Load Spider arm (joint-independent control)"
+USER = "tester"
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def start_viewer(mesh: Mesh) -> str:
+    port = free_port()
+    mesh.spawn(
+        "viewer",
+        "simecs.viewer.app",
+        "--host",
+        "127.0.0.1",
+        "--port",
+        str(port),
+        "--user",
+        USER,
+        node_id="viewer-t",
+    )
+    mesh.wait_node("viewer", "viewer-t", timeout=60)
+    return f"http://127.0.0.1:{port}"
+
+
+@pytest.fixture
+def browser() -> Iterator[Any]:
+    from playwright.sync_api import sync_playwright
+
+    with sync_playwright() as pw:
+        b = headless.launch(pw)
+        try:
+            yield b
+        finally:
+            b.close()
+
+
+def new_page(context: Any, url: str) -> Any:
+    page = context.new_page()
+    page.set_default_timeout(30_000)
+    page.add_init_script(headless.PROBE_JS)
+    page.goto(url)
+    return page
+
+
+def sessions_of(client: MeshClient) -> set[str]:
+    return {s["session"] for s in client.list_sessions(USER) if s["phase"] != "closed"}
+
+
+def text_appears(page: Any, text: str, timeout: float = 30.0) -> None:
+    page.get_by_text(text, exact=False).first.wait_for(timeout=timeout * 1000)
+
+
+def poses_since(page: Any, t_ms: float, link: str | None = None) -> int:
+    return sum(1 for t, _n in headless.pose_batches(page) if t > t_ms)
+
+
+def dismiss_notifications(page: Any) -> None:
+    """Close the notifications stacked top left (they cover what is under them, as for a user)."""
+    for button in page.locator(".mantine-Notification-closeButton").all():
+        try:
+            button.click(timeout=2000)
+        except Exception:
+            pass
+
+
+def now_ms(page: Any) -> float:
+    return float(page.evaluate("() => performance.now()"))
+
+
+def test_use_case_in_the_browser(mesh: Mesh, browser: Any) -> None:
+    """Steps 1-11 of §2.2 through the UI, with the 3D arm and the plots checked as the page got them."""
+    service = start_service(mesh)
+    recorder = importlib.util.find_spec("simecs.nodes.recorder") is not None
+    if recorder:
+        mesh.start("recorder", "--dir", str(mesh.folder / "recordings"))
+    url = start_viewer(mesh)
+    client = service.client
+    context = browser.new_context(viewport=headless.VIEWPORT, accept_downloads=True)
+    page = new_page(context, url)
+
+    # 1. the models window: the library with summaries; load the Spider
+    text_appears(page, "7 joints")
+    page.get_by_role("button", name=SPIDER).click()
+    text_appears(page, "Spider arm (joint-independent control)")
+    sid = wait_until(lambda: next(iter(sessions_of(client)), None), timeout=20, what="a session")
+    session = client.session(sid)
+    assert session.snapshot().model_id == "spider"
+
+    # 2. parameters in place: a valid length reshapes the arm at once; an invalid mass is refused
+    page.get_by_role("button", name="link2 (3)").click()
+    t = now_ms(page)
+    headless.set_field(page, page.get_by_label("length [m]"), "0.5")
+    wait_until(lambda: session.snapshot().values["link2.length"] == 0.5, timeout=10, what="length stored")
+    wait_until(lambda: poses_since(page, t) > 0, timeout=10, what="the 3D arm reshaped")
+    headless.set_field(page, page.get_by_label("mass [kg]"), "9999")
+    text_appears(page, "outside [0, 500] kg")
+    assert session.snapshot().values["link2.mass"] == 6.0
+
+    # 2. documentation: hypertext, follow a link and come back
+    dismiss_notifications(page)
+    page.get_by_role("button", name="Documentation").click()
+    page.get_by_role("button", name="→ Joint drive").click()
+    text_appears(page, "Sub-components")
+    page.get_by_role("button", name="◀ Back").click()
+    page.get_by_role("button", name="Close", exact=True).click()
+
+    # 3. variables: choose what to stream and open a plot
+    page.get_by_role("tab", name="Variables").click()
+    page.get_by_text("joint1 (14)", exact=True).click()
+    page.get_by_role("button", name="joint1 (2 own)").click()
+    page.get_by_role("button", name="Plot q", exact=True).click()
+    text_appears(page, "Plot 1: joint1.q")
+
+    # 4. initial pose with the sliders: the 3D arm follows at once; the server gets it
+    page.get_by_role("button", name="Initialise").click()
+    t = now_ms(page)
+    headless.set_field(page, headless.slider_input(page, "joint2 [deg]"), "20")
+    wait_until(lambda: poses_since(page, t) > 0, timeout=10, what="the 3D arm following the slider")
+    wait_until(
+        lambda: abs(session.snapshot().initial[1] - math.radians(20)) < 1e-3, timeout=10, what="initial pose"
+    )
+    page.get_by_role("button", name="Close initialisation").click()
+
+    # 5. a 2-node joint path in the teach pendant
+    page.get_by_role("button", name="Teach").click()
+    page.get_by_role("button", name="Teach").click()
+    headless.set_field(page, headless.slider_input(page, "joint1 target [deg]"), "30")
+    text_appears(page, "▶2")
+
+    # 6. simulation settings: a 2 s run
+    page.get_by_role("button", name="Settings").click()
+    headless.set_field(page, page.get_by_label("Stop time [s]"), "2")
+    page.get_by_role("button", name="Apply settings").click()
+    wait_until(lambda: session.snapshot().settings.stop_time == 2.0, timeout=10, what="settings stored")
+
+    # 7-8. run: live plot data and the animated arm reach the page; progress reaches 100 %
+    t = now_ms(page)
+    page.get_by_role("button", name="Run", exact=True).click()
+    text_appears(page, "finished run r1", timeout=120)
+    text_appears(page, "100 %")
+    cmd = session.snapshot().command
+    assert cmd is not None and len(cmd.nodes) == 2
+    assert (
+        abs(cmd.nodes[1].q[0] - math.radians(30)) < 1e-3 and abs(cmd.nodes[0].q[1] - math.radians(20)) < 1e-3
+    )
+    assert poses_since(page, t) >= 10, "the 3D arm did not animate from the live stream"
+    live_points = [n for tt, n in headless.plot_points(page) if tt > t]
+    assert live_points and max(live_points) >= 10, f"the live plot got no data: {live_points[-5:]}"
+
+    # 9-10. full-resolution transient on request
+    page.get_by_role("tab", name="Results").click()
+    page.get_by_role("button", name="Full resolution").first.click()
+    text_appears(page, "r1 full res")
+    wait_until(
+        lambda: max(n for _t, n in headless.plot_points(page)) >= 1000, timeout=20, what="full-res data"
+    )
+
+    # 11. save the results: CSV of the chosen variables, and the MCAP recording when a recorder runs
+    with page.expect_download(timeout=30_000) as dl:
+        page.get_by_role("button", name="CSV", exact=True).click()
+    csv_path = ARTIFACTS / "viewer_use_case.csv"
+    ARTIFACTS.mkdir(exist_ok=True)
+    dl.value.save_as(csv_path)
+    lines = [ln for ln in csv_path.read_text().splitlines() if not ln.startswith("#")]
+    assert lines[0].startswith("time [s],") and "joint1.q [rad]" in lines[0]
+    assert len(lines) - 1 == 1001  # 2 s at 2 ms, both ends
+    if recorder:
+        with page.expect_download(timeout=60_000) as dl:
+            page.get_by_role("button", name="MCAP", exact=True).click()
+        mcap = ARTIFACTS / "viewer_use_case.mcap"
+        dl.value.save_as(mcap)
+        assert mcap.read_bytes()[:8] == b"\x89MCAP0\r\n"
+    page.screenshot(path=str(ARTIFACTS / "viewer_use_case.png"))
+
+    # the session and its values come back after a reload
+    page.reload()
+    text_appears(page, f"session {sid[:8]}")
+    page.get_by_role("button", name="link2 (3)").click()
+    assert page.get_by_label("length [m] •").input_value() == "0.5"
+    text_appears(page, "▶1")
+    assert sessions_of(client) == {sid}
+    context.close()
+
+
+def test_two_tabs_get_independent_sessions(mesh: Mesh, browser: Any) -> None:
+    service = start_service(mesh)
+    url = start_viewer(mesh)
+    client = service.client
+    context = browser.new_context(viewport=headless.VIEWPORT)  # one browser, one user, two tabs
+    a = new_page(context, url)
+    a.get_by_role("button", name=SPIDER).click()
+    text_appears(a, "Spider arm (joint-independent control)")
+    sid_a = wait_until(lambda: next(iter(sessions_of(client)), None), timeout=20, what="session A")
+    b = new_page(context, url)
+    b.get_by_role("button", name=SPIDER).click()
+    sid_b = wait_until(lambda: next(iter(sessions_of(client) - {sid_a}), None), timeout=20, what="session B")
+    assert sid_a != sid_b
+
+    a.get_by_role("button", name="link3 (3)").click()
+    headless.set_field(a, a.get_by_label("length [m]"), "0.9")
+    wait_until(lambda: client.session(sid_a).snapshot().values["link3.length"] == 0.9, timeout=10, what="A")
+    assert client.session(sid_b).snapshot().values["link3.length"] == 0.7
+
+    # each tab keeps its own session over a reload (the other tab is still open)
+    b.reload()
+    text_appears(b, f"session {sid_b[:8]}")
+    b.get_by_role("button", name="link3 (3)").click()
+    assert b.get_by_label("length [m]", exact=True).input_value() == "0.7"
+    a.reload()
+    text_appears(a, f"session {sid_a[:8]}")
+    assert sessions_of(client) == {sid_a, sid_b}
+    b.screenshot(path=str(ARTIFACTS / "viewer_two_tabs.png"))
+    context.close()
+    time.sleep(0.2)

@@ -1,0 +1,175 @@
+"""The viewer node: a viser web server whose every browser tab is a user with their own session.
+
+    python -m simecs.viewer.app --connect tcp/127.0.0.1:7447 --host 127.0.0.1 --port 8080
+
+It is a mesh node like any other (liveliness, status, clean exit on SIGTERM) and, of simecs, it
+imports only `simecs.mesh`: models reach it as messages, as they would reach a third party's client.
+The web server binds to loopback unless a LAN address is asked for, and viser's Share button (which
+would open a tunnel to an outside service) is hidden and disabled.
+"""
+
+from __future__ import annotations
+
+import argparse
+import threading
+import time
+from typing import Any
+
+import viser
+from simecs.mesh.client import MeshClient
+from simecs.mesh.model import ModelDescription
+from simecs.mesh.runtime import Node, main_for, mesh_from_args
+
+from .tab import Tab
+
+DEFAULT_HOST = "127.0.0.1"
+DEFAULT_PORT = 8080
+
+
+class Viewer(Node):
+    """The web client of simecs (paper §3.2): one viser server, one `Tab` per browser tab."""
+
+    role = "viewer"
+    tick_s = 0.1
+
+    def __init__(
+        self,
+        mesh: Any,
+        node_id: str | None = None,
+        host: str = DEFAULT_HOST,
+        port: int = DEFAULT_PORT,
+        user: str = "",
+    ) -> None:
+        super().__init__(mesh, node_id)
+        self.host = host
+        self.port = port
+        self.default_user = user
+        self.server: viser.ViserServer | None = None
+        self.mc: MeshClient = None  # type: ignore[assignment]  # set in start()
+        self.tabs: dict[int, Tab] = {}
+        self.claims: dict[str, Tab] = {}
+        self.claims_lock = threading.Lock()
+        self._models: dict[str, ModelDescription] = {}
+        self._models_lock = threading.Lock()
+
+    @staticmethod
+    def add_arguments(parser: argparse.ArgumentParser) -> None:
+        parser.add_argument(
+            "--host",
+            default=DEFAULT_HOST,
+            help="address to serve the web page on (default loopback; a LAN "
+            "address or 0.0.0.0 to let other machines in)",
+        )
+        parser.add_argument("--port", type=int, default=DEFAULT_PORT, help="web port (default 8080)")
+        parser.add_argument("--user", default="", help="user name for browsers that have none yet")
+
+    @classmethod
+    def from_args(cls, args: argparse.Namespace) -> Viewer:
+        return cls(mesh_from_args(args), args.node_id, args.host, args.port, args.user)
+
+    def status_detail(self) -> dict[str, Any]:
+        return {"url": self.url, "tabs": len(self.tabs)}
+
+    @property
+    def url(self) -> str:
+        host = "127.0.0.1" if self.host in ("0.0.0.0", "") else self.host
+        return f"http://{host}:{self.port}"
+
+    # -- node lifecycle ---------------------------------------------------------------------------
+    def start(self) -> None:
+        self.mc = MeshClient(self.z, timeout=10.0)
+        server = viser.ViserServer(host=self.host, port=self.port, label="simecs", verbose=False)
+        # Never offer or open a public share tunnel (STACK-NOTES): hide the button, disable the call.
+        server.gui.configure_theme(show_share_button=False, show_logo=False, control_width="large")
+        server.request_share_url = _no_share  # type: ignore[method-assign]
+        server.disconnect_share_url = lambda: None  # type: ignore[method-assign]
+        server.on_client_connect(self._connected)
+        server.on_client_disconnect(self._disconnected)
+        self.server = server
+        self.log.info("viewer at %s", self.url)
+        print(f"simecs viewer: {self.url}", flush=True)
+
+    def stop(self) -> None:
+        for tab in list(self.tabs.values()):
+            tab.close()
+        self.tabs.clear()
+        if self.server is not None:
+            self.server.stop()
+            self.server = None
+
+    def tick(self) -> None:
+        for tab in list(self.tabs.values()):
+            tab.tick()
+
+    # -- tabs ------------------------------------------------------------------------------------
+    def _connected(self, client: Any) -> None:
+        tab = Tab(self, client)
+        self.tabs[client.client_id] = tab
+        try:
+            tab.start()
+        except Exception:
+            self.log.exception("tab %s failed to start", client.client_id)
+
+    def _disconnected(self, client: Any) -> None:
+        tab = self.tabs.pop(client.client_id, None)
+        if tab is not None:
+            tab.close()
+
+    def describe(self, model_id: str) -> ModelDescription:
+        """A model's description, asked once per viewer (it only changes with a server restart)."""
+        with self._models_lock:
+            desc = self._models.get(model_id)
+        if desc is None:
+            desc = self.mc.describe(model_id)
+            with self._models_lock:
+                self._models[model_id] = desc
+        return desc
+
+    # -- one tab per session ------------------------------------------------------------------------
+    def _connected_ids(self) -> set[int]:
+        return set(self.server.get_clients()) if self.server is not None else set()
+
+    def claim(self, session: str, tab: Tab, wait_s: float = 2.0) -> bool:
+        """Give `session` to `tab` unless another live tab shows it.
+
+        A reloading tab's old connection may close a moment after the new one asks, so a claim held
+        by a still-connected tab is waited for up to `wait_s`.
+        """
+        end = time.monotonic() + wait_s
+        while True:
+            with self.claims_lock:
+                owner = self.claims.get(session)
+                if (
+                    owner is None
+                    or owner is tab
+                    or owner.closed
+                    or owner.client.client_id not in self._connected_ids()
+                ):
+                    self.claims[session] = tab
+                    return True
+            if time.monotonic() > end:
+                return False
+            time.sleep(0.1)
+
+    def claimed_by_other(self, session: str, tab: Tab) -> bool:
+        with self.claims_lock:
+            owner = self.claims.get(session)
+            return owner is not None and owner is not tab and not owner.closed
+
+    def release(self, session: str, tab: Tab) -> None:
+        with self.claims_lock:
+            if self.claims.get(session) is tab:
+                del self.claims[session]
+
+
+def _no_share(*_args: Any, **_kwargs: Any) -> None:
+    """viser's share tunnel is disabled in simecs: the viewer serves the LAN only."""
+    return None
+
+
+def main(argv: list[str] | None = None) -> int:
+    return main_for(Viewer, argv)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,177 @@
+"""`simecs bench viewer`: what a browser tab receives during a standard run.
+
+A private mesh (hub on a unix socket, proxy, simulator, hot-feedback, viewer: real processes) and a
+headless Debian chromium. In the page, the Spider is loaded, a one-node joint path to the standard
+target is taught through the command panel, and Run is clicked. Measured in the browser itself:
+
+- `updates_per_s`: message batches that moved the 3D arm, per second, while it moved (target >= 30);
+- `first_frame_s`: from the click on Run to the first such batch (target <= 1 s).
+
+The simulator is warmed first by one short run through the typed client (its first worker compiles
+the drive kernels once). The standard run: Spider, 5 s at real-time pacing, 50 Hz live rate (the
+default settings), all joints from 0 to (0.8, 0.6, -0.7, 1.0, 0.9, -0.8, 1.2) rad at 100 % / 100 %
+(the models' standard case).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import socket
+import time
+from typing import Any
+
+from simecs.mesh.launch import LocalMesh
+
+from . import headless
+
+STANDARD_TARGET = (0.8, 0.6, -0.7, 1.0, 0.9, -0.8, 1.2)  # rad: models/spider.py STANDARD_TARGET
+MODEL_BUTTON = "Load Spider arm (joint-independent control)"
+TARGET_UPDATES_PER_S = 30.0
+TARGET_FIRST_FRAME_S = 1.0
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def warm_up(mesh: LocalMesh) -> float:
+    """One short run through the typed client, so the measured run finds the simulator's worker warm.
+
+    A fresh simulator compiles (or loads from numba's cache) the drive kernels in its first worker;
+    that one-time cost belongs to the simulator's start, not to the viewer measured here.
+    """
+    t0 = time.monotonic()
+    s = mesh.client().create_session("bench-warmup", "spider")
+    try:
+        s.set_settings(stop_time=0.2, output_interval=0.002, pacing="fast")
+        s.set_joint_path([(list(STANDARD_TARGET), 100.0, 100.0)])
+        s.run()
+        s.wait_for(["finished", "failed", "aborted"], timeout=180.0)
+    finally:
+        s.close()
+    return time.monotonic() - t0
+
+
+def viewer_latency(log: str) -> float | None:
+    """Click received -> first live frame drawn, as the viewer logged it (the server-side share)."""
+    for line in reversed(log.splitlines()):
+        if "first live frame" in line and "ms after the click" in line:
+            try:
+                return float(line.split(" drawn ", 1)[1].split(" ms", 1)[0]) / 1000.0
+            except (IndexError, ValueError):
+                return None
+    return None
+
+
+def measure(page: Any, run_timeout_s: float = 60.0) -> dict[str, Any]:
+    """Teach the standard path, click Run, and time the pose updates the page receives."""
+    page.get_by_role("button", name=MODEL_BUTTON).click(timeout=60_000)
+    page.get_by_role("button", name="Teach").click(timeout=30_000)
+    for k, q in enumerate(STANDARD_TARGET, start=1):
+        headless.set_field(
+            page, headless.slider_input(page, f"joint{k} target [deg]"), f"{math.degrees(q):.1f}"
+        )
+    time.sleep(0.6)  # the path reaches the server after the edits pause (the Run click sends it anyway)
+    before = len(headless.pose_batches(page))
+    page.get_by_role("button", name="Run", exact=True).click()
+    end = time.monotonic() + run_timeout_s
+    while time.monotonic() < end:
+        if page.get_by_text("finished run", exact=False).count():
+            break
+        time.sleep(0.25)
+    else:
+        raise TimeoutError(f"the run did not finish within {run_timeout_s} s: {headless.status_text(page)!r}")
+    run_clicks = [t for t, label in headless.clicks(page) if label == "Run"]
+    batches = headless.pose_batches(page)[before:]
+    if not run_clicks or not batches:
+        raise RuntimeError("no pose update reached the page after Run")
+    clicked = run_clicks[-1]
+    after = [(t, n) for t, n in batches if t >= clicked]
+    first = after[0][0]
+    span = (after[-1][0] - first) / 1000.0
+    return {
+        "updates_per_s": (len(after) - 1) / span if span > 0 else 0.0,
+        "first_frame_s": (first - clicked) / 1000.0,
+        "pose_updates": len(after),
+        "moving_s": span,
+        "status": headless.status_text(page),
+    }
+
+
+def _ms(seconds: float | None) -> str:
+    return "?" if seconds is None else f"{seconds * 1000:.0f} ms"
+
+
+def run_viewer_bench(json_out: bool) -> dict[str, Any] | None:
+    """Run the benchmark; print a table (and with `json_out` one JSON object on the last line)."""
+    missing = headless.browser_missing()
+    if missing:
+        print(f"simecs bench viewer: cannot run: {missing}")
+        return None
+    from playwright.sync_api import sync_playwright
+
+    t0 = time.monotonic()
+    port = free_port()
+    with LocalMesh() as mesh:
+        mesh.start_hub()
+        mesh.start_service()
+        mesh.start(
+            "viewer",
+            "--host",
+            "127.0.0.1",
+            "--port",
+            str(port),
+            "--user",
+            "bench",
+            module="simecs.viewer.app",
+        )
+        warm_s = warm_up(mesh)
+        setup_s = time.monotonic() - t0
+        with sync_playwright() as pw:
+            browser = headless.launch(pw)
+            try:
+                page = browser.new_page(viewport=headless.VIEWPORT)
+                page.add_init_script(headless.PROBE_JS)
+                page.goto(f"http://127.0.0.1:{port}")
+                result = measure(page)
+            finally:
+                browser.close()
+        result["viewer_click_to_frame_s"] = viewer_latency(mesh.log("viewer"))
+    result.update(
+        {
+            "target_updates_per_s": TARGET_UPDATES_PER_S,
+            "target_first_frame_s": TARGET_FIRST_FRAME_S,
+            "ok": result["updates_per_s"] >= TARGET_UPDATES_PER_S
+            and result["first_frame_s"] <= TARGET_FIRST_FRAME_S,
+            "setup_s": setup_s,
+            "warm_up_s": warm_s,
+            "total_s": time.monotonic() - t0,
+        }
+    )
+    rows = [
+        (
+            "3D pose updates received by the tab",
+            f"{result['updates_per_s']:.1f} /s",
+            f">= {TARGET_UPDATES_PER_S:g} /s",
+        ),
+        (
+            "Run click -> first live frame in the tab",
+            f"{result['first_frame_s'] * 1000:.0f} ms",
+            f"<= {TARGET_FIRST_FRAME_S * 1000:.0f} ms",
+        ),
+        ("pose updates while the arm moved", f"{result['pose_updates']} in {result['moving_s']:.2f} s", ""),
+        ("  of which in the viewer (click in -> frame out)", _ms(result["viewer_click_to_frame_s"]), ""),
+        ("mesh + viewer start, simulator warm-up", f"{setup_s:.1f} s ({warm_s:.1f} s)", ""),
+    ]
+    print("simecs bench viewer (headless chromium, standard run: Spider, 5 s real time, 50 Hz live)")
+    print(f"{'measure':44} {'value':>18}  target")
+    for name, value, target in rows:
+        print(f"{name:44} {value:>18}  {target}")
+    print(f"final status: {result['status']}")
+    print("PASS" if result["ok"] else "FAIL: below target")
+    if json_out:
+        print(json.dumps(result))
+    return result

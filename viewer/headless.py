@@ -1,0 +1,113 @@
+"""Driving the viewer in a real browser (Debian chromium through Playwright): shared by the browser
+tests and `simecs bench viewer`.
+
+viser's websocket lives in a Web Worker, out of Playwright's sight (STACK-NOTES), so `PROBE_JS`
+wraps the page's `Worker` before viser creates it and timestamps every message batch that moves a
+link of the 3D arm: those are the pose updates the tab actually received.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+from typing import Any
+
+CHROMIUM = os.environ.get("SIMECS_CHROMIUM", "/usr/bin/chromium")
+CHROMIUM_ARGS = [
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-quic",
+    "--no-first-run",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+]
+VIEWPORT = {"width": 1600, "height": 1000}
+
+PROBE_JS = """
+(() => {
+  const rec = window.__simecs = {batches: [], clicks: [], plots: []};
+  const Base = window.Worker;
+  if (!Base) return;
+  class Probed extends Base {
+    constructor(...args) {
+      super(...args);
+      this.addEventListener('message', (e) => {
+        const d = e.data;
+        if (!d || d.type !== 'message_batch' || !d.messages) return;
+        let poses = 0;
+        for (const m of d.messages) {
+          if ((m.type === 'SetPositionMessage' || m.type === 'SetOrientationMessage')
+              && typeof m.name === 'string' && m.name.startsWith('/arm/')) poses++;
+          else if (m.type === 'GuiUpdateMessage' && m.updates && Array.isArray(m.updates.data)) {
+            const x = m.updates.data[0];
+            rec.plots.push([performance.now(), x ? (x.length || x.byteLength / 8 || 0) : 0]);
+          }
+        }
+        if (poses) rec.batches.push([performance.now(), poses]);
+      });
+    }
+  }
+  window.Worker = Probed;
+  document.addEventListener('click', (e) => {
+    const b = e.target && e.target.closest ? e.target.closest('button') : null;
+    if (b) rec.clicks.push([performance.now(), b.textContent.trim()]);
+  }, true);
+})();
+"""
+
+
+def browser_missing() -> str:
+    """Why a real-browser run cannot happen here ('' when it can)."""
+    if not (os.path.isfile(CHROMIUM) or shutil.which(CHROMIUM)):
+        return f"no chromium at {CHROMIUM} (Debian: apt-get install chromium; .ci/run installs it)"
+    try:
+        import playwright.sync_api  # noqa: F401
+    except ImportError:
+        return "the playwright Python package is not installed (pip install -e '.[test]')"
+    return ""
+
+
+def launch(pw: Any) -> Any:
+    """Headless Debian chromium with the flags that work on these machines (never `playwright install`)."""
+    return pw.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS, headless=True)
+
+
+def slider_input(page: Any, label: str) -> Any:
+    """The number box of the viser slider labelled `label` (typing there moves the slider)."""
+    return page.locator(
+        f"xpath=//label[normalize-space(text())='{label}']/ancestor::div[contains(@class,'mantine-Flex-root')][1]"
+        "//input[contains(@class,'NumberInput-input')]"
+    )
+
+
+def set_field(page: Any, locator: Any, value: str) -> None:
+    """Type a value into a viser input and commit it as a user would (Enter)."""
+    locator.fill(value)
+    locator.press("Enter")
+
+
+def pose_batches(page: Any) -> list[tuple[float, int]]:
+    """(time in ms, pose messages) of every batch that moved the arm so far."""
+    return [
+        (float(t), int(n)) for t, n in page.evaluate("() => window.__simecs ? window.__simecs.batches : []")
+    ]
+
+
+def plot_points(page: Any) -> list[tuple[float, int]]:
+    """(time in ms, points) of every plot redraw the page received."""
+    return [
+        (float(t), int(n)) for t, n in page.evaluate("() => window.__simecs ? window.__simecs.plots : []")
+    ]
+
+
+def clicks(page: Any) -> list[tuple[float, str]]:
+    return [
+        (float(t), str(s)) for t, s in page.evaluate("() => window.__simecs ? window.__simecs.clicks : []")
+    ]
+
+
+def status_text(page: Any) -> str:
+    """The toolbar's one-line run status (phase, time, progress, RTF)."""
+    loc = page.locator("p, div").filter(has_text="RTF").last
+    return loc.inner_text() if loc.count() else ""

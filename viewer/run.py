@@ -1,0 +1,150 @@
+"""The toolbar and the time presentation (paper §3.2, §5.2): windows to open, the run's progress
+with simulated time and real-time factor, and run / pause / resume / abort; plus the simulation
+settings window (paper §2.2 step 6).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+from simecs.mesh import messages as m
+from simecs.mesh.codec import DecodeError
+
+ACTIVE = ("queued", "running", "paused")
+PACING = {"real time": "realtime", "N x real time": "scaled", "as fast as possible": "fast"}
+PACING_LABEL = {v: k for k, v in PACING.items()}
+TOOLBAR = ("Models", "Initialise", "Settings", "Documentation")
+RUN_BUTTONS = ("Run", "Pause", "Resume", "Abort")
+
+
+def status_text(st: m.SessionState | None, replay: bool = False) -> str:
+    """One line a user can read at a glance: phase, time, speed."""
+    if st is None:
+        return "_No session._"
+    what = "replay" if replay else (f"run {st.run_id}" if st.run_id else "")
+    if st.phase == "queued":
+        return f"**queued** {what}: position {st.queue_position} (the server is busy with other runs)"
+    if st.phase in ("running", "paused", "finished", "aborted", "failed"):
+        line = (
+            f"**{st.phase}** {what} · t = {st.sim_time:.3f} s · {st.progress * 100:.0f} % · RTF {st.rtf:.2f}"
+        )
+        if st.reason and st.phase in ("aborted", "failed"):
+            line += f"\n\n{st.reason}"
+        return line
+    return f"**{st.phase}**: ready to run"
+
+
+def run_action_refusal(action: str, phase: str) -> str:
+    """Why a run button does nothing in this phase ('' when it applies)."""
+    if action == "Run" and phase in ACTIVE:
+        return f"a run is already {phase}: pause, resume or abort it first"
+    if action == "Pause" and phase != "running":
+        return f"nothing to pause: the session is {phase}"
+    if action == "Resume" and phase != "paused":
+        return f"nothing to resume: the session is {phase}"
+    if action == "Abort" and phase not in ACTIVE:
+        return f"nothing to abort: the session is {phase}"
+    return ""
+
+
+class Toolbar:
+    """Top of the window: the toolbar, the progress bar and the run buttons."""
+
+    def __init__(self, gui: Any, on_window: Callable[[str], None], on_run: Callable[[str], None]) -> None:
+        self.panel = gui.add_panel()
+        tab = self.panel.add_tab("simecs")
+        with tab:
+            self.windows = gui.add_button_group("Windows", TOOLBAR)
+            self.windows.on_click(lambda e: on_window(e.target.value))
+            self.runs = gui.add_button_group("Simulation", RUN_BUTTONS)
+            self.runs.on_click(lambda e: on_run(e.target.value))
+            self.progress = gui.add_progress_bar(0.0, animated=False)
+            self.status = gui.add_markdown("_Choose a model to start._")
+        self.panel.float(x=-12, y=12, width=540)
+
+    def show(self, st: m.SessionState | None, replay: bool = False) -> None:
+        self.status.content = status_text(st, replay)
+        progress = 0.0 if st is None else max(0.0, min(100.0, st.progress * 100.0))
+        if abs(self.progress.value - progress) > 1e-6:
+            self.progress.value = progress
+        running = st is not None and st.phase in ("running", "queued")
+        self.progress.animated = running
+        color = None
+        if st is not None:
+            color = {"failed": "red", "aborted": "yellow", "finished": "green"}.get(st.phase)
+        self.progress.color = color
+
+
+def settings_from_form(
+    stop_time: float,
+    output_interval: float,
+    step: float,
+    pacing_label: str,
+    factor: float,
+    live_rate: float,
+    live_vars: list[str],
+) -> m.RunSettings:
+    """RunSettings from the form's fields; DecodeError names the field when one is out of range."""
+    pacing = PACING.get(pacing_label)
+    if pacing is None:
+        raise DecodeError("pacing", f"unknown pacing {pacing_label!r}")
+    settings = m.RunSettings(
+        stop_time=float(stop_time),
+        output_interval=float(output_interval),
+        step=float(step),
+        pacing=pacing,  # type: ignore[arg-type]
+        factor=float(factor),
+        live_rate_hz=float(live_rate),
+        live_vars=list(live_vars),
+    )
+    settings.validate()
+    return settings
+
+
+class SettingsWindow:
+    """A modal with the run settings; Apply sends them (the server checks them again)."""
+
+    def __init__(self, gui: Any, settings: m.RunSettings, on_apply: Callable[[dict[str, Any]], None]) -> None:
+        self.modal = gui.add_modal("Simulation settings")
+        with self.modal:
+            self.stop = gui.add_number("Stop time [s]", settings.stop_time, step=0.1, hint="(0, 3600] s")
+            self.out = gui.add_number(
+                "Output interval [s]",
+                settings.output_interval,
+                step=0.0001,
+                hint="time between samples of the results",
+            )
+            self.step = gui.add_number(
+                "Solver step [s]",
+                settings.step,
+                step=0.0001,
+                hint="0 = the model's default; otherwise [1e-5, 0.01] s",
+            )
+            self.pacing = gui.add_dropdown(
+                "Pacing", tuple(PACING), initial_value=PACING_LABEL.get(settings.pacing, "real time")
+            )
+            self.factor = gui.add_number(
+                "N (for N x real time)", settings.factor, step=0.1, hint="[0.01, 1000]"
+            )
+            self.rate = gui.add_number(
+                "Live rate [Hz]", settings.live_rate_hz, step=1.0, hint="frames per second sent to this page"
+            )
+            apply = gui.add_button("Apply settings", color="green")
+            apply.on_click(lambda _e: on_apply(self.values()))
+            cancel = gui.add_button("Cancel", color="gray")
+            cancel.on_click(lambda _e: self.close())
+
+    def values(self) -> dict[str, Any]:
+        return {
+            "stop_time": float(self.stop.value),
+            "output_interval": float(self.out.value),
+            "step": float(self.step.value),
+            "pacing_label": str(self.pacing.value),
+            "factor": float(self.factor.value),
+            "live_rate": float(self.rate.value),
+        }
+
+    def close(self) -> None:
+        if not self.modal.closed:
+            self.modal.close()
