@@ -50,6 +50,12 @@ def _decode_error(payload: bytes) -> m.Error:
         return m.Error(code="internal", message=payload.decode("utf-8", "replace")[:500])
 
 
+def _most_telling(errors: list[m.Error]) -> m.Error:
+    """Several nodes may answer one key (the proxy says `not_found` for a replay's session that the
+    replay node serves): a specific refusal tells more than another node's not_found."""
+    return next((e for e in errors if e.code != "not_found"), errors[0])
+
+
 class MeshClient:
     """Server-wide requests; `session(id)` gives the per-session API."""
 
@@ -88,8 +94,8 @@ class MeshClient:
             elif reply.err is not None:
                 errors.append(_decode_error(reply.err.payload.to_bytes()))
         if errors:
-            raise RemoteError(errors[0])
-        raise NoReply(f"no node answered {key} within {timeout or self.timeout} s")
+            raise RemoteError(_most_telling(errors))
+        raise NoReply(f"no node answered {key}")
 
     def request_binary(self, key: str, timeout: float | None = None) -> tuple[bytes, Any]:
         replies = self._replies(key, None, timeout)
@@ -101,8 +107,8 @@ class MeshClient:
             if reply.err is not None:
                 errors.append(_decode_error(reply.err.payload.to_bytes()))
         if errors:
-            raise RemoteError(errors[0])
-        raise NoReply(f"no node answered {key} within {timeout or self.timeout} s")
+            raise RemoteError(_most_telling(errors))
+        raise NoReply(f"no node answered {key}")
 
     # -- library --------------------------------------------------------------------------------
     def list_models(self) -> list[ModelSummary]:
@@ -127,6 +133,25 @@ class MeshClient:
 
     def recordings(self) -> list[m.RecordingInfo]:
         return codec.from_obj(m.RecordingList, self.request(keys.RECORDINGS)).recordings
+
+    def download_recording(self, name: str, timeout: float = 30.0) -> bytes:
+        """The MCAP bytes of a recording (`keys.recording_name(session, run_id)` for a run)."""
+        return self.request_binary(keys.recording(name), timeout=timeout)[0]
+
+    def upload_recording(self, name: str, data: bytes, timeout: float = 60.0) -> m.RecordingInfo:
+        return codec.from_obj(m.RecordingInfo, self.request(keys.recording(name), data, timeout))
+
+    def replay(
+        self, name: str, speed: float = 1.0, paused: bool = False, timeout: float = 15.0
+    ) -> SessionClient:
+        """Replay a recording as a session watched like a live run."""
+        data = self.request(keys.recording_replay(name), m.ReplayRequest(speed=speed, paused=paused), timeout)
+        sid = str((data or {}).get("session", ""))
+        if not keys.is_session_id(sid):
+            raise RemoteError(
+                m.Error("internal", f"the recorder answered without a session id: {data!r:.100}")
+            )
+        return self.session(sid)
 
     def live_nodes(self, timeout: float = 1.0) -> list[tuple[str, str]]:
         """(role, node id) of every node whose liveliness token is up."""

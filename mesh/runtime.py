@@ -381,9 +381,11 @@ def mesh_from_args(args: argparse.Namespace) -> MeshConfig:
     return cfg.with_overrides(connect=args.connect, listen=args.listen, mode=args.mode)
 
 
-def main_for(node_cls: type[Node], argv: list[str] | None = None, **extra_args: Any) -> int:
+def main_for(node_cls: type[Node], argv: list[str] | None = None, prog: str | None = None) -> int:
     """Entry point of a node module: parse flags, run, exit cleanly (no lingering threads)."""
-    parser = argparse.ArgumentParser(prog=f"simecs node {node_cls.role}", description=node_cls.__doc__)
+    parser = argparse.ArgumentParser(
+        prog=prog or f"simecs node {node_cls.role}", description=node_cls.__doc__
+    )
     node_arguments(parser)
     add = getattr(node_cls, "add_arguments", None)
     if add is not None:

@@ -397,7 +397,7 @@ class Replay(Node):
 
 
 def main(argv: list[str] | None = None) -> int:
-    return main_for(Replay, argv)
+    return main_for(Replay, argv, prog="simecs replay")
 
 
 if __name__ == "__main__":

@@ -939,7 +939,7 @@ class Tab:
     def _download_mcap(self, run_id: str) -> None:
         name = self._recording(run_id)
         try:
-            payload, _att = self.mc.request_binary(keys.recording(name), timeout=30.0)
+            payload = self.mc.download_recording(name)
         except NoReply:
             self.notify(
                 "No recording",
@@ -957,7 +957,7 @@ class Tab:
         stem = stem[: -len(".mcap")] if stem.lower().endswith(".mcap") else stem
         name = "".join(c if c.isalnum() or c in "_-." else "_" for c in stem).lstrip("._-")[:64] or "upload"
         try:
-            self.mc.request(keys.recording(name), content, timeout=60.0)
+            self.mc.upload_recording(name, content)
         except NoReply:
             self.notify(
                 "Upload unavailable", "No recorder answered: the server cannot take recordings.", "warning"
@@ -968,13 +968,10 @@ class Tab:
 
     def _replay(self, name: str) -> None:
         try:
-            data = self.mc.request(keys.recording_replay(name), m.ReplayRequest(speed=1.0), timeout=15.0)
+            sid = self.mc.replay(name, speed=1.0).id
         except NoReply:
             self.notify("Replay unavailable", "No recorder answered: nothing to replay from.", "warning")
             return
-        sid = str((data or {}).get("session", ""))
-        if not keys.is_session_id(sid):
-            raise ValueError(f"the recorder answered without a session id: {data!r:.100}")
         self._end_replay()
         with self.lock:
             self.replay_id = sid
