@@ -56,6 +56,9 @@ class Shape:
     box/beam use `length` along `axis` and `width`, `height` across it; sphere uses `radius`.
     `origin` is the start point in the link frame; the solid extends from there along `axis`.
     If `resizable` is true its `length` is the link length parameter of that link at every moment.
+    `scales_with` maps a dimension (length, radius, inner_radius, width, height) to a parameter: the
+    dimension is multiplied by value / default of that parameter. With `anchor` "end", the x of
+    `origin` is measured from the end of the link at its default length.
     """
 
     kind: ShapeKind
@@ -69,6 +72,11 @@ class Shape:
     height: float = 0.0
     color: list[int] = field(default_factory=lambda: [180, 180, 190])
     resizable: bool = False
+    # Appearance that follows parameters beyond the link length: each listed dimension is scaled by
+    # value / default of the named parameter; anchor "end" measures `origin` x from the link's end, so
+    # the shape moves with the link length (a flange, a payload).
+    scales_with: dict[str, str] = field(default_factory=dict)
+    anchor: Literal["start", "end"] = "start"
 
 
 @dataclass

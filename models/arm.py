@@ -322,7 +322,19 @@ class ModelPackage:
             h = 2.6 * r
             origin = [0.0, 0.0, 0.0]
             origin["xyz".index(ax)] = -h / 2
-            shapes.append(Shape("cylinder", i, origin, ax, length=h, radius=1.25 * r, color=[90, 95, 110]))
+            rad = f"link{i + 1}.radius"
+            shapes.append(
+                Shape(
+                    "cylinder",
+                    i,
+                    origin,
+                    ax,
+                    length=h,
+                    radius=1.25 * r,
+                    color=[90, 95, 110],
+                    scales_with={"radius": rad},
+                )
+            )
             # the link tube: resizable along x with the link length
             shapes.append(
                 Shape(
@@ -335,6 +347,7 @@ class ModelPackage:
                     inner_radius=0.8 * r,
                     color=col,
                     resizable=True,
+                    scales_with={"radius": rad, "inner_radius": rad},
                 )
             )
             # final translation: a beam from the link end along the offset (drawn only when axis-aligned)
@@ -347,7 +360,18 @@ class ModelPackage:
                     if sign < 0:
                         o[k] += f[k]
                     shapes.append(
-                        Shape("beam", i, o, fa, length=abs(f[k]), width=1.6 * r, height=1.6 * r, color=col)
+                        Shape(
+                            "beam",
+                            i,
+                            o,
+                            fa,
+                            length=abs(f[k]),
+                            width=1.6 * r,
+                            height=1.6 * r,
+                            color=col,
+                            scales_with={"width": rad, "height": rad},
+                            anchor="end",
+                        )
                     )
         # tool flange and payload on the last link
         last = len(s.links) - 1
@@ -362,6 +386,8 @@ class ModelPackage:
                 length=0.02,
                 radius=1.3 * lk.radius,
                 color=[60, 60, 60],
+                scales_with={"radius": f"link{last + 1}.radius"},
+                anchor="end",
             )
         )
         a = s.payload_size
@@ -375,6 +401,8 @@ class ModelPackage:
                 width=a,
                 height=a,
                 color=[220, 160, 40],
+                scales_with={"length": "payload.size", "width": "payload.size", "height": "payload.size"},
+                anchor="end",
             )
         )
         return shapes

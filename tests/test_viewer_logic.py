@@ -560,3 +560,27 @@ def test_bench_reads_the_viewer_latency_from_its_log() -> None:
     log = "x\n2026 INFO viewer tab 0: first live frame of r1 drawn 129 ms after the click\n"
     assert viewer_latency(log) == pytest.approx(0.129)
     assert viewer_latency("nothing") is None
+
+
+def test_spider_appearance_parameters_reshape_its_shapes() -> None:
+    """Every appearance parameter of the real Spider description reshapes what the viewer draws."""
+    from simecs.models import get_model  # the description as the proxy sends it; the viewer gets it as data
+
+    desc = get_model("spider").describe()
+    defaults = desc.default_values()
+    changed = dict(defaults)
+    changed.update(
+        {"payload.size": 2 * defaults["payload.size"], "link7.radius": 1.5 * defaults["link7.radius"]}
+    )
+    changed["link7.length"] = defaults["link7.length"] + 0.1
+    before = [scene.effective_shape(s, desc, defaults, defaults) for s in desc.shapes]
+    after = [scene.effective_shape(s, desc, changed, defaults) for s in desc.shapes]
+    payload = next(i for i, s in enumerate(desc.shapes) if s.kind == "box" and s.link == 6)
+    assert after[payload].width == pytest.approx(2 * before[payload].width)
+    assert after[payload].origin[0] == pytest.approx(before[payload].origin[0] + 0.1)
+    tube = next(i for i, s in enumerate(desc.shapes) if s.resizable and s.link == 6)
+    assert after[tube].radius == pytest.approx(1.5 * before[tube].radius)
+    assert after[tube].length == pytest.approx(before[tube].length + 0.1)
+    appearance = {p.name for p in desc.parameters if p.appearance}
+    tied = {v for s in desc.shapes for v in s.scales_with.values()} | {lk.length_param for lk in desc.links}
+    assert appearance == tied

@@ -61,18 +61,18 @@ def effective_shape(
 ) -> Shape:
     """The shape as parameter values make it: what a changed appearance parameter reshapes.
 
-    The protocol ties the resizable shape's length to its link length. Two further ties are read
-    when a description carries them (they are not in the protocol yet; see docs/VIEWER.md):
-    `scales_with` ({dimension: parameter}) scales a dimension by value / default of the parameter,
-    and `anchor = "end"` measures the origin from the link's end, so the shape moves with its length.
+    The protocol ties the resizable shape's length to its link length, and two further ties
+    (PROTOCOL.md §5.1): `scales_with` ({dimension: parameter}) scales a dimension by value / default
+    of the parameter, and `anchor = "end"` measures the origin from the link's end, so the shape
+    moves with its length.
     """
     out = replace(shape, origin=list(shape.origin))
     out.length = shape_length(shape, model, values)
-    for dim, name in (getattr(shape, "scales_with", None) or {}).items():
+    for dim, name in shape.scales_with.items():
         base = defaults.get(name)
         if dim in SCALABLE and base and name in values:
             setattr(out, dim, getattr(shape, dim) * float(values[name]) / float(base))
-    if getattr(shape, "anchor", "start") == "end" and 0 <= shape.link < len(model.links):
+    if shape.anchor == "end" and 0 <= shape.link < len(model.links):
         param = model.links[shape.link].length_param
         out.origin[0] += float(values.get(param, 0.0)) - float(defaults.get(param, 0.0))
     return out
