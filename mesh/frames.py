@@ -66,7 +66,9 @@ def encode(frame: Frame) -> bytes:
     return head + rows.tobytes()
 
 
-def decode(payload: bytes | bytearray | memoryview) -> Frame:
+def decode(payload: bytes | bytearray | memoryview, last_row_only: bool = False) -> Frame:
+    """Decode a frame, checking every header field; `last_row_only` keeps (and copies) only the
+    newest sample, for consumers such as the hot-feedback node that forward nothing else."""
     buf = memoryview(payload)
     if len(buf) < HEADER.size:
         raise FrameError(f"frame of {len(buf)} bytes is shorter than its {HEADER.size}-byte header")
@@ -80,5 +82,11 @@ def decode(payload: bytes | bytearray | memoryview) -> Frame:
     expected = HEADER.size + 8 * n_rows * n_cols
     if len(buf) != expected:
         raise FrameError(f"frame has {len(buf)} bytes, header announces {n_rows}x{n_cols} = {expected}")
-    rows = np.frombuffer(buf, dtype="<f8", offset=HEADER.size, count=n_rows * n_cols).reshape(n_rows, n_cols)
+    if last_row_only and n_rows > 1:
+        offset = HEADER.size + 8 * (n_rows - 1) * n_cols
+        rows = np.frombuffer(buf, dtype="<f8", offset=offset, count=n_cols).reshape(1, n_cols)
+    else:
+        rows = np.frombuffer(buf, dtype="<f8", offset=HEADER.size, count=n_rows * n_cols).reshape(
+            n_rows, n_cols
+        )
     return Frame(run_index=run_index, seq=seq, wall_ns=wall_ns, rows=rows.astype(np.float64), flags=flags)

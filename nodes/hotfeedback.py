@@ -77,7 +77,7 @@ class HotFeedback(Node):
     def _on_full(self, sample: zenoh.Sample) -> None:
         try:
             session = keys.session_of(str(sample.key_expr))
-            frame = frames.decode(sample.payload.to_bytes())
+            frame = frames.decode(sample.payload.to_bytes(), last_row_only=True)
         except (ValueError, frames.FrameError) as exc:
             self.log.warning("bad frame on %s: %s", sample.key_expr, exc)
             return

@@ -44,6 +44,7 @@ class Simulator(Node):
         self.lock = threading.Lock()
         self.idle: list[subprocess.Popen[str]] = []
         self.busy: dict[str, subprocess.Popen[str]] = {}
+        self.fast: set[str] = set()  # busy runs paced as fast as possible (CPU-bound)
         self.mesh_config_path = ""
 
     @staticmethod
@@ -95,10 +96,15 @@ class Simulator(Node):
                 code = proc.poll()
                 if code is not None:
                     del self.busy[key]
+                    self.fast.discard(key)
                     if code not in (0, 3):
                         self.log.warning("worker of %s exited with code %s", key, code)
                         self._report_lost(key, code)
-        self._refill()
+            # Warming a worker up (seconds of compiling) would steal CPU from a run going as fast as
+            # possible, even at nice 10 on a 2-vCPU machine: wait until no such run is going.
+            defer = bool(self.fast)
+        if not defer:
+            self._refill()
 
     def _report_lost(self, key: str, code: int) -> None:
         """A worker that died (perhaps before its liveliness token was up) fails its run.
@@ -127,8 +133,12 @@ class Simulator(Node):
                 proc.stdin.close()
             except OSError as exc:
                 raise RequestError("internal", f"worker process could not take the run: {exc}") from None
-            self.busy[f"{run.session}/{run.run_id}"] = proc
-        threading.Thread(target=self._refill, daemon=True).start()
+            key = f"{run.session}/{run.run_id}"
+            self.busy[key] = proc
+            if run.settings.pacing == "fast":
+                self.fast.add(key)
+            else:
+                threading.Thread(target=self._refill, daemon=True).start()
         self._prune(run.session)
         self.log.info("run %s/%s handed to worker pid %d", run.session, run.run_id, proc.pid)
         return {"simulator": self.node_id, "pid": proc.pid}

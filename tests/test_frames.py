@@ -62,3 +62,11 @@ def test_random_bytes_never_crash(blob: bytes) -> None:
         frames.decode(blob)
     except frames.FrameError:
         pass
+
+
+def test_last_row_only() -> None:
+    rows = np.arange(12, dtype=float).reshape(4, 3)
+    back = frames.decode(frames.encode(frames.Frame(1, 0, 0, rows)), last_row_only=True)
+    np.testing.assert_array_equal(back.rows, rows[-1:])
+    empty = frames.decode(frames.encode(frames.Frame(1, 0, 0, np.empty((0, 3)))), last_row_only=True)
+    assert empty.rows.shape == (0, 3)
