@@ -25,6 +25,7 @@ import numpy as np
 import zenoh
 from simecs.mesh import codec, frames, keys
 from simecs.mesh import messages as m
+from simecs.mesh.results import results_reply
 from simecs.mesh.runtime import Binary, Node, Request, RequestError, main_for, mesh_from_args
 
 from . import mcapfmt as fmt
@@ -258,26 +259,9 @@ class Replay(Node):
         run_id = keys.last_chunk(req.key)
         if run_id != self.run_id:
             raise RequestError("not_found", f"replay session {self.sid} has only run {self.run_id}", "run_id")
-        cols = self.layout.columns
-        p = req.parameters
-        idx = list(range(len(cols)))
-        if p.get("vars"):
-            idx = [0]
-            for name in p["vars"].split(","):
-                if name not in cols:
-                    raise RequestError("bad_request", f"run {run_id} has no variable {name!r}", "vars")
-                idx.append(cols.index(name))
-        try:
-            t0, t1, every = float(p.get("t0", "-inf")), float(p.get("t1", "inf")), int(p.get("every", "1"))
-        except ValueError as exc:
-            raise RequestError("bad_request", f"bad t0/t1/every: {exc}", "parameters") from None
-        if every < 1:
-            raise RequestError("bad_request", "every must be >= 1", "every")
-        sel = (self.rows[:, 0] >= t0) & (self.rows[:, 0] <= t1)
-        rows = self.rows[sel][::every][:, idx]
-        frame = frames.Frame(self.layout.run_index, 0, 0, rows)
-        units = [self.layout.units[i] if i < len(self.layout.units) else "" for i in idx]
-        return Binary(frames.encode(frame), {"columns": [cols[i] for i in idx], "units": units})
+        return results_reply(
+            self.rows, self.layout.columns, self.layout.units, req.parameters, self.layout.run_index
+        )
 
     # -- the player ----------------------------------------------------------------------------------
     def _frame_at(self, t: float) -> int:

@@ -16,8 +16,9 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from simecs.mesh import codec, files, frames, keys
+from simecs.mesh import codec, files, keys
 from simecs.mesh import messages as m
+from simecs.mesh.results import results_reply
 from simecs.mesh.runtime import Binary, Node, Request, RequestError, main_for, mesh_from_args
 
 KEEP_RUNS = 10  # full-resolution results kept per session
@@ -206,35 +207,8 @@ class Simulator(Node):
             raise RequestError("not_found", f"no results of run {run_id} in session {session}", "run_id")
         meta = files.read_json(meta_path)
         data = np.load(npy, mmap_mode="r")
-        columns: list[str] = meta["columns"]
-        units: list[str] = meta["units"]
-        p = req.parameters
-        idx = list(range(len(columns)))
-        if p.get("vars"):
-            idx = [0]
-            for name in p["vars"].split(","):
-                if name not in columns:
-                    raise RequestError("bad_request", f"run {run_id} has no variable {name!r}", "vars")
-                idx.append(columns.index(name))
-        try:
-            t0 = float(p.get("t0", "-inf"))
-            t1 = float(p.get("t1", "inf"))
-            every = int(p.get("every", "1"))
-        except ValueError as exc:
-            raise RequestError("bad_request", f"bad t0/t1/every: {exc}", "parameters") from None
-        if every < 1:
-            raise RequestError("bad_request", "every must be >= 1", "every")
-        if data.shape[0]:
-            sel = (data[:, 0] >= t0) & (data[:, 0] <= t1)
-            rows = np.asarray(data[sel][::every][:, idx])
-        else:
-            rows = np.empty((0, len(idx)))
-        frame = frames.Frame(
-            run_index=int(run_id[1:]) if run_id[1:].isdigit() else 0, seq=0, wall_ns=0, rows=rows
-        )
-        return Binary(
-            frames.encode(frame), {"columns": [columns[i] for i in idx], "units": [units[i] for i in idx]}
-        )
+        run_index = int(run_id[1:]) if run_id[1:].isdigit() else 0
+        return results_reply(data, meta["columns"], meta["units"], req.parameters, run_index)
 
 
 def main(argv: list[str] | None = None) -> int:
