@@ -3,8 +3,9 @@
 It takes every session's full-rate frames and forwards at most R frames per wall second per session
 (R from the run's layout; a token bucket of depth 2, so frames arriving at about R Hz pass at once),
 each carrying the newest sample's live columns; the final sample of a run is always forwarded.
-Frames reach it through a bounded queue, so a slow viewer or a burst never
-stalls the simulator (a slow zenoh callback would stall the whole link: STACK-NOTES).
+Its work per full frame is a few microseconds (header, one row, at most one put), done right in
+zenoh's callback to save a thread wake-up; slow consumers downstream have their own queues, so
+nothing stalls the simulator (a slow zenoh callback would stall the whole link: STACK-NOTES).
 A forwarded frame keeps the `wall_ns` of the full frame it came from, so any subscriber can measure
 the end-to-end latency from the simulator.
 """
@@ -47,11 +48,12 @@ class HotFeedback(Node):
     """Decimates full-rate frames to at most R Hz per session."""
 
     role = "hotfeedback"
-    tick_s = 0.01
+    tick_s = 1.0
 
     def __init__(self, mesh: Any, node_id: str | None = None) -> None:
         super().__init__(mesh, node_id)
         self.lock = threading.Lock()
+        self.wakeup = threading.Condition(self.lock)
         self.streams: dict[str, Stream] = {}
         self.forwarded = 0
 
@@ -60,7 +62,9 @@ class HotFeedback(Node):
 
     def start(self) -> None:
         self.subscribe(keys.ALL_LAYOUT, self._on_layout, maxlen=256, latched=True)
-        self.full_worker = self.subscribe(keys.ALL_FULL, self._on_full, maxlen=64)
+        # Per frame: parse a header, copy one row, maybe one put: microseconds, so no thread hop.
+        self.subscribe(keys.ALL_FULL, self._on_full, inline=True)
+        threading.Thread(target=self._release_held, name="hotfeedback:release", daemon=True).start()
 
     def _on_layout(self, sample: zenoh.Sample) -> None:
         try:
@@ -101,6 +105,8 @@ class HotFeedback(Node):
             if frame.final and stream.pending is not None:
                 stream.pending.flags |= frames.FLAG_FINAL
             self._maybe_send(stream, time.time_ns(), force=frame.final)
+            if stream.pending is not None:
+                self.wakeup.notify()  # held back: the releaser sends it when its token is due
 
     def _maybe_send(self, stream: Stream, now: int, force: bool = False) -> None:
         """Token bucket: one token per period, at most BURST saved; the final frame always goes."""
@@ -122,17 +128,35 @@ class HotFeedback(Node):
         if live.final:
             stream.ended_ns = now
 
+    def _release_held(self) -> None:
+        """Forward each sample held back by the rate limit the moment its token is due.
+
+        When frames arrive at about R Hz the bucket is marginal and a sample may be held for the
+        jitter's worth of a token: waking exactly then (not on a fixed tick) keeps that to the jitter.
+        """
+        with self.wakeup:
+            while not self.stop_event.is_set():
+                now = time.time_ns()
+                wait = 0.5
+                for stream in self.streams.values():
+                    self._maybe_send(stream, now)
+                    if stream.pending is not None:
+                        wait = min(wait, max(2e-4, (1.0 - stream.tokens) * stream.period_ns / 1e9))
+                self.wakeup.wait(wait)
+
     def tick(self) -> None:
-        """Forward a sample held back by the rate limit once its slot comes (e.g. on pause)."""
+        """Free the publishers of streams that ended a while ago (no leak per session)."""
         now = time.time_ns()
         with self.lock:
             for session, stream in list(self.streams.items()):
-                self._maybe_send(stream, now)
                 if stream.ended_ns and now - stream.ended_ns > STREAM_LINGER_NS:
-                    # Ended a while ago and no new run: free its publisher (no leak per session).
                     del self.streams[session]
                     self._declared.remove(stream.publisher)
                     stream.publisher.undeclare()
+
+    def stop(self) -> None:
+        with self.wakeup:
+            self.wakeup.notify()
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -25,12 +25,15 @@ from simecs.mesh import codec, files, frames, keys
 from simecs.mesh import messages as m
 from simecs.mesh.runtime import mesh_from_args, node_arguments, open_session, setup_logging
 
-CHUNK_S = 0.02  # simulated seconds per chunk at real-time pacing: pause/abort act within one chunk
+# Simulated seconds per chunk at real-time pacing: pause/abort act within one chunk. 25 ms gives
+# 40 frames per wall second, below the default live rate of 50 Hz: the hot-feedback rate limit then
+# never holds frames back in steady real time (at a frame rate equal to R it would, after any burst).
+CHUNK_S = 0.025
 MAX_CHUNK_S = 0.1  # faster pacing: bigger chunks (fewer, larger frames), still a few ms of wall time
 
 
 def chunk_length(speed: float, output_interval: float) -> float:
-    """About 50 chunks per wall second: 20 ms simulated in real time, up to 100 ms when faster."""
+    """About 40 chunks per wall second: 25 ms simulated in real time, up to 100 ms when faster."""
     return max(min(CHUNK_S * speed, MAX_CHUNK_S), CHUNK_S, output_interval)
 
 
