@@ -132,38 +132,47 @@ def concurrent(client: MeshClient, n: int) -> tuple[bool, list[float]]:
     return ok and min(rtfs) >= 0.95, rtfs
 
 
-def headless_rtf(repeat: int = 5) -> float:
-    """The standard case in this process, no mesh: what the worker does minus publishing."""
+def headless_rtf() -> float:
+    """One standard-case run in this process, no mesh: what the worker does minus publishing
+    (same 100 ms chunks as a worker running as fast as possible)."""
+    from simecs import models
+
+    pkg = models.get_model("spider")
+    sim = pkg.build(pkg.describe().default_values())
+    sim.set_initial([0.0] * 7)
+    sim.set_joint_path([(standard_target(), 100.0, 100.0)])
+    sim.start(STOP, OUTPUT)
+    t0 = time.perf_counter()
+    while not sim.finished:
+        sim.advance(min(sim.time + 0.1, STOP))
+    rtf = STOP / (time.perf_counter() - t0)
+    sim.close()
+    return rtf
+
+
+def streamed_rtf(client: MeshClient) -> float:
+    """One standard-case run through the service as fast as possible, with a live subscriber."""
+    s = client.create_session("bench", "spider")
+    prepare(s, "fast")
+    live: list[frames.Frame] = []
+    with s.watch(on_live=live.append):
+        run = s.run()
+        st = s.wait_for(["finished", "failed"], 120, run)
+    s.close()
+    return st.rtf
+
+
+def streaming_pairs(client: MeshClient, pairs: int = 6) -> tuple[list[float], list[float]]:
+    """Streamed and headless runs alternated, so that the machine's drifting load hits both alike."""
     from simecs import models
 
     models.warmup()
-    pkg = models.get_model("spider")
-    best = 0.0
-    for _ in range(repeat):
-        sim = pkg.build(pkg.describe().default_values())
-        sim.set_initial([0.0] * 7)
-        sim.set_joint_path([(standard_target(), 100.0, 100.0)])
-        sim.start(STOP, OUTPUT)
-        t0 = time.perf_counter()
-        while not sim.finished:
-            sim.advance(min(sim.time + 0.02, STOP))
-        best = max(best, STOP / (time.perf_counter() - t0))
-        sim.close()
-    return best
-
-
-def streamed_rtf(client: MeshClient, repeat: int = 5) -> float:
-    best = 0.0
-    for _ in range(repeat):
-        s = client.create_session("bench", "spider")
-        prepare(s, "fast")
-        live: list[frames.Frame] = []
-        with s.watch(on_live=live.append):
-            run = s.run()
-            st = s.wait_for(["finished", "failed"], 120, run)
-        best = max(best, st.rtf)
-        s.close()
-    return best
+    streamed, headless = [], []
+    for _ in range(pairs):
+        streamed.append(streamed_rtf(client))
+        time.sleep(0.5)
+        headless.append(headless_rtf())
+    return streamed, headless
 
 
 def run_service_bench(json_out: bool = False, max_sessions: int = 16) -> dict[str, Any]:
@@ -174,8 +183,8 @@ def run_service_bench(json_out: bool = False, max_sessions: int = 16) -> dict[st
         time.sleep(3.0)  # let the warm workers finish compiling
 
         # The RTF pair first, on a quiet machine (the concurrency trial below loads it for a while).
-        rtf_stream = streamed_rtf(client)
-        rtf_headless = headless_rtf()
+        streamed, headless = streaming_pairs(client)
+        rtf_stream, rtf_headless = max(streamed), max(headless)
         pings = raw_ping(mesh)
         lat = live_latency(client)
 
@@ -190,7 +199,6 @@ def run_service_bench(json_out: bool = False, max_sessions: int = 16) -> dict[st
                 break
             best_n = n
 
-
     result = {
         "latency_ms_p50": float(np.percentile(lat, 50)),
         "latency_ms_p99": float(np.percentile(lat, 99)),
@@ -201,7 +209,11 @@ def run_service_bench(json_out: bool = False, max_sessions: int = 16) -> dict[st
         "concurrent_min_rtf": {str(k): round(min(v), 3) for k, v in counts.items()},
         "rtf_streaming": rtf_stream,
         "rtf_headless": rtf_headless,
-        "streaming_overhead": max(0.0, 1.0 - rtf_stream / rtf_headless),
+        "rtf_streaming_runs": [round(x, 2) for x in streamed],
+        "rtf_headless_runs": [round(x, 2) for x in headless],
+        # Medians of alternated runs: on a shared 2-vCPU VM single runs swing by +-30 %.
+        "streaming_overhead": max(0.0, 1.0 - statistics.median(streamed) / statistics.median(headless)),
+        "streaming_overhead_best": max(0.0, 1.0 - rtf_stream / rtf_headless),
     }
     print("simecs bench service (standard case: Spider, 7 joints, 5 s PTP at 100 %/100 %, output 2 ms)")
     print(
@@ -218,11 +230,13 @@ def run_service_bench(json_out: bool = False, max_sessions: int = 16) -> dict[st
             f"min RTF {min(rtfs):.3f}, median {statistics.median(rtfs):.3f}"
         )
     print(f"  concurrent real-time sessions             {best_n:7d}        (target >= 8)")
-    print(f"  RTF as fast as possible, streamed         {rtf_stream:7.2f}")
-    print(f"  RTF headless (same simulation, no mesh)   {rtf_headless:7.2f}")
+    runs_s = ", ".join(f"{x:.1f}" for x in streamed)
+    runs_h = ", ".join(f"{x:.1f}" for x in headless)
+    print(f"  RTF as fast as possible, streamed         {rtf_stream:7.2f}   best; runs {runs_s}")
+    print(f"  RTF headless (same simulation, no mesh)   {rtf_headless:7.2f}   best; runs {runs_h}")
     print(
-        f"  streaming overhead                        {result['streaming_overhead'] * 100:7.1f} %"
-        "      (target <= 10 %)"
+        f"  streaming overhead (medians, alternated)  {result['streaming_overhead'] * 100:7.1f} %"
+        f"      (target <= 10 %; best against best {result['streaming_overhead_best'] * 100:.1f} %)"
     )
     if json_out:
         print(json.dumps(result))
