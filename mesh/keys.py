@@ -137,6 +137,11 @@ def results(session: str, run_id: str | None = None) -> str:
     return base if run_id is None else f"{base}/{check_name(run_id, 'run id')}"
 
 
+def notices(session: str) -> str:
+    """put (any node, e.g. the recorder): Notice about a session's run; the proxy adds it to `state`."""
+    return f"{ROOT}/{_sid(session)}/notices"
+
+
 def jog(session: str) -> str:
     """put (client -> worker): JogInput while a real-time run goes on (reserved, see PROTOCOL.md)."""
     return f"{ROOT}/{_sid(session)}/jog"
@@ -149,6 +154,7 @@ ALL_LAYOUT = f"{ROOT}/*/vars/layout"
 ALL_FULL = f"{ROOT}/*/vars/full"
 ALL_LIVE = f"{ROOT}/*/vars/live"
 ALL_STATE = f"{ROOT}/*/state"
+ALL_NOTICES = f"{ROOT}/*/notices"
 ALL_PARAMS = f"{ROOT}/*/params"
 ALL_RESULTS = f"{ROOT}/*/results/**"
 ALL_RESULTS_LIST = f"{ROOT}/*/results"

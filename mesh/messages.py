@@ -322,6 +322,7 @@ class SessionState:
     sim_time: float = 0.0  # s
     rtf: float = 0.0  # simulated seconds per wall second, over the run so far
     reason: str = ""  # why failed / aborted / refused
+    warnings: list[str] = field(default_factory=list)  # notices about the current run (e.g. data dropped)
     type: Literal["state"] = "state"
     v: int = VERSION
 
@@ -429,6 +430,19 @@ class RunLayout:
     stop_time: float
     output_interval: float
     type: Literal["layout"] = "layout"
+    v: int = VERSION
+
+
+@dataclass
+class Notice:
+    """Something the user must know about a run that is not a failure of it, e.g. the recorder had to
+    drop samples. Put on simecs/<session>/notices; the proxy lists it in SessionState.warnings."""
+
+    session: str
+    run_id: str
+    source: str  # role of the node that noticed, e.g. "recorder"
+    message: str
+    type: Literal["notice"] = "notice"
     v: int = VERSION
 
 

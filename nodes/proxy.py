@@ -25,6 +25,7 @@ from simecs.mesh.model import ModelDescription, check_values
 from simecs.mesh.runtime import Node, Request, RequestError, main_for, mesh_from_args
 
 ACTIVE = ("running", "paused")
+MAX_WARNINGS = 20
 ENDED = ("finished", "aborted", "failed")
 
 
@@ -120,6 +121,7 @@ class Proxy(Node):
         self.serve(keys.SESSIONS, self._on_sessions, threaded=True)
         self.serve(keys.ALL_CMD, self._on_cmd, threaded=True)
         self.subscribe(keys.ALL_RUN_STATUS, self._on_run_status, maxlen=4096)
+        self.subscribe(keys.ALL_NOTICES, self._on_notice, maxlen=256)
         worker = self.subscribe_liveliness(keys.RUN_TOKENS)
         self._token_worker = worker
         self._recover_runs()
@@ -621,6 +623,21 @@ class Proxy(Node):
                 if changed:
                     self._run_info(rec, st.run_id, phase=phase)
                 self._publish_state(rec, persist=changed)
+
+    def _on_notice(self, sample: zenoh.Sample) -> None:
+        try:
+            notice = codec.loads(m.Notice, sample.payload.to_bytes())
+        except codec.DecodeError as exc:
+            self.log.warning("bad notice on %s: %s", sample.key_expr, exc)
+            return
+        with self.lock:
+            rec = self.sessions.get(notice.session)
+            if rec is None or rec.state.run_id != notice.run_id:
+                return
+            text = f"{notice.source}: {notice.message}"
+            if text not in rec.state.warnings and len(rec.state.warnings) < MAX_WARNINGS:
+                rec.state.warnings.append(text)
+                self._publish_state(rec)
 
     def _on_run_token(self, sample: zenoh.Sample) -> None:
         if sample.kind != zenoh.SampleKind.DELETE:

@@ -135,6 +135,7 @@ class Active:
     params_written: bool = False
     idle_checked: float = 0.0
     next_seq: int | None = 0  # None: accept any first frame (a continuation starts mid-run)
+    noticed: set[str] = field(default_factory=set)  # kinds of Notice already sent for this run
 
 
 @dataclass
@@ -448,6 +449,7 @@ class Recorder(Node):
         if rec.next_seq is not None and frame.seq > rec.next_seq:
             missing = frame.seq - rec.next_seq
             rec.dropped_frames += missing
+            self._notice(rec, "gap", "frames were lost before reaching the recorder: the recording has gaps")
             rec.writer.write_log(
                 fmt.LOG_ERROR,
                 f"MISSING frames {rec.next_seq}..{frame.seq - 1} ({missing} frames): dropped before "
@@ -549,6 +551,19 @@ class Recorder(Node):
         else:
             w.write_log(fmt.LOG_WARNING, f"no model description, no /scene: {ctx.get('model_error')}", 0.0)
 
+    def _notice(self, rec: Any, kind: str, message: str) -> None:
+        """Tell the session (its state lists it), once per run and kind; details are in the file's /log."""
+        if kind in rec.noticed:
+            return
+        rec.noticed.add(kind)
+        notice = m.Notice(
+            session=rec.layout.session, run_id=rec.layout.run_id, source="recorder", message=message
+        )
+        try:
+            self.z.put(keys.notices(rec.layout.session), codec.dumps(notice))
+        except Exception as exc:  # the file still says it
+            self.log.warning("could not publish a notice: %s", exc)
+
     def _housekeeping(self, now: float) -> None:
         drops = self.ingest.take_drops()
         for sid, (n, rows, first, last) in drops.items():
@@ -562,6 +577,9 @@ class Recorder(Node):
             if rec is not None:
                 rec.queue_drops += n
                 rec.dropped_rows += rows
+                self._notice(
+                    rec, "queue", "the recorder could not keep up and dropped samples: the recording has gaps"
+                )
                 rec.writer.write_log(fmt.LOG_ERROR, text, rec.sim_time)
         if drops and now - self._last_drop_status > 1.0:
             self._last_drop_status = now

@@ -11,7 +11,8 @@ import numpy as np
 import pytest
 import zenoh
 import zenoh.ext
-from simecs.mesh import keys
+from simecs.mesh import codec, keys
+from simecs.mesh import messages as m
 from simecs.mesh.client import RemoteError
 from simecs.nodes import mcapfmt as fmt
 from simecs.nodes import mcapread
@@ -196,6 +197,10 @@ def test_frames_lost_on_the_way_show_as_a_gap(mesh: Mesh) -> None:
     client = mesh.new_client()
     run = FakeRun(client.z, SID)
     rows = make_rows(arm_model(), 70)
+    notices: list[m.Notice] = []
+    sub = client.z.declare_subscriber(
+        keys.notices(SID), lambda s: notices.append(codec.loads(m.Notice, s.payload.to_bytes()))
+    )
     try:
         run.announce()
         time.sleep(0.3)
@@ -212,3 +217,6 @@ def test_frames_lost_on_the_way_show_as_a_gap(mesh: Mesh) -> None:
     assert rec.metadata[fmt.META_END]["dropped_frames"] == "2"
     assert np.array_equal(rec.rows, np.concatenate([rows[:30], rows[50:]]))
     assert any("MISSING frames 3..4" in log["message"] for log in rec.logs)
+    sub.undeclare()
+    assert [(n.run_id, n.source) for n in notices] == [("r1", "recorder")]  # once per run, for state
+    assert "gaps" in notices[0].message

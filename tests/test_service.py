@@ -317,3 +317,21 @@ def test_numerical_failure_ends_the_run_with_the_reason(service: Service) -> Non
     # The session is usable again at once.
     prepare(s, stop_time=0.1)
     assert s.wait_for(["finished", "failed"], 60, s.run()).phase == "finished"
+
+
+def test_notices_about_a_run_reach_its_state(service: Service) -> None:
+    c = service.client
+    s = c.create_session("ann", "spider")
+    prepare(s, stop_time=1.0, pacing="realtime")
+    run_id = s.run()
+    s.wait_for(["running"], 30, run_id)
+    notice = m.Notice(session=s.id, run_id=run_id, source="recorder", message="dropped samples")
+    for _ in range(2):  # the same notice twice is listed once
+        c.z.put(keys.notices(s.id), codec.dumps(notice))
+    c.z.put(keys.notices(s.id), codec.dumps(m.Notice(s.id, "r99", "recorder", "another run")))
+    c.z.put(keys.notices(s.id), b"not json")  # refused, logged, nothing else happens
+    wait_until(lambda: s.snapshot().state.warnings, what="warning in state")
+    assert s.wait_for(["finished"], 30, run_id).warnings == ["recorder: dropped samples"]
+    prepare(s, stop_time=0.1)
+    second = s.run()
+    assert s.wait_for(["finished"], 30, second).warnings == []
