@@ -584,3 +584,8 @@ def test_spider_appearance_parameters_reshape_its_shapes() -> None:
     appearance = {p.name for p in desc.parameters if p.appearance}
     tied = {v for s in desc.shapes for v in s.scales_with.values()} | {lk.length_param for lk in desc.links}
     assert appearance == tied
+
+
+def test_status_line_shows_warnings() -> None:
+    st = m.SessionState(session="s", phase="finished", run_id="r1", warnings=["recorder: gaps"])
+    assert "⚠ recorder: gaps" in run.status_text(st)

@@ -31,6 +31,8 @@ def status_text(st: m.SessionState | None, replay: bool = False) -> str:
         )
         if st.reason and st.phase in ("aborted", "failed"):
             line += f"\n\n{st.reason}"
+        for warning in st.warnings:
+            line += f"\n\n⚠ {warning}"
         return line
     return f"**{st.phase}**: ready to run"
 
