@@ -261,6 +261,20 @@ class Node:
             self.declare(self.z.declare_subscriber(key, push, allowed_origin=origin))
         return worker
 
+    def subscribe_messages(self, key: str, cls: Any, handle: Callable[[Any], None], **options: Any) -> None:
+        """`subscribe()` for JSON messages of type `cls`: a sample that does not decode is logged with
+        what was wrong and dropped; `handle` gets only valid messages."""
+
+        def decoded(sample: zenoh.Sample) -> None:
+            try:
+                message = codec.loads(cls, sample.payload.to_bytes())
+            except codec.DecodeError as exc:
+                self.log.warning("bad message on %s: %s", sample.key_expr, exc)
+                return
+            handle(message)
+
+        self.subscribe(key, decoded, **options)
+
     def serve(self, key: str, handle: Callable[[Request], Any], threaded: bool = False) -> None:
         """Answer queries on `key`: `handle` returns `Binary`, or anything JSON-able (dataclasses too),
         sent as `Ok{data}`; raising answers an `Error` reply."""

@@ -120,8 +120,8 @@ class Proxy(Node):
         self.serve(keys.ALL_DOCS, self._on_doc)
         self.serve(keys.SESSIONS, self._on_sessions, threaded=True)
         self.serve(keys.ALL_CMD, self._on_cmd, threaded=True)
-        self.subscribe(keys.ALL_RUN_STATUS, self._on_run_status, maxlen=4096)
-        self.subscribe(keys.ALL_NOTICES, self._on_notice, maxlen=256)
+        self.subscribe_messages(keys.ALL_RUN_STATUS, m.RunStatus, self._on_run_status, maxlen=4096)
+        self.subscribe_messages(keys.ALL_NOTICES, m.Notice, self._on_notice, maxlen=256)
         worker = self.subscribe_liveliness(keys.RUN_TOKENS)
         self._token_worker = worker
         self._recover_runs()
@@ -599,12 +599,7 @@ class Proxy(Node):
         return rec.state.run_id
 
     # -- reports from workers --------------------------------------------------------------------
-    def _on_run_status(self, sample: zenoh.Sample) -> None:
-        try:
-            st = codec.loads(m.RunStatus, sample.payload.to_bytes())
-        except codec.DecodeError as exc:
-            self.log.warning("bad run status on %s: %s", sample.key_expr, exc)
-            return
+    def _on_run_status(self, st: m.RunStatus) -> None:
         with self.lock:
             rec = self.sessions.get(st.session)
             if rec is None or rec.state.run_id != st.run_id or rec.state.phase in ENDED:
@@ -624,12 +619,7 @@ class Proxy(Node):
                     self._run_info(rec, st.run_id, phase=phase)
                 self._publish_state(rec, persist=changed)
 
-    def _on_notice(self, sample: zenoh.Sample) -> None:
-        try:
-            notice = codec.loads(m.Notice, sample.payload.to_bytes())
-        except codec.DecodeError as exc:
-            self.log.warning("bad notice on %s: %s", sample.key_expr, exc)
-            return
+    def _on_notice(self, notice: m.Notice) -> None:
         with self.lock:
             rec = self.sessions.get(notice.session)
             if rec is None or rec.state.run_id != notice.run_id:
