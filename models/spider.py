@@ -148,7 +148,9 @@ Alternating roll and pitch joints (S-R-S-like): joint 1 rolls the shoulder colum
 joint 2 pitches, joint 3 rolls the upper arm about its own axis, joint 4 is the elbow, joint 5 rolls the
 forearm, joint 6 pitches the wrist, joint 7 rolls the tool. Roll links use the initial rotation
 Ry(-pi/2) so the link axis x lies on the joint axis; pitch blocks use Rx(+-pi/2) so the next joint axis
-is perpendicular to the previous one. No final translations. At q = 0 the arm stands as a zig-zag column.
+is perpendicular to the previous one. No final translations. At q = 0 the shoulder column rises 0.42 m along
+the base z axis, the upper arm (0.7 m) lies along +y, the forearm (0.65 m) along -x, and the tool
+points up along +z: the arm is folded in a horizontal L, clear of the floor.
 """
 
 
