@@ -323,13 +323,14 @@ class SessionClient:
 
         with self.watch(on_state=on_state):
             end = time.monotonic() + timeout
-            while not done.wait(0.1):
+            # The subscription sees every change from now on; one direct look covers the state that
+            # was current before it was declared, and a look per second guards against a lost sample.
+            on_state(self.snapshot().state)
+            while not done.wait(1.0):
                 if time.monotonic() > end:
                     last = seen[-1].phase if seen else "nothing"
                     raise TimeoutError(
                         f"session {self.id} did not reach {list(phases)} in {timeout} s (last: {last})"
                     )
-                # The latched state may be missed by a just-declared subscriber: ask directly too.
-                snap = self.snapshot().state
-                on_state(snap)
+                on_state(self.snapshot().state)
         return next(s for s in reversed(seen) if s.phase in phases)

@@ -228,12 +228,14 @@ class Node:
         latched: bool = False,
         remote_only: bool = False,
         inline: bool = False,
+        liveliness: bool = False,
     ) -> BoundedWorker | None:
         """Run `handle(sample)` in a worker thread, never in zenoh's callback.
 
         `inline=True` calls it in zenoh's callback instead, saving a thread wake-up (about a
         millisecond on an idle VM): only for handlers that never block and return in microseconds.
-        Exceptions are logged either way."""
+        Exceptions are logged either way. `liveliness=True` watches liveliness tokens under `key`
+        (PUT when one appears, DELETE when it goes) instead of data."""
         worker: BoundedWorker | None = None
         push: Callable[[zenoh.Sample], None]
         if inline:
@@ -250,7 +252,9 @@ class Node:
             self._workers.append(worker)
             push = worker.push
         origin = zenoh.Locality.REMOTE if remote_only else zenoh.Locality.ANY
-        if latched:
+        if liveliness:
+            self.declare(self.z.liveliness().declare_subscriber(key, push))
+        elif latched:
             history = zenoh.ext.HistoryConfig(detect_late_publishers=True)
             self.declare(
                 zenoh.ext.declare_advanced_subscriber(

@@ -122,17 +122,8 @@ class Proxy(Node):
         self.serve(keys.ALL_CMD, self._on_cmd, threaded=True)
         self.subscribe_messages(keys.ALL_RUN_STATUS, m.RunStatus, self._on_run_status, maxlen=4096)
         self.subscribe_messages(keys.ALL_NOTICES, m.Notice, self._on_notice, maxlen=256)
-        worker = self.subscribe_liveliness(keys.RUN_TOKENS)
-        self._token_worker = worker
+        self.subscribe(keys.RUN_TOKENS, self._on_run_token, maxlen=4096, liveliness=True)
         self._recover_runs()
-
-    def subscribe_liveliness(self, key: str) -> Any:
-        from simecs.mesh.runtime import BoundedWorker
-
-        worker = BoundedWorker(f"{self.role}:liveliness", self._on_run_token, maxlen=4096)
-        self._workers.append(worker)
-        self.declare(self.z.liveliness().declare_subscriber(key, worker.push))
-        return worker
 
     def _session_path(self, sid: str) -> Path:
         return self.data_dir / "sessions" / f"{sid}.json"
