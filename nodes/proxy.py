@@ -42,6 +42,11 @@ class SessionRecord:
     runs: list[m.RunInfo] = field(default_factory=list)
     run_counter: int = 0
     pubs: dict[str, Any] = field(default_factory=dict)
+    #: A RunRequest is on its way to a simulator; the proxy's lock is not held meanwhile.
+    starting: bool = False
+    #: The run the user aborted: asked again on each of its status reports until it ends (a worker
+    #: that was just starting may not have been listening yet).
+    abort_run: str = ""
 
     def snapshot(self) -> m.SessionSnapshot:
         return m.SessionSnapshot(
@@ -90,6 +95,8 @@ class Proxy(Node):
         self.library: dict[str, ModelDescription] = {}
         self.packages: dict[str, Any] = {}
         self._rr = 0
+        #: Runs of closed sessions that were told to abort: session id -> run id.
+        self._orphan_runs: dict[str, str] = {}
 
     @staticmethod
     def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -176,6 +183,10 @@ class Proxy(Node):
             for rec in self.sessions.values():
                 if rec.state.phase in ACTIVE and (rec.id, rec.state.run_id) not in alive:
                     self._settle_ended_run(rec)
+                elif rec.state.phase == "queued" and (rec.id, rec.state.run_id) in alive:
+                    # The proxy stopped while handing it over, after a simulator took it.
+                    self._set_phase(rec, "running", queue_position=0)
+                    self._run_info(rec, rec.state.run_id, phase="running")
                 elif rec.state.phase == "queued":
                     self.queue.append(rec.id)
                 else:
@@ -206,7 +217,6 @@ class Proxy(Node):
     def _declare_pubs(self, rec: SessionRecord) -> None:
         rec.pubs["state"] = self.publisher(keys.state(rec.id), latched=True)
         rec.pubs["params"] = self.publisher(keys.params(rec.id), latched=True)
-        rec.pubs["control"] = self.publisher(keys.control(rec.id))
 
     def _publish_state(self, rec: SessionRecord, persist: bool = True) -> None:
         rec.state.seq += 1
@@ -405,6 +415,7 @@ class Proxy(Node):
 
     def _cmd_close_session(self, rec: SessionRecord, cmd: m.CloseSession) -> str:
         if rec.state.phase in ACTIVE:
+            self._orphan_runs[rec.id] = rec.state.run_id
             self._control(rec, "abort")
         if rec.id in self.queue:
             self.queue.remove(rec.id)
@@ -471,9 +482,11 @@ class Proxy(Node):
     def _cmd_run(self, rec: SessionRecord, cmd: m.Run) -> dict[str, Any]:
         if rec.state.phase in ACTIVE or rec.state.phase == "queued":
             raise RequestError("conflict", f"a run is already {rec.state.phase} in this session")
+        if rec.starting:
+            raise RequestError("conflict", "the previous run is still being handed to a simulator")
         if rec.command is None:
             raise RequestError("bad_request", "no command assigned: set a joint path first", "command")
-        active = sum(1 for s in self.sessions.values() if s.state.phase in ACTIVE)
+        active = self._occupied()
         if active >= self.max_running and len(self.queue) >= self.max_queue:
             raise RequestError(
                 "busy",
@@ -490,15 +503,18 @@ class Proxy(Node):
         self._update_queue()
         return {"run_id": run_id, "phase": rec.state.phase, "queue_position": rec.state.queue_position}
 
+    def _occupied(self) -> int:
+        """Simulation slots in use: runs going, and runs being handed to a simulator."""
+        return sum(1 for s in self.sessions.values() if s.state.phase in ACTIVE or s.starting)
+
     def _update_queue(self) -> None:
         """Start queued runs while there is capacity; tell the others their position."""
         while self.queue:
-            active = sum(1 for s in self.sessions.values() if s.state.phase in ACTIVE)
-            if active >= self.max_running:
+            if self._occupied() >= self.max_running:
                 break
             rec = self.sessions.get(self.queue.popleft())
             if rec is not None and rec.state.phase == "queued":
-                self._dispatch(rec)
+                self._start(rec)
         for pos, sid in enumerate(self.queue, start=1):
             rec = self.sessions[sid]
             if rec.state.queue_position != pos or rec.state.phase != "queued":
@@ -511,45 +527,87 @@ class Proxy(Node):
                 hosts.append(keys.last_chunk(str(reply.ok.key_expr)))
         return sorted(hosts)
 
-    def _dispatch(self, rec: SessionRecord) -> None:
-        run_id = rec.state.run_id
+    def _start(self, rec: SessionRecord) -> None:
+        """Hand the session's queued run to a simulator, in a thread of its own: a simulator that is
+        slow to answer (up to the 10 s query timeout) must not hold up every other session's
+        commands. Called with the lock held; the run counts as occupying a slot meanwhile."""
         request = m.RunRequest(
             session=rec.id,
-            run_id=run_id,
+            run_id=rec.state.run_id,
             run_index=rec.run_counter,
             model_id=rec.model_id,
-            values=rec.values,
-            initial=rec.initial,
+            values=dict(rec.values),
+            initial=list(rec.initial),
             command=rec.command,
             settings=rec.settings,
         )
-        hosts = self._simulators()
-        if not hosts:
-            self._end_run(rec, "failed", "no simulator node is on the mesh")
-            return
+        rec.starting, rec.abort_run = True, ""
+        self._set_phase(rec, "queued", queue_position=0)
         self._rr += 1
-        errors = []
-        for i in range(len(hosts)):
-            host = hosts[(self._rr + i) % len(hosts)]
-            try:
-                replies = list(
-                    self.z.get(keys.simulator_run(host), payload=codec.dumps(request), timeout=10.0)
+        threading.Thread(
+            target=self._dispatch, args=(request, self._rr), name=f"dispatch:{rec.id[:8]}", daemon=True
+        ).start()
+
+    def _dispatch(self, request: m.RunRequest, rr: int) -> None:
+        """Offer the run to the simulators in turn (without the lock), then record the outcome."""
+        hosts: list[str] = []
+        errors: list[str] = []
+        accepted = ""
+        try:
+            hosts = self._simulators()
+            payload = codec.dumps(request)
+            for i in range(len(hosts)):
+                host = hosts[(rr + i) % len(hosts)]
+                try:
+                    replies = list(self.z.get(keys.simulator_run(host), payload=payload, timeout=10.0))
+                except zenoh.ZError as exc:
+                    errors.append(f"{host}: {exc}")
+                    continue
+                for reply in replies:
+                    if reply.ok is not None:
+                        accepted = host
+                        break
+                    errors.append(f"{host}: {reply.err.payload.to_bytes().decode('utf-8', 'replace')[:300]}")
+                if accepted:
+                    break
+                if not replies:
+                    errors.append(f"{host}: no answer")
+        except Exception as exc:  # the session closing under us, say: never leave the slot taken
+            errors.append(f"{type(exc).__name__}: {exc}")
+        with self.lock:
+            self._started(request, accepted, hosts, errors)
+            self._update_queue()
+
+    def _started(self, request: m.RunRequest, host: str, hosts: list[str], errors: list[str]) -> None:
+        sid, run_id = request.session, request.run_id
+        rec = self.sessions.get(sid)
+        if rec is not None:
+            rec.starting = False
+        if rec is None or rec.abort_run == run_id:
+            if host:  # aborted or closed while it was being handed over: stop it at once
+                self.log.info(
+                    "session %s run %s started on %s after its abort: aborting it", sid, run_id, host
                 )
-            except zenoh.ZError as exc:
-                errors.append(f"{host}: {exc}")
-                continue
-            for reply in replies:
-                if reply.ok is not None:
-                    self._set_phase(
-                        rec, "running", queue_position=0, progress=0.0, sim_time=0.0, rtf=0.0, reason=""
-                    )
-                    self._run_info(rec, run_id, phase="running")
-                    self.log.info("session %s run %s started on simulator %s", rec.id, run_id, host)
-                    return
-                errors.append(f"{host}: {reply.err.payload.to_bytes().decode('utf-8', 'replace')[:300]}")
-            if not replies:
-                errors.append(f"{host}: no answer")
-        self._end_run(rec, "failed", "no simulator accepted the run: " + "; ".join(errors))
+                if rec is None:
+                    self._orphan_runs[sid] = run_id
+                self._send_control(sid, run_id, "abort")
+            return
+        if rec.state.run_id != run_id:
+            return
+        if host:
+            self.log.info("session %s run %s started on simulator %s", sid, run_id, host)
+            if rec.state.phase == "queued":  # its first status report may have come first
+                self._set_phase(
+                    rec, "running", queue_position=0, progress=0.0, sim_time=0.0, rtf=0.0, reason=""
+                )
+                self._run_info(rec, run_id, phase="running")
+        elif rec.state.phase == "queued":
+            reason = (
+                "no simulator accepted the run: " + "; ".join(errors)
+                if hosts
+                else "no simulator node is on the mesh"
+            )
+            self._end_run(rec, "failed", reason)
 
     def _run_info(self, rec: SessionRecord, run_id: str, **fields: Any) -> None:
         for info in rec.runs:
@@ -564,7 +622,12 @@ class Proxy(Node):
             self.log.warning("session %s run %s failed: %s", rec.id, rec.state.run_id, reason)
 
     def _control(self, rec: SessionRecord, op: str) -> None:
-        rec.pubs["control"].put(codec.dumps(m.RunControl(op=op, run_id=rec.state.run_id)))  # type: ignore[arg-type]
+        if op == "abort":
+            rec.abort_run = rec.state.run_id
+        self._send_control(rec.id, rec.state.run_id, op)
+
+    def _send_control(self, sid: str, run_id: str, op: str) -> None:
+        self.z.put(keys.control(sid), codec.dumps(m.RunControl(op=op, run_id=run_id)))  # type: ignore[arg-type]
 
     def _cmd_pause(self, rec: SessionRecord, cmd: m.Pause) -> str:
         if rec.state.phase != "running":
@@ -579,7 +642,10 @@ class Proxy(Node):
         return rec.state.run_id
 
     def _cmd_abort(self, rec: SessionRecord, cmd: m.Abort) -> str:
-        if rec.state.phase == "queued":
+        if rec.state.phase == "queued" and rec.starting:
+            rec.abort_run = rec.state.run_id  # _started() stops it if a simulator took it
+            self._end_run(rec, "aborted", "aborted while being handed to a simulator")
+        elif rec.state.phase == "queued":
             self.queue.remove(rec.id)
             self._end_run(rec, "aborted", "aborted while queued")
             self._update_queue()
@@ -593,6 +659,13 @@ class Proxy(Node):
     def _on_run_status(self, st: m.RunStatus) -> None:
         with self.lock:
             rec = self.sessions.get(st.session)
+            if st.phase not in ENDED and (
+                (rec is not None and rec.abort_run == st.run_id)
+                or (rec is None and self._orphan_runs.get(st.session) == st.run_id)
+            ):
+                self._send_control(st.session, st.run_id, "abort")  # in case the first was missed
+            if st.phase in ENDED and self._orphan_runs.get(st.session) == st.run_id:
+                del self._orphan_runs[st.session]
             if rec is None or rec.state.run_id != st.run_id or rec.state.phase in ENDED:
                 return
             progress = min(1.0, st.sim_time / st.stop_time) if st.stop_time > 0 else 0.0

@@ -257,6 +257,64 @@ def test_killed_simulation_fails_its_session_within_a_second(service: Service) -
     assert c.live_nodes().count(("simulator", "simulator-t")) == 1
 
 
+def test_a_simulator_that_does_not_answer_holds_up_no_other_session(service: Service) -> None:
+    """The proxy hands a run to a simulator without holding its lock: a stopped simulator (it
+    answers after its lease ran out, if ever) delays only that run, never other commands."""
+    c = service.client
+    a = c.create_session("ann", "spider")
+    b = c.create_session("bob", "spider")
+    prepare(a)
+    sim = service.mesh.procs["simulator"]
+    os.kill(sim.pid, signal.SIGSTOP)
+    try:
+        t0 = time.monotonic()
+        reply = a.command(m.Run())
+        took_run = time.monotonic() - t0
+        t0 = time.monotonic()
+        b.set_params({"joint2.ctrl.kp_pos": 33.0})
+        took_other = time.monotonic() - t0
+        assert reply["phase"] == "queued"
+        assert took_run < 0.5 and took_other < 0.5, (took_run, took_other)
+        with pytest.raises(RemoteError) as err:
+            a.run()
+        assert err.value.code == "conflict"
+        state = a.wait_for(["failed", "running"], 30, reply["run_id"])
+        assert state.phase == "failed" and "simulator" in state.reason, state
+    finally:
+        os.kill(sim.pid, signal.SIGCONT)
+
+
+def test_abort_while_a_run_is_being_handed_over_stops_it(service: Service) -> None:
+    c = service.client
+    s = c.create_session("ann", "spider")
+    prepare(s, stop_time=5.0, pacing="realtime")
+    reports: list[m.RunStatus] = []
+    sub = c.z.declare_subscriber(
+        keys.run_status(s.id), lambda smp: reports.append(codec.loads(m.RunStatus, smp.payload.to_bytes()))
+    )
+    sim = service.mesh.procs["simulator"]
+    os.kill(sim.pid, signal.SIGSTOP)  # the hand-over waits for it (within its 1 s lease)
+    try:
+        run_id = s.run()
+        s.abort()
+        state = s.snapshot().state
+        assert state.phase == "aborted" and "handed" in state.reason, state
+    finally:
+        os.kill(sim.pid, signal.SIGCONT)
+    # The simulator then takes the run; the proxy stops it at once.
+    ended = wait_until(
+        lambda: [r for r in reports if r.run_id == run_id and r.phase == "aborted"],
+        timeout=20,
+        what="the worker to abort the run",
+    )
+    assert ended[-1].sim_time < 2.0
+    sub.undeclare()
+    assert s.snapshot().state.phase == "aborted"
+    # The session is usable again.
+    again = s.run()
+    assert s.wait_for(["running", "finished"], 30, again).phase in ("running", "finished")
+
+
 def test_admission_queues_and_refuses(mesh: Mesh) -> None:
     mesh.start("proxy", "--data-dir", str(mesh.folder / "d"), "--max-running", "1", "--max-queue", "1")
     mesh.start("simulator", "--results-dir", str(mesh.folder / "d" / "results"))
