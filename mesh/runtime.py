@@ -30,7 +30,7 @@ from typing import Any
 import zenoh
 import zenoh.ext
 
-from . import codec, keys
+from . import affinity, codec, keys
 from .config import MeshConfig
 from .config import load as load_config
 from .messages import Error, NodeStatus, Ok
@@ -168,9 +168,13 @@ class Node:
     """Base of every simecs process. Subclasses set `role` and override `start()` (and `stop()`)."""
 
     role = "node"
+    #: Routes live frames (hub, hot-feedback, viewer): pinned to the shared mesh core (`affinity`).
+    live_path = False
 
     def __init__(self, mesh: MeshConfig, node_id: str | None = None) -> None:
         self.mesh = mesh
+        self.cpu_choice = "none"  # `--cpu`; set by main_for, so nodes built in tests stay unpinned
+        self.cpu: int | None = None
         self.node_id = node_id or f"{socket.gethostname()[:20]}-{os.getpid()}".replace(".", "-")
         keys.check_name(self.node_id, "node id")
         self.stop_event = threading.Event()
@@ -322,6 +326,7 @@ class Node:
             **self.status_detail(),
             "declared": len(self._declared),
             "dropped": sum(w.dropped for w in self._workers),
+            **({"cpu": self.cpu} if self.cpu is not None else {}),
         }
 
     def publish_status(self, state: str, detail: dict[str, Any] | None = None) -> None:
@@ -342,6 +347,9 @@ class Node:
         self._install_signals()
         self.session = open_session(self.mesh)
         try:
+            if self.live_path:
+                # After the session opened, so zenoh's threads exist and are pinned too.
+                self.cpu = affinity.place_on_mesh_core(self.cpu_choice)
             self._status_pub = self.publisher(keys.node_status(self.role, self.node_id), latched=True)
             self.publish_status("starting")
             self.start()
@@ -410,6 +418,12 @@ def node_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--mesh-config", help="JSON5 mesh configuration file (also SIMECS_MESH_CONFIG)")
     parser.add_argument("--node-id", help="unique name of this node on the mesh (default host-pid)")
     parser.add_argument("--log-level", default=None, help="DEBUG, INFO, WARNING (also SIMECS_LOG)")
+    parser.add_argument(
+        "--cpu",
+        default=os.environ.get("SIMECS_CPU", "auto"),
+        help="live-path nodes (hub, hot-feedback, viewer): auto = share the highest CPU, none, or a "
+        "CPU number (also SIMECS_CPU); other nodes ignore it",
+    )
 
 
 def mesh_from_args(args: argparse.Namespace) -> MeshConfig:
@@ -430,6 +444,8 @@ def main_for(node_cls: type[Node], argv: list[str] | None = None, prog: str | No
     setup_logging(f"{node_cls.role}", args.log_level)
     try:
         node = node_cls.from_args(args)
+        node.cpu_choice = args.cpu
+        affinity.mesh_core(args.cpu)  # a bad --cpu fails here, with its reason, before joining the mesh
         code = node.run()
     except Exception as exc:
         log.error("%s failed: %s\n%s", node_cls.role, exc, traceback.format_exc())

@@ -48,6 +48,7 @@ class HotFeedback(Node):
     """Decimates full-rate frames to at most R Hz per session."""
 
     role = "hotfeedback"
+    live_path = True
     tick_s = 1.0
 
     def __init__(self, mesh: Any, node_id: str | None = None) -> None:

@@ -16,6 +16,7 @@ class Hub(Node):
     """Router of the mesh."""
 
     role = "hub"
+    live_path = True
     tick_s = 1.0
 
     @classmethod

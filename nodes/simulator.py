@@ -80,6 +80,7 @@ class Simulator(Node):
         cmd = [sys.executable, "-m", "simecs.nodes.simworker", "--results-dir", str(self.results_dir)]
         for ep in self.mesh.connect:
             cmd += ["--connect", ep]
+        cmd += ["--cpu", self.cpu_choice]  # where its zenoh threads go (mesh.affinity)
         env = dict(os.environ)
         if self.mesh_config_path:
             env["SIMECS_MESH_CONFIG"] = self.mesh_config_path

@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 import zenoh
 import zenoh.ext
-from simecs.mesh import codec, files, frames, keys
+from simecs.mesh import affinity, codec, files, frames, keys
 from simecs.mesh import messages as m
 from simecs.mesh.runtime import mesh_from_args, node_arguments, open_session, setup_logging
 
@@ -54,7 +54,9 @@ class Run:
         self.samples = 0
         self.chunks: list[np.ndarray] = []
         s = req.session
-        self.full = z.declare_publisher(keys.vars_full(s), congestion_control=zenoh.CongestionControl.BLOCK)
+        self.full = z.declare_publisher(
+            keys.vars_full(s), congestion_control=zenoh.CongestionControl.BLOCK, express=True
+        )
         self.status_pub = z.declare_publisher(keys.run_status(s))
         self.layout_pub = zenoh.ext.declare_advanced_publisher(
             z, keys.layout(s), cache=zenoh.ext.CacheConfig(1), publisher_detection=True
@@ -252,12 +254,13 @@ def main(argv: list[str] | None = None) -> None:
         warm = getattr(models, "warmup", None)
         if warm is not None:
             warm()
-        z = open_session(mesh_from_args(args))
+        cfg = mesh_from_args(args)
+        z = affinity.open_on_mesh_core(lambda: open_session(cfg), args.cpu)
         try:
             line = sys.stdin.readline()
             if line.strip():
                 try:
-                    os.setpriority(os.PRIO_PROCESS, 0, 0)
+                    affinity.renice_process(0)  # zenoh's threads too: they carry the frames
                 except OSError:
                     log.info("running at nice 10: no right to raise the priority back")
                 req = codec.loads(m.RunRequest, line)

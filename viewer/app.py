@@ -30,6 +30,7 @@ class Viewer(Node):
     """The web client of simecs (paper §3.2): one viser server, one `Tab` per browser tab."""
 
     role = "viewer"
+    live_path = True
     tick_s = 0.1
 
     def __init__(
