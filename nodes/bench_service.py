@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import statistics
 import subprocess
 import sys
@@ -25,7 +26,7 @@ from typing import Any
 
 import numpy as np
 import zenoh
-from simecs.mesh import frames
+from simecs.mesh import affinity, frames, keys
 from simecs.mesh.client import MeshClient, SessionClient
 from simecs.mesh.config import MeshConfig
 from simecs.mesh.launch import LocalMesh, clean_env
@@ -35,6 +36,8 @@ STOP = 5.0
 OUTPUT = 0.002
 PING_KEY = "bench/ping"
 PONG_KEY = "bench/pong"
+#: Live frames of a real-time run come once per simulator chunk (25 ms); the raw ping keeps that pace.
+LIVE_PERIOD = 0.025
 
 
 def standard_target() -> list[float]:
@@ -48,9 +51,11 @@ def prepare(s: SessionClient, pacing: str, stop: float = STOP, **settings: Any) 
     s.set_joint_path([(standard_target(), 100.0, 100.0)])
 
 
-def echo_main(endpoint: str, seconds: float) -> None:
-    """The pong side of the raw ping: a separate client process, echoing through the hub."""
+def echo_main(endpoint: str, seconds: float, cpu: str) -> None:
+    """The pong side of the raw ping: a separate client process, echoing through the hub, placed
+    like the viewer (`--cpu`)."""
     z = open_session(MeshConfig(connect=[endpoint]))
+    affinity.place_on_mesh_core(cpu)
     pub = z.declare_publisher(PONG_KEY)
     sub = z.declare_subscriber(PING_KEY, lambda s: pub.put(s.payload.to_bytes()))
     time.sleep(seconds)
@@ -59,61 +64,106 @@ def echo_main(endpoint: str, seconds: float) -> None:
     z.close()
 
 
-def raw_ping(mesh: LocalMesh, count: int = 2000) -> list[float]:
-    echo = subprocess.Popen(
-        [sys.executable, "-m", "simecs.nodes.bench_service", "--echo", mesh.endpoint, "--seconds", "60"],
-        env=clean_env(),
-    )
-    z = mesh.new_client().z
-    got = threading.Event()
-    box: list[int] = []
+class RawPing:
+    """Round trips between this process and an echo process through the same hub: four hops, as
+    worker -> hub -> hot-feedback -> hub -> client."""
 
-    def on_pong(s: zenoh.Sample) -> None:
-        box.append(time.perf_counter_ns())
-        got.set()
+    def __init__(self, mesh: LocalMesh, cpu: str) -> None:
+        self.echo = subprocess.Popen(
+            [sys.executable, "-m", "simecs.nodes.bench_service", "--echo", mesh.endpoint]
+            + ["--seconds", "300", "--cpu", cpu],
+            env=clean_env(),
+        )
+        self.client = mesh.new_client()
+        z = self.client.z
+        self.got = threading.Event()
+        self.box: list[int] = []
 
-    sub = z.declare_subscriber(PONG_KEY, on_pong)
-    pub = z.declare_publisher(PING_KEY)
-    payload = bytes(400)  # about one live frame of the standard case
-    try:
+        def on_pong(s: zenoh.Sample) -> None:
+            self.box.append(time.perf_counter_ns())
+            self.got.set()
+
+        self.sub = z.declare_subscriber(PONG_KEY, on_pong)
+        self.pub = z.declare_publisher(PING_KEY)
         end = time.monotonic() + 20
-        while not pub.matching_status.matching and time.monotonic() < end:
+        while not self.pub.matching_status.matching and time.monotonic() < end:
             time.sleep(0.05)
         time.sleep(0.2)
+
+    def block(self, count: int, gap: float) -> list[float]:
+        """`count` round trips, one every `gap` seconds (idle threads and vCPUs between them
+        wake up slower than busy ones: the gap decides what is measured)."""
+        payload = bytes(400)  # about one live frame of the standard case
         rtts = []
         for _ in range(count):
-            got.clear()
+            self.got.clear()
             t0 = time.perf_counter_ns()
-            pub.put(payload)
-            if got.wait(1.0):
-                rtts.append((box[-1] - t0) / 1e6)
-            time.sleep(0.001)
+            self.pub.put(payload)
+            if self.got.wait(1.0):
+                rtts.append((self.box[-1] - t0) / 1e6)
+            time.sleep(gap)
         return rtts
-    finally:
-        sub.undeclare()
-        pub.undeclare()
-        echo.terminate()
-        echo.wait(5)
+
+    def close(self) -> None:
+        self.sub.undeclare()
+        self.pub.undeclare()
+        self.echo.terminate()
+        self.echo.wait(5)
 
 
-def live_latency(client: MeshClient) -> list[float]:
+def live_run(client: MeshClient, stop: float) -> tuple[list[float], list[float]]:
+    """One real-time run. Latency of each live frame at a plain subscriber's zenoh callback (what
+    any client of the protocol gets; the viewer then hands it to its own thread), and of each
+    full-rate frame (worker -> hub -> subscriber): where the live path's time goes."""
     s = client.create_session("bench", "spider")
-    prepare(s, "realtime", live_rate_hz=50.0)
-    lat: list[float] = []
+    prepare(s, "realtime", stop=stop, live_rate_hz=50.0)
+    live: list[float] = []
+    full: list[float] = []
     done = threading.Event()
 
-    def on_live(f: frames.Frame) -> None:
-        lat.append((time.time_ns() - f.wall_ns) / 1e6)
+    def on_live(sample: zenoh.Sample) -> None:
+        f = frames.decode(sample.payload.to_bytes())
+        live.append((time.time_ns() - f.wall_ns) / 1e6)
         if f.final:
             done.set()
 
-    with s.watch(on_live=on_live):
+    def on_full(sample: zenoh.Sample) -> None:
+        full.append((time.time_ns() - frames.decode(sample.payload.to_bytes()).wall_ns) / 1e6)
+
+    subs = [
+        client.z.declare_subscriber(keys.vars_live(s.id), on_live),
+        client.z.declare_subscriber(keys.vars_full(s.id), on_full),
+    ]
+    try:
         time.sleep(0.3)
         run = s.run()
-        s.wait_for(["finished", "failed", "aborted"], STOP * 4 + 30, run)
+        s.wait_for(["finished", "failed", "aborted"], stop * 4 + 30, run)
         done.wait(5)
-    s.close()
-    return lat
+    finally:
+        for sub in subs:
+            sub.undeclare()
+        s.close()
+    return live, full
+
+
+def latency(mesh: LocalMesh, client: MeshClient, cpu: str, rounds: int = 3) -> dict[str, list[float]]:
+    """Live runs alternated with raw ping blocks, so both see the same machine. This process is
+    placed like the viewer for the duration (then put back)."""
+    allowed = os.sched_getaffinity(0)
+    affinity.place_on_mesh_core(cpu)
+    ping = RawPing(mesh, cpu)
+    out: dict[str, list[float]] = {"live": [], "full": [], "ping": [], "ping_fast": []}
+    try:
+        for _ in range(rounds):
+            live, full = live_run(client, stop=8.0)
+            out["live"] += live
+            out["full"] += full
+            out["ping"] += ping.block(320, LIVE_PERIOD)
+        out["ping_fast"] = ping.block(1000, 0.001)
+    finally:
+        ping.close()
+        affinity.pin_process(allowed)
+    return out
 
 
 def concurrent(client: MeshClient, n: int) -> tuple[bool, list[float]]:
@@ -175,7 +225,8 @@ def streaming_pairs(client: MeshClient, pairs: int = 6) -> tuple[list[float], li
     return streamed, headless
 
 
-def run_service_bench(json_out: bool = False, max_sessions: int = 16) -> dict[str, Any]:
+def run_service_bench(json_out: bool = False, max_sessions: int = 16, cpu: str = "auto") -> dict[str, Any]:
+    os.environ["SIMECS_CPU"] = cpu  # the nodes started below place themselves the same way
     with LocalMesh() as mesh:
         mesh.start_hub()
         mesh.start_service(max_running=64, simulator_args=("--max-runs", "64", "--warm", "2"))
@@ -185,8 +236,8 @@ def run_service_bench(json_out: bool = False, max_sessions: int = 16) -> dict[st
         # The RTF pair first, on a quiet machine (the concurrency trial below loads it for a while).
         streamed, headless = streaming_pairs(client)
         rtf_stream, rtf_headless = max(streamed), max(headless)
-        pings = raw_ping(mesh)
-        lat = live_latency(client)
+        measured = latency(mesh, client, cpu)
+        lat, full, pings, fast = (measured[k] for k in ("live", "full", "ping", "ping_fast"))
 
         counts: dict[int, list[float]] = {}
         best_n = 0
@@ -203,8 +254,14 @@ def run_service_bench(json_out: bool = False, max_sessions: int = 16) -> dict[st
         "latency_ms_p50": float(np.percentile(lat, 50)),
         "latency_ms_p99": float(np.percentile(lat, 99)),
         "latency_samples": len(lat),
+        "full_frame_latency_ms_p50": float(np.percentile(full, 50)),
+        "full_frame_latency_ms_p99": float(np.percentile(full, 99)),
         "raw_zenoh_ms_p50": float(np.percentile(pings, 50)),
         "raw_zenoh_ms_p99": float(np.percentile(pings, 99)),
+        "raw_zenoh_period_ms": LIVE_PERIOD * 1e3,
+        "raw_zenoh_fast_ms_p50": float(np.percentile(fast, 50)),
+        "raw_zenoh_fast_ms_p99": float(np.percentile(fast, 99)),
+        "mesh_core": affinity.mesh_core(cpu),
         "concurrent_realtime_sessions": best_n,
         "concurrent_min_rtf": {str(k): round(min(v), 3) for k, v in counts.items()},
         "rtf_streaming": rtf_stream,
@@ -221,9 +278,20 @@ def run_service_bench(json_out: bool = False, max_sessions: int = 16) -> dict[st
         f"   p99 {result['latency_ms_p99']:7.3f} ms   ({len(lat)} samples, target p50 <= 2, p99 <= 10)"
     )
     print(
-        f"  raw zenoh ping-pong via the same hub      p50 {result['raw_zenoh_ms_p50']:7.3f} ms"
-        f"   p99 {result['raw_zenoh_ms_p99']:7.3f} ms   ({len(pings)} round trips)"
+        f"    of which worker -> hub -> subscriber    p50 {result['full_frame_latency_ms_p50']:7.3f} ms"
+        f"   p99 {result['full_frame_latency_ms_p99']:7.3f} ms   (full-rate frames, same runs)"
     )
+    print(
+        f"  raw zenoh ping-pong via the same hub      p50 {result['raw_zenoh_ms_p50']:7.3f} ms"
+        f"   p99 {result['raw_zenoh_ms_p99']:7.3f} ms   ({len(pings)} round trips, one per"
+        f" {LIVE_PERIOD * 1e3:.0f} ms like live frames)"
+    )
+    print(
+        f"    same, one round trip per 1 ms           p50 {result['raw_zenoh_fast_ms_p50']:7.3f} ms"
+        f"   p99 {result['raw_zenoh_fast_ms_p99']:7.3f} ms   ({len(fast)} round trips)"
+    )
+    core = result["mesh_core"]
+    print(f"  live path (hub, hot-feedback, subscriber) on CPU {core if core is not None else 'any'}")
     for n, rtfs in counts.items():
         print(
             f"  {n:2d} sessions at real-time pacing: "
@@ -248,11 +316,16 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--echo", help="run the pong side of the raw ping against this hub endpoint")
     parser.add_argument("--seconds", type=float, default=60.0)
     parser.add_argument("--json", action="store_true")
+    parser.add_argument(
+        "--cpu",
+        default=os.environ.get("SIMECS_CPU", "auto"),
+        help="where the live path runs (as the nodes' --cpu): auto, none or a CPU number",
+    )
     args = parser.parse_args(argv)
     if args.echo:
-        echo_main(args.echo, args.seconds)
+        echo_main(args.echo, args.seconds, args.cpu)
     else:
-        run_service_bench(args.json)
+        run_service_bench(args.json, cpu=args.cpu)
 
 
 if __name__ == "__main__":
