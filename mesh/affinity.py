@@ -10,7 +10,8 @@ same-CPU wake-ups; the simulations still use every core. One frame then pays at 
 cross-CPU wake-up (worker -> hub).
 
 A simulator worker keeps its simulation thread free but puts its zenoh threads on the mesh core
-too (`open_on_mesh_core`), so the frame it publishes reaches the hub without another cross-CPU hop.
+too (`open_on_mesh_core`), so the frame it publishes reaches the hub without another cross-CPU hop;
+a run paced as fast as possible lets them go again (throughput then matters, not latency).
 
 `--cpu auto` (the default of those nodes, also `SIMECS_CPU`) picks the highest CPU this process may
 use, and does nothing on a single-CPU machine; `--cpu none` leaves placement to the OS; `--cpu 3`
