@@ -225,7 +225,10 @@ def streaming_pairs(client: MeshClient, pairs: int = 6) -> tuple[list[float], li
     return streamed, headless
 
 
-def run_service_bench(json_out: bool = False, max_sessions: int = 16, cpu: str = "auto") -> dict[str, Any]:
+def run_service_bench(
+    json_out: bool = False, max_sessions: int = 16, cpu: str | None = None
+) -> dict[str, Any]:
+    cpu = cpu or os.environ.get("SIMECS_CPU", "auto")
     os.environ["SIMECS_CPU"] = cpu  # the nodes started below place themselves the same way
     with LocalMesh() as mesh:
         mesh.start_hub()

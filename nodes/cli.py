@@ -140,6 +140,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
     if not _available(module_name):
         print(f"benchmark {args.name} is not available in this installation ({module_name})", file=sys.stderr)
         return 2
+    os.environ["SIMECS_CPU"] = args.cpu  # the nodes a benchmark starts place themselves this way
     result = getattr(importlib.import_module(module_name), func)(args.json)
     return 0 if result is not None else 1
 
@@ -180,6 +181,11 @@ def build_parser() -> argparse.ArgumentParser:
     bench = sub.add_parser("bench", help="run a benchmark: human table, and with --json one JSON line last")
     bench.add_argument("name", choices=sorted(BENCHES))
     bench.add_argument("--json", action="store_true")
+    bench.add_argument(
+        "--cpu",
+        default=os.environ.get("SIMECS_CPU", "auto"),
+        help="placement of the live path, as the nodes' --cpu: auto, none or a CPU number",
+    )
 
     for name, help_text in (
         ("replay", "republish a recording onto the mesh"),
