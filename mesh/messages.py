@@ -429,6 +429,9 @@ class RunLayout:
     live_rate_hz: float
     stop_time: float
     output_interval: float
+    # Who produces the frames: a simulation, or a replay of a recording (the recorder does not
+    # record replays; a viewer can say what it shows).
+    source: Literal["simulator", "replay"] = "simulator"
     type: Literal["layout"] = "layout"
     v: int = VERSION
 

@@ -370,19 +370,12 @@ class Recorder(Node):
             self._close(cur, f"superseded by run {layout.run_id}")
         if (sid, layout.run_id) in self.done or sid in self.ignored:
             return
-        if self._is_replay(sid):
+        if layout.source == "replay":
             self.ignored.add(sid)
             self.pending.pop(sid, None)
             self.log.info("session %s is a replay: not recorded", sid)
             return
         self._open(layout)
-
-    def _is_replay(self, session: str) -> bool:
-        token = keys.node_token("replay", f"replay-{session}")
-        try:
-            return any(r.ok is not None for r in self.z.liveliness().get(token, timeout=2.0))
-        except zenoh.ZError:
-            return False
 
     def _open(self, layout: m.RunLayout) -> None:
         base = keys.recording_name(layout.session, layout.run_id)

@@ -60,7 +60,7 @@ class Replay(Node):
         self.rec = recording
         self.speed = speed
         self.linger_s = linger_s
-        self.layout = m.RunLayout(**{**vars(recording.layout), "session": self.sid})
+        self.layout = m.RunLayout(**{**vars(recording.layout), "session": self.sid, "source": "replay"})
         self.run_id = self.layout.run_id
         self.frames = list(recording.frames())
         self.rows = recording.rows

@@ -111,11 +111,14 @@ def test_replay_republishes_the_recorded_frames_with_pause_and_seek(mesh: Mesh) 
 def test_replay_cli_as_fast_as_possible(mesh: Mesh, tmp_path: Path) -> None:
     path, sent = write_recording(tmp_path / "rec", n_frames=100)
     mesh.start("hotfeedback")
+    other_dir = tmp_path / "other"
+    mesh.start("recorder", "--dir", str(other_dir))  # it did not start this replay
     client = mesh.new_client()
     sid = keys.new_session_id()
     live: list[frames.Frame] = []
+    layouts: list[m.RunLayout] = []
     col = Collector(client, sid)
-    watch_live = client.session(sid).watch(on_live=live.append)
+    watch_live = client.session(sid).watch(on_live=live.append, on_layout=layouts.append)
     try:
         mesh.start("replay", str(path), "--speed", "0", f"--session={sid}", "--linger", "0.5")
         assert col.final.wait(20)
@@ -125,9 +128,13 @@ def test_replay_cli_as_fast_as_possible(mesh: Mesh, tmp_path: Path) -> None:
         assert live[-1].rows[-1, 0] == sent[-1].rows[-1, 0]
         wait_until(lambda: mesh.procs["replay"].poll() is not None, 15, what="replay exit after linger")
         assert mesh.procs["replay"].returncode == 0
+        assert layouts and all(lay.source == "replay" for lay in layouts)
     finally:
         col.watch.close()
         watch_live.close()
+    # The layout says it is a replay: the recorder leaves it alone.
+    assert list(other_dir.glob("*.mcap")) == []
+    assert "is a replay: not recorded" in mesh.log("recorder")
 
 
 def test_replay_cli_refuses_bad_files(tmp_path: Path) -> None:
