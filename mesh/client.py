@@ -6,7 +6,6 @@ plain zenoh underneath, so any other client written from docs/PROTOCOL.md is its
 
 from __future__ import annotations
 
-import json
 import threading
 import time
 from collections.abc import Callable, Sequence
@@ -50,12 +49,6 @@ def _decode_error(payload: bytes) -> m.Error:
         return m.Error(code="internal", message=payload.decode("utf-8", "replace")[:500])
 
 
-def _most_telling(errors: list[m.Error]) -> m.Error:
-    """Several nodes may answer one key (the proxy says `not_found` for a replay's session that the
-    replay node serves): a specific refusal tells more than another node's not_found."""
-    return next((e for e in errors if e.code != "not_found"), errors[0])
-
-
 class MeshClient:
     """Server-wide requests; `session(id)` gives the per-session API."""
 
@@ -83,83 +76,75 @@ class MeshClient:
         body = None if payload is None else (payload if isinstance(payload, bytes) else codec.dumps(payload))
         return list(self.z.get(key, payload=body, timeout=timeout or self.timeout))
 
-    def request(self, key: str, payload: Any = None, timeout: float | None = None) -> Any:
-        """Send a get and return the `data` of its Ok reply; RemoteError / NoReply otherwise."""
-        replies = self._replies(key, payload, timeout)
-        errors = []
-        for reply in replies:
-            if reply.ok is not None:
-                ok = codec.loads(m.Ok, reply.ok.payload.to_bytes())
-                return ok.data
-            elif reply.err is not None:
-                errors.append(_decode_error(reply.err.payload.to_bytes()))
-        if errors:
-            raise RemoteError(_most_telling(errors))
+    def request(self, key: str, payload: Any = None, timeout: float | None = None, reply: Any = Any) -> Any:
+        """Send a get and return the `data` of its Ok reply decoded as `reply`; RemoteError / NoReply
+        otherwise. One node answers each key (PROTOCOL.md §4)."""
+        answers = self._replies(key, payload, timeout)
+        for answer in answers:
+            if answer.ok is not None:
+                data = codec.loads(m.Ok, answer.ok.payload.to_bytes()).data
+                return data if reply is Any else codec.from_obj(reply, data)
+        for answer in answers:
+            if answer.err is not None:
+                raise RemoteError(_decode_error(answer.err.payload.to_bytes()))
         raise NoReply(f"no node answered {key}")
 
-    def request_binary(self, key: str, timeout: float | None = None) -> tuple[bytes, Any]:
-        replies = self._replies(key, None, timeout)
-        errors = []
-        for reply in replies:
-            if reply.ok is not None:
-                att = reply.ok.attachment
-                return reply.ok.payload.to_bytes(), (json.loads(att.to_bytes()) if att is not None else None)
-            if reply.err is not None:
-                errors.append(_decode_error(reply.err.payload.to_bytes()))
-        if errors:
-            raise RemoteError(_most_telling(errors))
+    def request_binary(self, key: str, attachment: Any, timeout: float | None = None) -> tuple[bytes, Any]:
+        """A get answered with bytes; returns them and the reply's attachment decoded as `attachment`."""
+        answers = self._replies(key, None, timeout)
+        for answer in answers:
+            if answer.ok is not None:
+                att = answer.ok.attachment
+                return answer.ok.payload.to_bytes(), (
+                    codec.loads(attachment, att.to_bytes()) if att is not None else None
+                )
+        for answer in answers:
+            if answer.err is not None:
+                raise RemoteError(_decode_error(answer.err.payload.to_bytes()))
         raise NoReply(f"no node answered {key}")
 
     # -- library --------------------------------------------------------------------------------
     def list_models(self) -> list[ModelSummary]:
-        return codec.from_obj(m.ModelList, self.request(keys.LIBRARY)).models
+        return self.request(keys.LIBRARY, reply=m.ModelList).models
 
     def describe(self, model_id: str) -> ModelDescription:
-        return codec.from_obj(ModelDescription, self.request(keys.model(model_id)))
+        return self.request(keys.model(model_id), reply=ModelDescription)
 
     def doc(self, model_id: str, page: str) -> DocPage:
-        return codec.from_obj(DocPage, self.request(keys.doc(model_id, page)))
+        return self.request(keys.doc(model_id, page), reply=DocPage)
 
     # -- sessions -------------------------------------------------------------------------------
     def create_session(self, user: str, model_id: str) -> SessionClient:
-        snap = codec.from_obj(m.SessionSnapshot, self.request(keys.SESSIONS, m.CreateSession(user, model_id)))
+        request = m.CreateSession(user, model_id)
+        snap = self.request(keys.SESSIONS, request, reply=m.REPLIES[m.CreateSession])
         return SessionClient(self, snap.session, snap)
 
-    def list_sessions(self, user: str) -> list[dict[str, Any]]:
-        return list(self.request(keys.SESSIONS, m.ListSessions(user)))
+    def list_sessions(self, user: str) -> list[m.SessionEntry]:
+        return self.request(keys.SESSIONS, m.ListSessions(user), reply=m.REPLIES[m.ListSessions])
 
     def session(self, session_id: str) -> SessionClient:
         return SessionClient(self, session_id)
 
     def recordings(self) -> list[m.RecordingInfo]:
-        return codec.from_obj(m.RecordingList, self.request(keys.RECORDINGS)).recordings
+        return self.request(keys.RECORDINGS, reply=m.RecordingList).recordings
+
+    def recording_info(self, name: str) -> m.RecordingInfo:
+        return self.request(keys.recording_info(name), reply=m.RecordingInfo)
 
     def download_recording(self, name: str, timeout: float = 30.0) -> bytes:
         """The MCAP bytes of a recording (`keys.recording_name(session, run_id)` for a run)."""
-        return self.request_binary(keys.recording(name), timeout=timeout)[0]
+        return self.request_binary(keys.recording(name), m.RecordingInfo, timeout=timeout)[0]
 
     def upload_recording(self, name: str, data: bytes, timeout: float = 60.0) -> m.RecordingInfo:
-        return codec.from_obj(m.RecordingInfo, self.request(keys.recording(name), data, timeout))
-
-    def replay(
-        self, name: str, speed: float = 1.0, paused: bool = False, timeout: float = 15.0
-    ) -> SessionClient:
-        """Replay a recording as a session watched like a live run."""
-        data = self.request(keys.recording_replay(name), m.ReplayRequest(speed=speed, paused=paused), timeout)
-        sid = str((data or {}).get("session", ""))
-        if not keys.is_session_id(sid):
-            raise RemoteError(
-                m.Error("internal", f"the recorder answered without a session id: {data!r:.100}")
-            )
-        return self.session(sid)
+        return self.request(keys.recording(name), data, timeout, reply=m.RecordingInfo)
 
     def live_nodes(self, timeout: float = 1.0) -> list[tuple[str, str]]:
         """(role, node id) of every node whose liveliness token is up."""
         out = []
         for reply in self.z.liveliness().get(keys.NODE_TOKENS, timeout=timeout):
             if reply.ok is not None:
-                parts = str(reply.ok.key_expr).split("/")
-                out.append((parts[2], parts[3]))
+                token = keys.parse("node_token", reply.ok.key_expr)
+                out.append((token["role"], token["node"]))
         return sorted(out)
 
 
@@ -200,16 +185,17 @@ class SessionClient:
         self.created = snapshot
 
     def command(self, cmd: Any, timeout: float | None = None) -> Any:
-        return self.client.request(keys.cmd(self.id), cmd, timeout)
+        """Send a session command; its reply `data`, typed as messages.REPLIES says."""
+        return self.client.request(keys.cmd(self.id), cmd, timeout, reply=m.REPLIES[type(cmd)])
 
     def snapshot(self) -> m.SessionSnapshot:
-        return codec.from_obj(m.SessionSnapshot, self.command(m.GetSession()))
+        return self.command(m.GetSession())
 
     def set_params(self, values: dict[str, float]) -> dict[str, float]:
-        return dict(self.command(m.SetParams(values)))
+        return self.command(m.SetParams(values))
 
     def reset_params(self, names: Sequence[str] = ()) -> dict[str, float]:
-        return dict(self.command(m.ResetParams(list(names))))
+        return self.command(m.ResetParams(list(names)))
 
     def set_initial(self, joints: Sequence[float]) -> Any:
         return self.command(m.SetInitial([float(q) for q in joints]))
@@ -223,7 +209,14 @@ class SessionClient:
 
     def run(self) -> str:
         """Start a run; returns its run id."""
-        return str(self.command(m.Run())["run_id"])
+        return self.command(m.Run()).run_id
+
+    def replay(self, recording: str, speed: float = 1.0, paused: bool = False) -> str:
+        """Start a run that replays `recording` (of this session's model); returns its run id."""
+        return self.command(m.Replay(recording, speed, paused)).run_id
+
+    def seek(self, time_s: float) -> str:
+        return self.command(m.Seek(time_s))
 
     def pause(self) -> Any:
         return self.command(m.Pause())
@@ -241,16 +234,16 @@ class SessionClient:
         return self.command(m.SaveParamSet(name))
 
     def load_param_set(self, name: str) -> dict[str, float]:
-        return dict(self.command(m.LoadParamSet(name)))
+        return self.command(m.LoadParamSet(name))
 
     def delete_param_set(self, name: str) -> Any:
         return self.command(m.DeleteParamSet(name))
 
     def list_param_sets(self) -> list[str]:
-        return list(self.command(m.ListParamSets()))
+        return self.command(m.ListParamSets())
 
     def runs(self) -> list[m.RunInfo]:
-        return [codec.from_obj(m.RunInfo, r) for r in self.client.request(keys.results(self.id))]
+        return self.client.request(keys.results(self.id), reply=list[m.RunInfo])
 
     def results(
         self,
@@ -271,9 +264,9 @@ class SessionClient:
         if every != 1:
             params.append(f"every={int(every)}")
         key = keys.results(self.id, run_id) + ("?" + ";".join(params) if params else "")
-        payload, att = self.client.request_binary(key)
+        payload, att = self.client.request_binary(key, m.ResultsAttachment)
         frame = frames.decode(payload)
-        return list(att["columns"]), frame.rows
+        return list(att.columns), frame.rows
 
     def watch(
         self,

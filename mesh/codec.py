@@ -1,28 +1,35 @@
-"""Strict JSON codec for the protocol's dataclasses.
+"""Strict JSON codec for the protocol's msgspec Structs.
 
-Every control message is a dataclass; decoding checks each field against its type hint and raises a
-`DecodeError` that names the field path and what was wrong, so an error reply can tell a stranger's
-client exactly which part of its message to fix.
+Decoding refuses unknown fields, wrong types, values out of the bounds the types declare, a message
+without its `v` (or, for a single message type, without its tag) and any text that is not valid
+Unicode, and raises a `DecodeError` naming the field path (`settings.stop_time`, `values.joint1.q`,
+`command.nodes[0].acc_pct`; "" means the whole message), so an error reply tells a stranger's client
+exactly which part of its message to fix. Encoding refuses non-finite numbers.
 """
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import math
+import re
 import types
-from typing import Any, Literal, TypeVar, Union, get_args, get_origin, get_type_hints
+import typing
+from functools import cache
+from typing import Any, TypeVar, Union, get_args, get_origin
+
+import msgspec
+
+from .primitives import NAME_PATTERN, SESSION_ID_PATTERN, FieldProblem
 
 T = TypeVar("T")
 
-#: Upper bounds that keep a hostile message from costing memory or time.
+#: Largest JSON message a node decodes: a hostile message costs at most this much.
 MAX_MESSAGE_BYTES = 4 * 1024 * 1024
-MAX_LIST_LEN = 100_000
-MAX_STR_LEN = 100_000
 
 
 class DecodeError(ValueError):
-    """A message did not match its declared type; `field` is the dotted path of the culprit."""
+    """A message did not match its declared type; `field` is the dotted path of the culprit ("" =
+    the whole message)."""
 
     def __init__(self, field: str, problem: str) -> None:
         self.field = field
@@ -30,183 +37,275 @@ class DecodeError(ValueError):
         super().__init__(f"{field}: {problem}" if field else problem)
 
 
-_hints_cache: dict[type, dict[str, Any]] = {}
+# -- encoding --------------------------------------------------------------------------------------
+def _encode_numpy(obj: Any) -> Any:
+    """numpy scalars and arrays (simulation results) as plain numbers and lists."""
+    if hasattr(obj, "tolist"):
+        return obj.tolist()
+    raise TypeError(f"cannot encode {type(obj).__name__} as protocol JSON")
 
 
-def _hints(cls: type) -> dict[str, Any]:
-    hints = _hints_cache.get(cls)
-    if hints is None:
-        hints = get_type_hints(cls)
-        _hints_cache[cls] = hints
-    return hints
-
-
-def _type_name(tp: Any) -> str:
-    return getattr(tp, "__name__", None) or str(tp).replace("typing.", "")
-
-
-def _decode(tp: Any, value: Any, path: str) -> Any:
-    origin = get_origin(tp)
-    if tp is Any:
-        return value
-    if origin is Literal:
-        allowed = get_args(tp)
-        if value not in allowed or type(value) is not type(allowed[0]):
-            raise DecodeError(path, f"must be one of {list(allowed)}, got {value!r:.80}")
-        return value
-    if origin in (Union, types.UnionType):
-        args = get_args(tp)
-        if value is None and type(None) in args:
-            return None
-        non_none = [a for a in args if a is not type(None)]
-        if len(non_none) == 1:
-            return _decode(non_none[0], value, path)
-        return _decode_tagged(non_none, value, path)
-    if tp is float:
-        if isinstance(value, bool) or not isinstance(value, int | float):
-            raise DecodeError(path, f"must be a number, got {type(value).__name__}")
-        value = float(value)
-        if not math.isfinite(value):
-            raise DecodeError(path, "must be a finite number (NaN and infinity are refused)")
-        return value
-    if tp is int:
-        if isinstance(value, bool) or not isinstance(value, int):
-            if isinstance(value, float) and value.is_integer():
-                return int(value)
-            raise DecodeError(path, f"must be an integer, got {type(value).__name__}")
-        return value
-    if tp is bool:
-        if not isinstance(value, bool):
-            raise DecodeError(path, f"must be true or false, got {type(value).__name__}")
-        return value
-    if tp is str:
-        if not isinstance(value, str):
-            raise DecodeError(path, f"must be a string, got {type(value).__name__}")
-        if len(value) > MAX_STR_LEN:
-            raise DecodeError(path, f"string longer than {MAX_STR_LEN} characters")
-        return value
-    if origin is list or origin is tuple:
-        if not isinstance(value, list):
-            raise DecodeError(path, f"must be a list, got {type(value).__name__}")
-        if len(value) > MAX_LIST_LEN:
-            raise DecodeError(path, f"list longer than {MAX_LIST_LEN} items")
-        (item_tp, *_rest) = get_args(tp) or (Any,)
-        return [_decode(item_tp, v, f"{path}[{i}]") for i, v in enumerate(value)]
-    if origin is dict:
-        if not isinstance(value, dict):
-            raise DecodeError(path, f"must be an object, got {type(value).__name__}")
-        if len(value) > MAX_LIST_LEN:
-            raise DecodeError(path, f"object with more than {MAX_LIST_LEN} entries")
-        _key_tp, val_tp = get_args(tp)
-        return {str(k): _decode(val_tp, v, f"{path}.{k}") for k, v in value.items()}
-    if isinstance(tp, type) and dataclasses.is_dataclass(tp):
-        return _decode_dataclass(tp, value, path)
-    raise DecodeError(path, f"unsupported type {_type_name(tp)}")  # pragma: no cover - a bug in mesh/
-
-
-def _decode_tagged(options: list[Any], value: Any, path: str) -> Any:
-    """Unions of dataclasses are told apart by their `kind` (or `type`) field."""
-    if not isinstance(value, dict):
-        raise DecodeError(path, f"must be an object, got {type(value).__name__}")
-    for tag in ("kind", "type", "op"):
-        if tag in value:
-            allowed: list[str] = []
-            for cls in options:
-                if isinstance(cls, type) and dataclasses.is_dataclass(cls):
-                    field = next((f for f in dataclasses.fields(cls) if f.name == tag), None)
-                    if field is None or not isinstance(field.default, str):
-                        continue
-                    if field.default == value[tag]:
-                        return _decode_dataclass(cls, value, path)
-                    allowed.append(field.default)
-            raise DecodeError(
-                f"{path}.{tag}" if path else tag,
-                f"unknown {tag} {value[tag]!r:.60} (known: {', '.join(allowed)})",
-            )
-    raise DecodeError(path, "object has no 'kind' to tell which variant it is")
-
-
-def _decode_dataclass(cls: type[T], value: Any, path: str) -> T:
-    if not isinstance(value, dict):
-        raise DecodeError(path, f"must be an object, got {type(value).__name__}")
-    hints = _hints(cls)
-    fields = {f.name: f for f in dataclasses.fields(cls)}  # type: ignore[arg-type]
-    unknown = [k for k in value if k not in fields]
-    if unknown:
-        where = f"{path}.{unknown[0]}" if path else str(unknown[0])
-        raise DecodeError(where, f"unknown field (allowed: {', '.join(sorted(fields))})")
-    kwargs = {}
-    for name, f in fields.items():
-        sub = f"{path}.{name}" if path else name
-        if name in value:
-            kwargs[name] = _decode(hints[name], value[name], sub)
-        elif f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING:
-            raise DecodeError(sub, "missing required field")
-    version = fields.get("v")
-    if version is not None and "v" in kwargs and kwargs["v"] != version.default:
-        raise DecodeError(
-            f"{path}.v" if path else "v",
-            f"version {kwargs['v']} not supported (this node speaks {version.default})",
-        )
-    obj = cls(**kwargs)
-    check = getattr(obj, "validate", None)
-    if check is not None:
-        try:
-            check()
-        except DecodeError as exc:
-            raise DecodeError(
-                f"{path}.{exc.field}" if path and exc.field else exc.field or path, exc.problem
-            ) from None
-    return obj
-
-
-def from_obj(cls: type[T], value: Any) -> T:
-    """Decode an already-parsed JSON value into `cls`, strictly."""
-    return _decode(cls, value, "")
-
-
-def loads(cls: type[T], payload: bytes | str) -> T:
-    """Parse and decode one JSON message into `cls`; every failure is a `DecodeError`."""
-    if isinstance(payload, bytes | bytearray | memoryview):
-        if len(payload) > MAX_MESSAGE_BYTES:
-            raise DecodeError("", f"message larger than {MAX_MESSAGE_BYTES} bytes")
-        try:
-            text = bytes(payload).decode("utf-8")
-        except UnicodeDecodeError as exc:
-            raise DecodeError("", f"not UTF-8 text: {exc.reason} at byte {exc.start}") from None
-    else:
-        text = payload
-    try:
-        value = json.loads(text, parse_constant=_refuse_constant)
-    except DecodeError:
-        raise
-    except (json.JSONDecodeError, RecursionError) as exc:
-        raise DecodeError("", f"not valid JSON: {exc}") from None
-    return from_obj(cls, value)
-
-
-def _refuse_constant(name: str) -> Any:
-    raise DecodeError("", f"{name} is not valid JSON (numbers must be finite)")
-
-
-def to_obj(obj: Any) -> Any:
-    """Plain JSON value of a dataclass tree (fields in declaration order)."""
-    if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
-        return {f.name: to_obj(getattr(obj, f.name)) for f in dataclasses.fields(obj)}
-    if isinstance(obj, list | tuple):
-        return [to_obj(v) for v in obj]
-    if isinstance(obj, dict):
-        return {str(k): to_obj(v) for k, v in obj.items()}
-    if isinstance(obj, float) and not math.isfinite(obj):
-        raise ValueError("refusing to encode a non-finite number")
-    if hasattr(obj, "tolist"):  # numpy scalars and arrays
-        return to_obj(obj.tolist())
-    return obj
+_encoder = msgspec.json.Encoder(enc_hook=_encode_numpy)
 
 
 def dumps(obj: Any) -> bytes:
-    """Encode a dataclass tree as compact UTF-8 JSON."""
-    return json.dumps(to_obj(obj), separators=(",", ":"), allow_nan=False).encode("utf-8")
+    """Compact UTF-8 JSON of a message (or any value of message types)."""
+    data = _encoder.encode(obj)
+    # msgspec writes a non-finite float as null: a null is rare in our messages, so look closer then.
+    if b"null" in data:
+        _refuse_non_finite(msgspec.to_builtins(obj, enc_hook=_encode_numpy), "")
+    return data
 
 
-__all__ = ["DecodeError", "dumps", "loads", "from_obj", "to_obj"]
+def _refuse_non_finite(value: Any, path: str) -> None:
+    if isinstance(value, float) and not math.isfinite(value):
+        raise ValueError(f"refusing to encode a non-finite number at {path or 'the top'}")
+    if isinstance(value, dict):
+        for k, v in value.items():
+            _refuse_non_finite(v, f"{path}.{k}" if path else str(k))
+    elif isinstance(value, list):
+        for i, v in enumerate(value):
+            _refuse_non_finite(v, f"{path}[{i}]")
+
+
+def to_obj(obj: Any) -> Any:
+    """Plain JSON value (dicts, lists, numbers, strings) of a message."""
+    return msgspec.to_builtins(obj, enc_hook=_encode_numpy)
+
+
+# -- decoding --------------------------------------------------------------------------------------
+@cache
+def _decoder(tp: Any) -> msgspec.json.Decoder[Any]:
+    return msgspec.json.Decoder(tp)
+
+
+def loads(tp: type[T] | Any, payload: bytes | bytearray | memoryview | str) -> T:
+    """Parse and decode one JSON message into `tp` (a Struct or a union of them), strictly; every
+    failure is a DecodeError."""
+    if isinstance(payload, str):
+        payload = payload.encode("utf-8", "surrogatepass")
+    if len(payload) > MAX_MESSAGE_BYTES:
+        raise DecodeError("", f"message of {len(payload)} bytes is larger than {MAX_MESSAGE_BYTES} bytes")
+    try:
+        obj = _decoder(tp).decode(payload)
+    except msgspec.ValidationError as exc:
+        raise _validation_error(tp, exc, lambda: json.loads(bytes(payload))) from None
+    except msgspec.DecodeError as exc:
+        raise DecodeError("", _syntax_problem(bytes(payload), str(exc))) from None
+    except RecursionError:
+        raise DecodeError("", "the message is nested too deeply") from None
+    _require_envelope(tp, msgspec.json.decode(payload, type=dict[str, msgspec.Raw]))
+    return typing.cast(T, obj)
+
+
+def from_obj(tp: type[T] | Any, value: Any) -> T:
+    """Decode an already-parsed JSON value into `tp`, as strictly as `loads`."""
+    try:
+        obj = msgspec.convert(value, tp)
+    except msgspec.ValidationError as exc:
+        raise _validation_error(tp, exc, lambda: value) from None
+    except RecursionError:
+        raise DecodeError("", "the message is nested too deeply") from None
+    if isinstance(value, dict):
+        _require_envelope(tp, value)
+    return typing.cast(T, obj)
+
+
+def _require_envelope(tp: Any, top: dict[str, Any]) -> None:
+    """`v` is required on the wire (the classes give it a default for the code that builds them), and
+    so is the tag of a single message type (msgspec requires it only in unions)."""
+    classes = [c for c in _members(tp) if isinstance(c, type) and issubclass(c, msgspec.Struct)]
+    if not classes:
+        return
+    config = classes[0].__struct_config__
+    if len(classes) == 1 and config.tag_field is not None and config.tag_field not in top:
+        raise DecodeError(config.tag_field, f"missing required field (it must be {config.tag!r})")
+    if any("v" in c.__struct_fields__ for c in classes) and "v" not in top:
+        raise DecodeError("v", "missing required field (the protocol version, 1)")
+
+
+# -- naming what was wrong ------------------------------------------------------------------------------
+_AT = re.compile(r"^(?P<problem>.*?) - at `(?P<path>[^`]*)`$", re.S)
+_KEY_AT = re.compile(r"^(?P<problem>.*?) - at `key` in `(?P<path>[^`]*)`$", re.S)
+_SEGMENT = re.compile(r"\.([^.\[\]]+)|\[(\d+)\]|\[(\.\.\.)\]")
+_WORDS = {
+    "float": "a number",
+    "int": "an integer",
+    "str": "a string",
+    "bool": "true or false",
+    "array": "a list",
+    "object": "an object",
+    "null": "null",
+}
+
+
+def _validation_error(tp: Any, exc: msgspec.ValidationError, raw: typing.Callable[[], Any]) -> DecodeError:
+    text = str(exc)
+    key_error = _KEY_AT.match(text)
+    at = key_error or _AT.match(text)
+    problem, path = (at.group("problem"), at.group("path")) if at else (text, "$")
+    try:
+        field, at_type = _resolve_path(tp, raw(), path, key_error is not None)
+    except Exception:  # locating is a courtesy: never let it hide the refusal itself
+        field, at_type = path.removeprefix("$").lstrip("."), None
+    cause = exc.__cause__
+    if isinstance(cause, FieldProblem):
+        return DecodeError(f"{field}.{cause.field}" if field else cause.field, cause.problem)
+    missing = re.match(r"Object missing required field `(\w+)`", problem)
+    if missing:
+        return DecodeError(_join(field, missing.group(1)), "missing required field")
+    unknown = re.match(r"Object contains unknown field `([^`]*)`", problem)
+    if unknown:
+        return DecodeError(_join(field, unknown.group(1)), "unknown field")
+    return DecodeError(field, _readable(tp, at_type, problem, field))
+
+
+def _join(path: str, name: str) -> str:
+    return f"{path}.{name}" if path else name
+
+
+def _readable(tp: Any, at_type: Any, problem: str, field: str) -> str:
+    """msgspec's wording, in the protocol's terms."""
+    bad_value = re.match(r"Invalid (?:enum )?value (.+)$", problem)
+    allowed = get_args(_strip(at_type)) if get_origin(_strip(at_type)) is typing.Literal else ()
+    if bad_value and allowed and not (field == "v" or field.endswith(".v")):
+        return f"must be one of {', '.join(map(str, allowed))}; got {bad_value.group(1)}"
+    if bad_value:
+        if field == "v" or field.endswith(".v"):
+            return f"version {bad_value.group(1)} not supported (this node speaks 1)"
+        name = field.rsplit(".", 1)[-1]
+        known = _tags_for(tp, name)
+        if known:
+            return f"unknown {name} {bad_value.group(1)} (known: {', '.join(known)})"
+        return f"{bad_value.group(1)} is not allowed here"
+    if NAME_PATTERN in problem:
+        return "must be 1-64 characters of letters, digits, '_', '-', '.' (not starting with '_', '-', '.')"
+    if SESSION_ID_PATTERN in problem:
+        return "must be a session id (22 characters of A-Z a-z 0-9 _ -)"
+    if problem == "Number out of range":
+        return "number out of range (numbers must be finite, and integers fit in 64 bits)"
+    problem = re.sub(r"`(\w+)`", lambda m: _WORDS.get(m.group(1), m.group(1)), problem)
+    problem = problem.replace("Expected ", "must be ", 1)
+    return problem
+
+
+def _syntax_problem(payload: bytes, text: str) -> str:
+    lone = re.search(
+        rb"\\u[dD][89abAB][0-9a-fA-F]{2}(?!\\u[dD][c-fC-F])|(?<![0-9a-fA-F]{4})\\u[dD][c-fC-F][0-9a-fA-F]{2}",
+        payload,
+    )
+    if lone is not None:
+        return (
+            f"a string holds the lone UTF-16 surrogate {lone.group().decode()}: not valid Unicode "
+            "(texts must be valid UTF-8)"
+        )
+    if "invalid character" in text or "truncated" in text or "malformed" in text:
+        return f"not valid JSON: {text}"
+    if "utf" in text.lower():
+        return f"not UTF-8 text: {text}"
+    return f"not valid JSON: {text}"
+
+
+# -- walking a type along a path (to name a dict key, or list the variants of a union) ------------
+def _strip(tp: Any) -> Any:
+    while get_origin(tp) is typing.Annotated:
+        tp = get_args(tp)[0]
+    return tp
+
+
+def _members(tp: Any) -> list[Any]:
+    tp = _strip(tp)
+    if get_origin(tp) in (Union, types.UnionType):
+        return [_strip(a) for a in get_args(tp)]
+    return [tp]
+
+
+def _pick(tp: Any, raw: Any) -> Any:
+    """The member of a union that `raw` is meant to be (by its tag), or the type itself."""
+    options = [m for m in _members(tp) if m is not type(None)]
+    if len(options) == 1:
+        return options[0]
+    for option in options:
+        config = getattr(option, "__struct_config__", None)
+        if config is not None and isinstance(raw, dict) and raw.get(config.tag_field) == config.tag:
+            return option
+    return options[0] if options else tp
+
+
+def _field_type(cls: Any, name: str) -> Any:
+    for f in msgspec.structs.fields(cls):
+        if f.encode_name == name:
+            return f.type
+    raise KeyError(name)
+
+
+def _tags_for(tp: Any, name: str) -> list[str]:
+    """The tags allowed where a union told apart by field `name` is expected (searched in `tp`)."""
+    seen: set[int] = set()
+
+    def search(t: Any) -> list[str]:
+        t = _strip(t)
+        if id(t) in seen:
+            return []
+        seen.add(id(t))
+        structs = [m for m in _members(t) if isinstance(m, type) and issubclass(m, msgspec.Struct)]
+        tags = [str(m.__struct_config__.tag) for m in structs if m.__struct_config__.tag_field == name]
+        if tags:
+            return tags
+        for m in structs:
+            for f in msgspec.structs.fields(m):
+                found = search(f.type)
+                if found:
+                    return found
+        for m in _members(t):
+            for arg in get_args(m):
+                found = search(arg)
+                if found:
+                    return found
+        return []
+
+    return search(tp)
+
+
+def _resolve_path(tp: Any, raw: Any, path: str, key_error: bool) -> tuple[str, Any]:
+    """msgspec's `$.values[...].q[0]` as `values.<the key>.q[0]`: dict keys are found by checking
+    each entry of the dict against its value (or key) type."""
+    out = ""
+    tp = _pick(tp, raw)
+    segments = [(m.group(1), m.group(2), m.group(3)) for m in _SEGMENT.finditer(path.removeprefix("$"))]
+    for name, index, dots in segments:
+        tp = _pick(tp, raw)
+        if name is not None:
+            tp, raw = _field_type(tp, name), raw[name]
+            out = _join(out, name)
+        elif index is not None:
+            tp, raw = get_args(_strip(tp))[0], raw[int(index)]
+            out += f"[{index}]"
+        elif dots is not None:
+            key_tp, value_tp = get_args(_strip(tp))
+            key = _first_bad(raw, value_tp)
+            tp, raw = value_tp, raw[key]
+            out = _join(out, key)
+    if key_error:
+        key_tp = get_args(_strip(_pick(tp, raw)))[0]
+        bad = next((k for k in raw if not _fits(k, key_tp)), None)
+        if bad is not None:
+            out = _join(out, bad)
+    return out, tp
+
+
+def _fits(value: Any, tp: Any) -> bool:
+    """Whether a JSON value decodes as `tp` (numbers out of range, read as infinities, do not)."""
+    try:
+        msgspec.convert(value, tp)
+        _refuse_non_finite(value, "")
+    except (msgspec.ValidationError, ValueError):
+        return False
+    return True
+
+
+def _first_bad(mapping: dict[str, Any], value_tp: Any) -> str:
+    return next(k for k, v in mapping.items() if not _fits(v, value_tp))
+
+
+__all__ = ["DecodeError", "dumps", "loads", "from_obj", "to_obj", "MAX_MESSAGE_BYTES"]

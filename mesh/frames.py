@@ -48,6 +48,30 @@ class Frame:
         return bool(self.flags & FLAG_FINAL)
 
 
+@dataclass
+class Header:
+    """A frame's header, read without touching its data (e.g. to count what is dropped)."""
+
+    flags: int
+    run_index: int
+    seq: int
+    wall_ns: int
+    n_rows: int
+    n_cols: int
+
+
+def peek(payload: bytes | bytearray | memoryview) -> Header:
+    """The header of a frame; FrameError if it is too short or not a frame."""
+    if len(payload) < HEADER.size:
+        raise FrameError(f"frame of {len(payload)} bytes is shorter than its {HEADER.size}-byte header")
+    magic, version, flags, run_index, _res, seq, wall_ns, n_rows, n_cols = HEADER.unpack_from(payload)
+    if magic != MAGIC:
+        raise FrameError(f"magic {bytes(magic)!r} is not {MAGIC!r}")
+    if version != VERSION:
+        raise FrameError(f"frame version {version} not supported (this node speaks {VERSION})")
+    return Header(flags, run_index, seq, wall_ns, n_rows, n_cols)
+
+
 def encode(frame: Frame) -> bytes:
     rows = np.ascontiguousarray(frame.rows, dtype="<f8")
     if rows.ndim != 2:
@@ -70,13 +94,8 @@ def decode(payload: bytes | bytearray | memoryview, last_row_only: bool = False)
     """Decode a frame, checking every header field; `last_row_only` keeps (and copies) only the
     newest sample, for consumers such as the hot-feedback node that forward nothing else."""
     buf = memoryview(payload)
-    if len(buf) < HEADER.size:
-        raise FrameError(f"frame of {len(buf)} bytes is shorter than its {HEADER.size}-byte header")
-    magic, version, flags, run_index, _res, seq, wall_ns, n_rows, n_cols = HEADER.unpack_from(buf)
-    if magic != MAGIC:
-        raise FrameError(f"magic {bytes(magic)!r} is not {MAGIC!r}")
-    if version != VERSION:
-        raise FrameError(f"frame version {version} not supported (this node speaks {VERSION})")
+    head = peek(buf)
+    n_rows, n_cols = head.n_rows, head.n_cols
     if n_rows * n_cols > MAX_CELLS:
         raise FrameError(f"n_rows*n_cols = {n_rows * n_cols} exceeds {MAX_CELLS}")
     expected = HEADER.size + 8 * n_rows * n_cols
@@ -89,4 +108,4 @@ def decode(payload: bytes | bytearray | memoryview, last_row_only: bool = False)
         rows = np.frombuffer(buf, dtype="<f8", offset=HEADER.size, count=n_rows * n_cols).reshape(
             n_rows, n_cols
         )
-    return Frame(run_index=run_index, seq=seq, wall_ns=wall_ns, rows=rows.astype(np.float64), flags=flags)
+    return Frame(head.run_index, head.seq, head.wall_ns, rows.astype(np.float64), head.flags)

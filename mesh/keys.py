@@ -1,176 +1,470 @@
-"""Every zenoh key expression of the protocol, built and parsed here and nowhere else.
+"""Every zenoh key expression of the protocol: one table, and the builders and parsers made from it.
 
-docs/PROTOCOL.md documents each of them; tests/test_protocol_doc.py checks that it does.
+`KEYS` says for each key its layout, how it is used (query, put, cached put, liveliness token), which
+role writes it (the querier of a query, the publisher of a put, the declarer of a token), which role
+answers a query, and what it carries. Builders and parsers read the layout from the table, so a key
+changes in one place; PROTOCOL.md §3 and docs/protocol.schema.json are generated from it, and a test
+forbids taking keys apart anywhere else.
 """
 
 from __future__ import annotations
 
 import re
 import secrets
+from dataclasses import dataclass
+
+from .primitives import NAME_PATTERN, SESSION_ID_PATTERN
 
 ROOT = "simecs"
+SESSION_ID_RE = re.compile(SESSION_ID_PATTERN)
+NAME_RE = re.compile(NAME_PATTERN)
+_PLACEHOLDER = re.compile(r"<(\w+)>")
 
-#: Session ids are 128 random bits in URL-safe base64: unguessable, and safe as one key chunk.
-SESSION_ID_RE = re.compile(r"^[A-Za-z0-9_-]{22}$")
-#: Model ids, run ids, node ids, parameter-set and recording names: one plain key chunk.
-NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,63}$")
 
-# -- server-wide keys (queryables) ------------------------------------------------------------
-LIBRARY = f"{ROOT}/library"  # get: ModelList
-SESSIONS = f"{ROOT}/sessions"  # get with CreateSession / ListSessions payload
-RECORDINGS = f"{ROOT}/recordings"  # get: RecordingList
-NODES_STATUS = f"{ROOT}/nodes/*/*/status"  # every node's NodeStatus
+class KeyProblem(ValueError):
+    """A key (or a chunk for one) that is not what the protocol allows; `chunk` names the part."""
 
-# -- liveliness tokens: under '@' chunks, so `simecs/**` data subscribers never match them ------
+    def __init__(self, chunk: str, problem: str) -> None:
+        self.chunk = chunk
+        super().__init__(problem)
+
+
+@dataclass(frozen=True)
+class KeySpec:
+    """One key of the protocol. `writer`: the role that puts, queries or declares it; `answerer`: the
+    role that answers a query (""for puts and tokens). Roles: client, proxy, simulator, worker,
+    hotfeedback, recorder, any node."""
+
+    name: str
+    pattern: str
+    kind: str  # query | put | cached put | token
+    writer: str
+    answerer: str
+    payload: str  # message type(s) written
+    reply: str  # what a query is answered with
+    meaning: str
+
+    @property
+    def chunks(self) -> list[str]:
+        return _PLACEHOLDER.findall(self.pattern)
+
+
+KEYS: dict[str, KeySpec] = {
+    k.name: k
+    for k in (
+        # -- server-wide -------------------------------------------------------------------------
+        KeySpec(
+            "library", "simecs/library", "query", "client", "proxy", "", "ModelList", "the model library"
+        ),
+        KeySpec(
+            "model",
+            "simecs/library/<model>",
+            "query",
+            "client",
+            "proxy",
+            "",
+            "ModelDescription",
+            "everything a client needs to show, animate, parametrise and command a model",
+        ),
+        KeySpec(
+            "doc",
+            "simecs/library/<model>/doc/<page>",
+            "query",
+            "client",
+            "proxy",
+            "",
+            "DocPage",
+            "one page of the model's hypertext documentation",
+        ),
+        KeySpec(
+            "sessions",
+            "simecs/sessions",
+            "query",
+            "client",
+            "proxy",
+            "CreateSession | ListSessions",
+            "SessionSnapshot | [SessionEntry]",
+            "create a session, or list a user's sessions",
+        ),
+        KeySpec(
+            "recordings",
+            "simecs/recordings",
+            "query",
+            "client",
+            "recorder",
+            "",
+            "RecordingList",
+            "the recordings kept on the server, newest first",
+        ),
+        KeySpec(
+            "recording",
+            "simecs/recordings/<name>",
+            "query",
+            "client",
+            "recorder",
+            "MCAP bytes or none",
+            "MCAP bytes (binary, attachment RecordingInfo) | RecordingInfo",
+            "download a recording; with an MCAP file as payload: upload it under <name>",
+        ),
+        KeySpec(
+            "recording_info",
+            "simecs/recordings/<name>/info",
+            "query",
+            "client",
+            "recorder",
+            "",
+            "RecordingInfo",
+            "what one recording holds",
+        ),
+        KeySpec(
+            "simulator_run",
+            "simecs/simulators/<node>/run",
+            "query",
+            "proxy",
+            "simulator",
+            "RunRequest",
+            "Accepted",
+            "hand one run to a simulator host, which starts it in a worker process",
+        ),
+        KeySpec(
+            "node_status",
+            "simecs/nodes/<role>/<node>/status",
+            "cached put",
+            "any node",
+            "",
+            "NodeStatus",
+            "",
+            "a node's state and figures: on start, on change (at most 5/s), every 5 s",
+        ),
+        # -- per session -----------------------------------------------------------------------
+        KeySpec(
+            "cmd",
+            "simecs/<session>/cmd",
+            "query",
+            "client",
+            "proxy",
+            "a session command (§5.2)",
+            "Ok{data} per command | Error",
+            "every change to a session, and its runs",
+        ),
+        KeySpec(
+            "params",
+            "simecs/<session>/params",
+            "cached put",
+            "proxy",
+            "",
+            "ParamValues",
+            "",
+            "every parameter value, after each change",
+        ),
+        KeySpec(
+            "state",
+            "simecs/<session>/state",
+            "cached put",
+            "proxy",
+            "",
+            "SessionState",
+            "",
+            "lifecycle and progress (at most 10 per s, and on every phase change)",
+        ),
+        KeySpec(
+            "control",
+            "simecs/<session>/control",
+            "put",
+            "proxy",
+            "",
+            "RunControl",
+            "",
+            "pause, resume, abort, seek to the worker of the session's run",
+        ),
+        KeySpec(
+            "run_status",
+            "simecs/<session>/run",
+            "put",
+            "worker",
+            "",
+            "RunStatus",
+            "",
+            "a worker's report on its run (at most 10 per s, and on every phase change)",
+        ),
+        KeySpec(
+            "layout",
+            "simecs/<session>/vars/layout",
+            "cached put",
+            "worker",
+            "",
+            "RunLayout",
+            "",
+            "what the frames of a run mean, once per run before its first frame",
+        ),
+        KeySpec(
+            "vars_full",
+            "simecs/<session>/vars/full",
+            "put",
+            "worker",
+            "",
+            "frames (§6.1)",
+            "",
+            "every output sample, all columns",
+        ),
+        KeySpec(
+            "vars_live",
+            "simecs/<session>/vars/live",
+            "put",
+            "hotfeedback",
+            "",
+            "frames (§6.1)",
+            "",
+            "the newest sample, live columns only, at most live_rate_hz per wall second",
+        ),
+        KeySpec(
+            "results_list",
+            "simecs/<session>/results",
+            "query",
+            "client",
+            "proxy",
+            "",
+            "[RunInfo]",
+            "the runs whose full-resolution results are kept",
+        ),
+        KeySpec(
+            "results",
+            "simecs/<session>/results/<run>",
+            "query",
+            "client",
+            "simulator",
+            "",
+            "one frame (binary, attachment ResultsAttachment)",
+            "full-resolution results of a run (§6.2); the proxy answers not_found for unknown runs",
+        ),
+        KeySpec(
+            "notices",
+            "simecs/<session>/notices",
+            "put",
+            "recorder",
+            "",
+            "Notice",
+            "",
+            "something the user must know about a run; the proxy lists it in SessionState.warnings",
+        ),
+        KeySpec(
+            "jog",
+            "simecs/<session>/jog",
+            "put",
+            "client",
+            "",
+            "JogInput",
+            "",
+            "live jogging of a real-time run (reserved; not yet obeyed)",
+        ),
+        # -- liveliness tokens: under '@' chunks, so `simecs/**` data subscribers never match them --
+        KeySpec(
+            "node_token",
+            "simecs/@node/<role>/<node>",
+            "token",
+            "any node",
+            "",
+            "",
+            "",
+            "the node is up and ready; its loss: stopped, crashed or cut off",
+        ),
+        KeySpec(
+            "run_token",
+            "simecs/@run/<session>/<run>",
+            "token",
+            "worker",
+            "",
+            "",
+            "",
+            "the worker of a run is alive; its loss fails the run within 1 s",
+        ),
+    )
+}
+
+# Wildcards used by nodes that serve or watch every session (and in PROTOCOL.md §3.4).
+LIBRARY = "simecs/library"
+SESSIONS = "simecs/sessions"
+RECORDINGS = "simecs/recordings"
+
+
+def wildcard(name: str) -> str:
+    """The key of `name` with every chunk a `*`: what serves or watches all of them."""
+    return _PLACEHOLDER.sub("*", KEYS[name].pattern)
+
+
+NODES_STATUS = wildcard("node_status")
 NODE_TOKENS = f"{ROOT}/@node/**"
 RUN_TOKENS = f"{ROOT}/@run/**"
+ALL_CMD = wildcard("cmd")
+ALL_RUN_STATUS = wildcard("run_status")
+ALL_LAYOUT = wildcard("layout")
+ALL_FULL = wildcard("vars_full")
+ALL_LIVE = wildcard("vars_live")
+ALL_STATE = wildcard("state")
+ALL_NOTICES = wildcard("notices")
+ALL_PARAMS = wildcard("params")
+ALL_RESULTS = wildcard("results")
+ALL_RESULTS_LIST = wildcard("results_list")
+ALL_DOCS = wildcard("doc")
+ALL_MODELS = wildcard("model")
+ALL_RECORDINGS = wildcard("recording")
+ALL_RECORDING_INFOS = wildcard("recording_info")
 
 
+# -- checking chunks ------------------------------------------------------------------------------------
 def new_session_id() -> str:
     return secrets.token_urlsafe(16)
 
 
 def is_session_id(text: str) -> bool:
-    return bool(SESSION_ID_RE.match(text))
+    return isinstance(text, str) and bool(SESSION_ID_RE.match(text))
 
 
 def check_name(text: str, what: str) -> str:
-    """Raise ValueError naming `what` unless `text` is a safe single key chunk."""
+    """Raise KeyProblem naming `what` unless `text` is a safe single key chunk."""
     if not isinstance(text, str) or not NAME_RE.match(text):
-        raise ValueError(f"{what} {text!r:.60} must be 1-64 characters of letters, digits, '_', '-', '.'")
+        raise KeyProblem(
+            what, f"{what} {text!r:.60} must be 1-64 characters of letters, digits, '_', '-', '.'"
+        )
     return text
 
 
+_CHUNK_WHAT = {
+    "session": "session id",
+    "model": "model id",
+    "page": "doc page",
+    "name": "recording name",
+    "run": "run id",
+    "role": "role",
+    "node": "node id",
+}
+
+
+def _check(chunk: str, value: str) -> str:
+    if chunk == "session":
+        if not is_session_id(value):
+            raise KeyProblem("session", f"session id {value!r:.60} is not a valid session id")
+        return value
+    if not isinstance(value, str) or not NAME_RE.match(value):
+        what = _CHUNK_WHAT[chunk]
+        raise KeyProblem(
+            chunk, f"{what} {value!r:.60} must be 1-64 characters of letters, digits, '_', '-', '.'"
+        )
+    return value
+
+
+# -- building ---------------------------------------------------------------------------------------
+def build(key: str, /, **chunks: str) -> str:
+    """The key named `key` with its chunks filled in, each checked (no wildcard or path slips in)."""
+    spec = KEYS[key]
+    missing = set(spec.chunks) - set(chunks)
+    if missing or set(chunks) - set(spec.chunks):
+        raise TypeError(f"key {key} takes chunks {spec.chunks}, got {sorted(chunks)}")
+    return _PLACEHOLDER.sub(lambda m: _check(m.group(1), chunks[m.group(1)]), spec.pattern)
+
+
 def model(model_id: str) -> str:
-    """get: ModelDescription of one model of the library."""
-    return f"{LIBRARY}/{check_name(model_id, 'model id')}"
+    return build("model", model=model_id)
 
 
 def doc(model_id: str, page: str) -> str:
-    """get: one DocPage of a model's hypertext documentation."""
-    return f"{model(model_id)}/doc/{check_name(page, 'doc page')}"
+    return build("doc", model=model_id, page=page)
 
 
 def recording(name: str) -> str:
-    """get: the bytes of one MCAP recording."""
-    return f"{RECORDINGS}/{check_name(name, 'recording name')}"
+    return build("recording", name=name)
 
 
-def recording_replay(name: str) -> str:
-    """get with a ReplayRequest: replay one recording onto the mesh as a session; reply {session}."""
-    return f"{recording(name)}/replay"
+def recording_info(name: str) -> str:
+    return build("recording_info", name=name)
 
 
 def recording_name(session: str, run_id: str) -> str:
     """The name under which the recorder stores the run `run_id` of `session`."""
-    return f"{_sid(session)}_{check_name(run_id, 'run id')}"
+    return f"{_check('session', session)}_{check_name(run_id, 'run id')}"
 
 
 def node_token(role: str, node_id: str) -> str:
-    return f"{ROOT}/@node/{check_name(role, 'role')}/{check_name(node_id, 'node id')}"
+    return build("node_token", role=role, node=node_id)
 
 
 def node_status(role: str, node_id: str) -> str:
-    return f"{ROOT}/nodes/{check_name(role, 'role')}/{check_name(node_id, 'node id')}/status"
+    return build("node_status", role=role, node=node_id)
 
 
 def simulator_run(host_id: str) -> str:
-    """get (proxy -> simulator host): RunRequest; the host starts a worker process."""
-    return f"{ROOT}/simulators/{check_name(host_id, 'simulator id')}/run"
+    return build("simulator_run", node=host_id)
 
 
 def run_token(session: str, run_id: str) -> str:
-    """Liveliness of the worker that runs `run_id`: its loss fails the run."""
-    return f"{ROOT}/@run/{_sid(session)}/{check_name(run_id, 'run id')}"
+    return build("run_token", session=session, run=run_id)
 
 
-def _sid(session: str) -> str:
-    if not is_session_id(session):
-        raise ValueError(f"session id {session!r:.60} is not a valid session id")
-    return session
-
-
-# -- per-session keys ---------------------------------------------------------------------------
 def cmd(session: str) -> str:
-    """get: a Command; reply Ok or Error (proxy)."""
-    return f"{ROOT}/{_sid(session)}/cmd"
+    return build("cmd", session=session)
 
 
 def params(session: str) -> str:
-    """put (proxy, cached): ParamValues after every change."""
-    return f"{ROOT}/{_sid(session)}/params"
+    return build("params", session=session)
 
 
 def state(session: str) -> str:
-    """put (proxy, cached): SessionState on every lifecycle change and progress tick."""
-    return f"{ROOT}/{_sid(session)}/state"
+    return build("state", session=session)
 
 
 def control(session: str) -> str:
-    """put (proxy -> worker): RunControl pause / resume / abort."""
-    return f"{ROOT}/{_sid(session)}/control"
+    return build("control", session=session)
 
 
 def run_status(session: str) -> str:
-    """put (worker -> proxy): RunStatus."""
-    return f"{ROOT}/{_sid(session)}/run"
+    return build("run_status", session=session)
 
 
 def layout(session: str) -> str:
-    """put (worker, cached): RunLayout, once per run before its first frame."""
-    return f"{ROOT}/{_sid(session)}/vars/layout"
+    return build("layout", session=session)
 
 
 def vars_full(session: str) -> str:
-    """put (worker): binary frames, every output sample, all columns."""
-    return f"{ROOT}/{_sid(session)}/vars/full"
+    return build("vars_full", session=session)
 
 
 def vars_live(session: str) -> str:
-    """put (hot-feedback): binary frames, at most R per second, live columns only."""
-    return f"{ROOT}/{_sid(session)}/vars/live"
+    return build("vars_live", session=session)
 
 
 def results(session: str, run_id: str | None = None) -> str:
-    """get (simulator host): list of runs, or one run's full-resolution results."""
-    base = f"{ROOT}/{_sid(session)}/results"
-    return base if run_id is None else f"{base}/{check_name(run_id, 'run id')}"
+    """The list of a session's runs, or (with `run_id`) one run's full-resolution results."""
+    if run_id is None:
+        return build("results_list", session=session)
+    return build("results", session=session, run=run_id)
 
 
 def notices(session: str) -> str:
-    """put (any node, e.g. the recorder): Notice about a session's run; the proxy adds it to `state`."""
-    return f"{ROOT}/{_sid(session)}/notices"
+    return build("notices", session=session)
 
 
 def jog(session: str) -> str:
-    """put (client -> worker): JogInput while a real-time run goes on (reserved, see PROTOCOL.md)."""
-    return f"{ROOT}/{_sid(session)}/jog"
+    return build("jog", session=session)
 
 
-# -- wildcards for nodes that serve every session ------------------------------------------------
-ALL_CMD = f"{ROOT}/*/cmd"
-ALL_RUN_STATUS = f"{ROOT}/*/run"
-ALL_LAYOUT = f"{ROOT}/*/vars/layout"
-ALL_FULL = f"{ROOT}/*/vars/full"
-ALL_LIVE = f"{ROOT}/*/vars/live"
-ALL_STATE = f"{ROOT}/*/state"
-ALL_NOTICES = f"{ROOT}/*/notices"
-ALL_PARAMS = f"{ROOT}/*/params"
-ALL_RESULTS = f"{ROOT}/*/results/**"
-ALL_RESULTS_LIST = f"{ROOT}/*/results"
-ALL_DOCS = f"{LIBRARY}/*/doc/*"
-ALL_MODELS = f"{LIBRARY}/*"
-ALL_RECORDINGS = f"{RECORDINGS}/*"
-ALL_REPLAYS = f"{RECORDINGS}/*/replay"
+# -- parsing ----------------------------------------------------------------------------------------
+_MATCHERS = {
+    name: re.compile("^" + _PLACEHOLDER.sub(r"(?P<\1>[^/]+)", spec.pattern) + "$")
+    for name, spec in KEYS.items()
+}
 
 
-def session_of(key: str) -> str:
-    """The session id in a per-session key; ValueError if there is none."""
-    parts = str(key).split("/")
+def parse(name: str, key: object) -> dict[str, str]:
+    """The chunks of `key` read as key `name`, each checked; KeyProblem if it is not one."""
+    found = _MATCHERS[name].match(str(key))
+    if found is None:
+        raise KeyProblem("", f"key {str(key)!r:.80} is not a {name} key ({KEYS[name].pattern})")
+    return {chunk: _check(chunk, value) for chunk, value in found.groupdict().items()}
+
+
+def session_of(key: object) -> str:
+    """The session id of any per-session key; KeyProblem if it is not one."""
+    parts = str(key).split("/", 2)
     if len(parts) < 3 or parts[0] != ROOT or not is_session_id(parts[1]):
-        raise ValueError(f"key {key!r:.80} is not a per-session key")
+        raise KeyProblem("session", f"key {str(key)!r:.80} is not a per-session key")
     return parts[1]
-
-
-def last_chunk(key: str) -> str:
-    return str(key).rsplit("/", 1)[-1]

@@ -72,18 +72,10 @@ def link_frames(
 
 
 def link_poses(model: ModelDescription, values: Mapping[str, float], q: Sequence[float]) -> np.ndarray:
-    """Array (n_links + 1, 7) of x, y, z, qw, qx, qy, qz: the layout of the `pose.*` columns."""
+    """Array (n_links + 1, 7) in `columns.POSE_FIELDS` order (x, y, z, qw, qx, qy, qz): the layout of
+    the `pose.*` columns."""
     out = np.empty((len(model.links) + 1, 7))
     for i, (p, r) in enumerate(link_frames(model, values, q)):
         out[i, :3] = p
         out[i, 3:] = quat_from_matrix(r)
     return out
-
-
-POSE_FIELDS = ("x", "y", "z", "qw", "qx", "qy", "qz")
-
-
-def pose_column_names(model: ModelDescription) -> list[str]:
-    """Column names of the link poses in result frames: pose.<link>.<field>, then pose.tool.<field>."""
-    names = [link.name for link in model.links] + ["tool"]
-    return [f"pose.{n}.{f}" for n in names for f in POSE_FIELDS]

@@ -1,281 +1,253 @@
-"""Every JSON message type of the protocol, with its version.
+"""Every JSON message of the protocol, defined once as msgspec Structs.
 
-Each message is a dataclass; `codec.loads(Type, payload)` decodes strictly and `codec.dumps(obj)`
-encodes. Messages that travel alone carry `type` and `v`; unions are told apart by `op` (commands)
-or `kind` (robot commands). A newer minor field is added with a default, so `v` only changes when
-old clients could misread a message. docs/PROTOCOL.md lists them all with examples.
+These classes are the protocol's single definition: `codec` decodes into them strictly (unknown
+fields, wrong types, values out of bounds and a missing `v` are refused, naming the field), and
+`schema.py` turns them into `docs/protocol.schema.json` and the message tables of PROTOCOL.md.
+Bounds live in the types (`Annotated[..., Meta(...)]`), so the schema states them too.
+
+Messages that travel alone carry a tag (`type`, or `op` for commands) and `v`; robot commands are
+told apart by `kind`. A newer minor field is added with a default, so `v` only changes when old
+clients could misread a message.
 """
 
 from __future__ import annotations
 
-import math
-from dataclasses import dataclass, field
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
-from .codec import DecodeError
+from msgspec import Meta
+
 from .model import ModelSummary
+from .phases import Phase, WorkerPhase
+from .primitives import FieldProblem, Message, Name, Numbers, Record, SessionId, Text
 
 VERSION = 1
 
 
-# -- replies ------------------------------------------------------------------------------------
-@dataclass
-class Error:
-    """Sent with `reply_err` (or on `state`): what was wrong, and in which field."""
+class Command(Record, kw_only=True, tag_field="op"):
+    """A request on `simecs/<session>/cmd` (or `simecs/sessions`): told apart by `op`."""
 
-    code: str  # bad_request | not_found | forbidden | conflict | busy | internal | unsupported
-    message: str
-    field: str = ""
-    type: Literal["error"] = "error"
-    v: int = VERSION
+    v: Literal[1] = VERSION
+
+    @property
+    def op(self) -> str:
+        return str(type(self).__struct_config__.tag)
 
 
-@dataclass
-class Ok:
-    """Successful reply; `data` depends on the request (see PROTOCOL.md)."""
+class RobotCommandBase(Record, tag_field="kind"):
+    """One level of the paper's robot commands (§2.1), told apart by `kind`."""
+
+    @property
+    def kind(self) -> str:
+        return str(type(self).__struct_config__.tag)
+
+
+Percent = Annotated[float, Meta(gt=0.0, le=100.0, description="percent of the joints' maxima, (0, 100]")]
+Seconds = Annotated[float, Meta(ge=0.0, le=1e9)]
+
+# -- replies --------------------------------------------------------------------------------------
+ErrorCode = Literal["bad_request", "not_found", "forbidden", "conflict", "busy", "internal", "unsupported"]
+
+
+class Error(Message, tag="error"):
+    """A refusal, sent as a Zenoh error reply: what was wrong, and in which field ("" = the whole
+    message or request)."""
+
+    code: ErrorCode
+    message: Text
+    field: Text = ""
+
+
+class Ok(Message, tag="ok"):
+    """A successful reply; the type of `data` is given per request (REPLIES, PROTOCOL.md §5)."""
 
     data: Any = None
-    type: Literal["ok"] = "ok"
-    v: int = VERSION
 
 
-# -- robot commands, one dataclass per level of the paper (§2.1) ---------------------------------
-def _check_pct(value: float, name: str) -> None:
-    if not 0.0 < value <= 100.0:
-        raise DecodeError(name, f"{value} is not a percentage in (0, 100]")
-
-
-@dataclass
-class PathNode:
+# -- robot commands, one per level of the paper (§2.1) ----------------------------------------------
+class PathNode(Record):
     """A via point of a joint path (PDL2 MOVE-like): destination, speed and acceleration reductions."""
 
-    q: list[float]  # rad, one per joint
-    speed_pct: float = 100.0
-    acc_pct: float = 100.0
-
-    def validate(self) -> None:
-        if not self.q:
-            raise DecodeError("q", "empty joint vector")
-        _check_pct(self.speed_pct, "speed_pct")
-        _check_pct(self.acc_pct, "acc_pct")
+    q: Annotated[
+        list[float], Meta(min_length=1, max_length=64, description="destination, rad, one per joint")
+    ]
+    speed_pct: Percent = 100.0
+    acc_pct: Percent = 100.0
 
 
-@dataclass
-class JointPath:
-    nodes: list[PathNode]
-    kind: Literal["joint_path"] = "joint_path"
+class JointPath(RobotCommandBase, tag="joint_path"):
+    """Every node executed in order, each segment a trapezoidal-speed move."""
 
-    def validate(self) -> None:
-        if not self.nodes:
-            raise DecodeError("nodes", "a path needs at least one node")
-        if len(self.nodes) > 1000:
-            raise DecodeError("nodes", "at most 1000 nodes")
+    nodes: Annotated[list[PathNode], Meta(min_length=1, max_length=1000)]
 
 
-@dataclass
-class CartesianNode:
+class CartesianNode(Record):
     """A straight-line tool move to a pose: position in m, orientation roll-pitch-yaw in rad."""
 
-    position: list[float]
-    rpy: list[float]
-    speed_pct: float = 100.0
-    acc_pct: float = 100.0
-
-    def validate(self) -> None:
-        if len(self.position) != 3 or len(self.rpy) != 3:
-            raise DecodeError("position", "position and rpy need 3 numbers each")
-        _check_pct(self.speed_pct, "speed_pct")
-        _check_pct(self.acc_pct, "acc_pct")
+    position: Annotated[list[float], Meta(min_length=3, max_length=3)]
+    rpy: Annotated[list[float], Meta(min_length=3, max_length=3)]
+    speed_pct: Percent = 100.0
+    acc_pct: Percent = 100.0
 
 
-@dataclass
-class CartesianPath:
-    nodes: list[CartesianNode]
-    kind: Literal["cartesian_path"] = "cartesian_path"
+class CartesianPath(RobotCommandBase, tag="cartesian_path"):
+    nodes: Annotated[list[CartesianNode], Meta(min_length=1, max_length=1000)]
 
 
-@dataclass
-class DirectInput:
+Signal = Annotated[list[Annotated[list[float], Meta(min_length=2, max_length=2)]], Meta(max_length=100_000)]
+
+
+class DirectInput(RobotCommandBase, tag="direct_input"):
     """Open loop: motor currents; closed loop: set points. `signals[name]` is a list of [t, value]."""
 
     mode: Literal["open_loop", "closed_loop"]
-    signals: dict[str, list[list[float]]]
-    kind: Literal["direct_input"] = "direct_input"
+    signals: Annotated[dict[Name, Signal], Meta(max_length=64)]
 
 
-@dataclass
-class Action:
+class Action(RobotCommandBase, tag="action"):
     """A named, reusable step (e.g. 'reach', 'grasp') with numeric arguments."""
 
-    name: str
-    args: dict[str, float] = field(default_factory=dict)
-    kind: Literal["action"] = "action"
+    name: Name
+    args: Annotated[dict[Name, float], Meta(max_length=64)] = {}
 
 
-@dataclass
-class Task:
-    name: str
-    actions: list[Action]
-    kind: Literal["task"] = "task"
+class Task(RobotCommandBase, tag="task"):
+    name: Name
+    actions: Annotated[list[Action], Meta(max_length=1000)]
 
 
-@dataclass
-class Mission:
-    name: str
-    tasks: list[Task]
-    kind: Literal["mission"] = "mission"
+class Mission(RobotCommandBase, tag="mission"):
+    name: Name
+    tasks: Annotated[list[Task], Meta(max_length=1000)]
 
 
 RobotCommand = JointPath | CartesianPath | DirectInput | Action | Task | Mission
 COMMAND_LEVELS = ("direct_input", "joint_path", "cartesian_path", "action", "task", "mission")
 
 
-# -- simulation settings ------------------------------------------------------------------------
-@dataclass
-class RunSettings:
-    """Paper §2.2 step 6. `step` 0 = the model's default; pacing 'scaled' runs at `factor` x real time."""
+# -- simulation settings ------------------------------------------------------------------------------
+class RunSettings(Record):
+    """Paper §2.2 step 6. `set_settings` replaces the whole object: omitted fields take these defaults."""
 
-    stop_time: float = 5.0  # s
-    output_interval: float = 0.002  # s
-    step: float = 0.0  # s
+    stop_time: Annotated[float, Meta(gt=0.0, le=3600.0, description="s, (0, 3600]")] = 5.0
+    output_interval: Annotated[
+        float, Meta(ge=1e-4, le=3600.0, description="s between result samples, [1e-4, stop_time]")
+    ] = 0.002
+    step: Annotated[
+        float,
+        Meta(ge=0.0, le=0.01, description="solver step in s: 0 = the model's default, else [1e-5, 0.01]"),
+    ] = 0.0
     pacing: Literal["realtime", "scaled", "fast"] = "realtime"
-    factor: float = 1.0
-    live_rate_hz: float = 50.0
-    live_vars: list[str] = field(default_factory=list)  # empty: every variable
+    factor: Annotated[float, Meta(ge=0.01, le=1000.0, description="x real time, for pacing scaled")] = 1.0
+    live_rate_hz: Annotated[float, Meta(ge=0.1, le=1000.0, description="live frames per wall second")] = 50.0
+    live_vars: Annotated[list[Name], Meta(max_length=10_000, description="empty: every variable")] = []
 
-    def validate(self) -> None:
-        if not 0.0 < self.stop_time <= 3600.0:
-            raise DecodeError("stop_time", f"{self.stop_time} s is outside (0, 3600] s")
-        if not 1e-4 <= self.output_interval <= self.stop_time:
-            raise DecodeError("output_interval", f"{self.output_interval} s is outside [1e-4 s, stop_time]")
+    def __post_init__(self) -> None:
+        if self.output_interval > self.stop_time:
+            raise FieldProblem("output_interval", f"{self.output_interval:g} s is above stop_time")
         if self.stop_time / self.output_interval > 2_000_000:
-            raise DecodeError("output_interval", "more than 2,000,000 output samples per run")
-        if self.step != 0.0 and not 1e-5 <= self.step <= 0.01:
-            raise DecodeError("step", f"{self.step} s is outside [1e-5, 0.01] s (0 = model default)")
-        if not 0.01 <= self.factor <= 1000.0:
-            raise DecodeError("factor", f"{self.factor} is outside [0.01, 1000]")
-        if not 0.1 <= self.live_rate_hz <= 1000.0:
-            raise DecodeError("live_rate_hz", f"{self.live_rate_hz} Hz is outside [0.1, 1000] Hz")
-        if len(self.live_vars) > 10_000:
-            raise DecodeError("live_vars", "too many variables")
+            raise FieldProblem("output_interval", "more than 2,000,000 output samples per run")
+        if 0.0 < self.step < 1e-5:
+            raise FieldProblem("step", f"{self.step:g} s is outside [1e-5, 0.01] s (0 = model default)")
 
     @property
     def speed(self) -> float:
         """Wanted real-time factor; math.inf for as fast as possible."""
-        return {"realtime": 1.0, "scaled": self.factor, "fast": math.inf}[self.pacing]
+        return {"realtime": 1.0, "scaled": self.factor, "fast": float("inf")}[self.pacing]
 
 
-# -- commands on simecs/<session>/cmd (a get with one of these as payload) ------------------------
-@dataclass
-class SetParams:
-    values: dict[str, float]
-    op: Literal["set_params"] = "set_params"
-    v: int = VERSION
+# -- commands on simecs/<session>/cmd ---------------------------------------------------------------
+class SetParams(Command, tag="set_params"):
+    values: Annotated[dict[Name, float], Meta(max_length=100_000)]
 
 
-@dataclass
-class ResetParams:
-    names: list[str] = field(default_factory=list)  # empty: all
-    op: Literal["reset_params"] = "reset_params"
-    v: int = VERSION
+class ResetParams(Command, tag="reset_params"):
+    names: Annotated[list[Name], Meta(max_length=100_000, description="empty: every parameter")] = []
 
 
-@dataclass
-class SetInitial:
-    joints: list[float]  # rad; the robot starts at rest there
-    op: Literal["set_initial"] = "set_initial"
-    v: int = VERSION
+class SetInitial(Command, tag="set_initial"):
+    joints: Annotated[
+        list[float], Meta(max_length=64, description="rad, one per joint; the arm starts at rest")
+    ]
 
 
-@dataclass
-class SetCommand:
+class SetCommand(Command, tag="set_command"):
     command: RobotCommand
-    op: Literal["set_command"] = "set_command"
-    v: int = VERSION
 
 
-@dataclass
-class SetSettings:
+class SetSettings(Command, tag="set_settings"):
     settings: RunSettings
-    op: Literal["set_settings"] = "set_settings"
-    v: int = VERSION
 
 
-@dataclass
-class Run:
-    """Assign the command: start a run with the session's current values, pose, command and settings."""
-
-    op: Literal["run"] = "run"
-    v: int = VERSION
+class Run(Command, tag="run"):
+    """Assign the command: start a run with the session's values, pose, command and settings."""
 
 
-@dataclass
-class Pause:
-    op: Literal["pause"] = "pause"
-    v: int = VERSION
+class Replay(Command, tag="replay"):
+    """Start a run that replays a recording of this session's model instead of simulating."""
+
+    recording: Name
+    speed: Annotated[float, Meta(ge=0.0, le=1000.0, description="x real time; 0 = as fast as possible")] = 1.0
+    paused: bool = False
+
+    def __post_init__(self) -> None:
+        if 0.0 < self.speed < 0.01:
+            raise FieldProblem("speed", f"{self.speed:g} is outside [0.01, 1000] (0 = as fast as possible)")
 
 
-@dataclass
-class Resume:
-    op: Literal["resume"] = "resume"
-    v: int = VERSION
+class Pause(Command, tag="pause"):
+    pass
 
 
-@dataclass
-class Abort:
-    op: Literal["abort"] = "abort"
-    v: int = VERSION
+class Resume(Command, tag="resume"):
+    pass
 
 
-@dataclass
-class SaveParamSet:
-    name: str
-    op: Literal["save_param_set"] = "save_param_set"
-    v: int = VERSION
+class Abort(Command, tag="abort"):
+    pass
 
 
-@dataclass
-class LoadParamSet:
-    name: str
-    op: Literal["load_param_set"] = "load_param_set"
-    v: int = VERSION
+class Seek(Command, tag="seek"):
+    """Jump a replay run to simulated time `time` (replay runs only)."""
+
+    time: Seconds
 
 
-@dataclass
-class DeleteParamSet:
-    name: str
-    op: Literal["delete_param_set"] = "delete_param_set"
-    v: int = VERSION
+class SaveParamSet(Command, tag="save_param_set"):
+    name: Name
 
 
-@dataclass
-class ListParamSets:
-    op: Literal["list_param_sets"] = "list_param_sets"
-    v: int = VERSION
+class LoadParamSet(Command, tag="load_param_set"):
+    name: Name
 
 
-@dataclass
-class GetSession:
-    op: Literal["get_session"] = "get_session"
-    v: int = VERSION
+class DeleteParamSet(Command, tag="delete_param_set"):
+    name: Name
 
 
-@dataclass
-class CloseSession:
-    op: Literal["close_session"] = "close_session"
-    v: int = VERSION
+class ListParamSets(Command, tag="list_param_sets"):
+    pass
 
 
-Command = (
+class GetSession(Command, tag="get_session"):
+    pass
+
+
+class CloseSession(Command, tag="close_session"):
+    pass
+
+
+SessionCommand = (
     SetParams
     | ResetParams
     | SetInitial
     | SetCommand
     | SetSettings
     | Run
+    | Replay
     | Pause
     | Resume
     | Abort
+    | Seek
     | SaveParamSet
     | LoadParamSet
     | DeleteParamSet
@@ -285,220 +257,237 @@ Command = (
 )
 
 
-# -- requests on simecs/sessions ----------------------------------------------------------------
-@dataclass
-class CreateSession:
-    user: str
-    model_id: str
-    op: Literal["create"] = "create"
-    v: int = VERSION
+# -- requests on simecs/sessions -----------------------------------------------------------------------
+class CreateSession(Command, tag="create"):
+    user: Name
+    model_id: Name
 
 
-@dataclass
-class ListSessions:
-    user: str
-    op: Literal["list"] = "list"
-    v: int = VERSION
+class ListSessions(Command, tag="list"):
+    user: Name
 
 
 SessionRequest = CreateSession | ListSessions
 
-# -- published state ----------------------------------------------------------------------------
-Phase = Literal[
-    "created", "configured", "queued", "running", "paused", "finished", "aborted", "failed", "closed"
-]
 
-
-@dataclass
-class SessionState:
+# -- published state -----------------------------------------------------------------------------------
+class SessionState(Message, tag="state"):
     """Lifecycle of a session on simecs/<session>/state (paper §3.2 Time Presentation)."""
 
-    session: str
+    session: SessionId
     phase: Phase
-    seq: int = 0  # grows with every publication of this session's state
-    run_id: str = ""
-    queue_position: int = 0  # 1 = next to start; 0 when not queued
-    progress: float = 0.0  # 0..1 of stop_time
-    sim_time: float = 0.0  # s
-    rtf: float = 0.0  # simulated seconds per wall second, over the run so far
-    reason: str = ""  # why failed / aborted / refused
-    warnings: list[str] = field(default_factory=list)  # notices about the current run (e.g. data dropped)
-    type: Literal["state"] = "state"
-    v: int = VERSION
+    seq: Annotated[int, Meta(ge=0, description="grows with every publication")] = 0
+    run_id: Annotated[str, Meta(max_length=64, description="the current or last run; '' before any")] = ""
+    queue_position: Annotated[int, Meta(ge=0, description="1 = next to start; 0 when not waiting")] = 0
+    progress: Annotated[float, Meta(ge=0.0, le=1.0, description="of stop_time")] = 0.0
+    sim_time: Annotated[float, Meta(ge=0.0, description="s")] = 0.0
+    rtf: Annotated[float, Meta(ge=0.0, description="simulated s per wall s over the run so far")] = 0.0
+    reason: Annotated[Text, Meta(description="why failed / aborted")] = ""
+    warnings: Annotated[list[Text], Meta(max_length=100, description="notices about the current run")] = []
 
 
-@dataclass
-class ParamValues:
+class ParamValues(Message, tag="params"):
     """Every parameter value of a session, published on simecs/<session>/params after each change."""
 
-    session: str
-    model_id: str
-    values: dict[str, float]
-    changed: list[str] = field(default_factory=list)
-    type: Literal["params"] = "params"
-    v: int = VERSION
+    session: SessionId
+    model_id: Name
+    values: dict[Name, float]
+    changed: list[Name] = []
 
 
-@dataclass
-class RunInfo:
-    run_id: str
+class RunInfo(Record):
+    """One run of a session, as its list of runs shows it."""
+
+    run_id: Name
     phase: Phase
-    stop_time: float
-    sim_time: float
-    samples: int = 0
-    reason: str = ""
+    stop_time: Annotated[float, Meta(ge=0.0, description="s")]
+    sim_time: Annotated[float, Meta(ge=0.0, description="s reached")]
+    samples: Annotated[int, Meta(ge=0)] = 0
+    reason: Text = ""
+    recording: Annotated[str, Meta(max_length=64, description="replay runs: the recording replayed")] = ""
 
 
-@dataclass
-class SessionSnapshot:
+class SessionSnapshot(Message, tag="session"):
     """Reply data of create / get_session: everything a client needs to restore its view."""
 
-    session: str
-    user: str
-    model_id: str
-    values: dict[str, float]
-    initial: list[float]
+    session: SessionId
+    user: Name
+    model_id: Name
+    values: dict[Name, float]
+    initial: Numbers
     command: RobotCommand | None
     settings: RunSettings
     state: SessionState
-    runs: list[RunInfo] = field(default_factory=list)
-    type: Literal["session"] = "session"
-    v: int = VERSION
+    runs: Annotated[list[RunInfo], Meta(description="the runs whose results are kept, oldest first")] = []
 
 
-@dataclass
-class ModelList:
+class SessionEntry(Record):
+    """One of a user's sessions (reply of `list`)."""
+
+    session: SessionId
+    model_id: Name
+    phase: Phase
+
+
+class RunStarted(Record):
+    """Reply data of `run` and `replay`."""
+
+    run_id: Name
+    phase: Phase
+    queue_position: Annotated[int, Meta(ge=0)]
+
+
+class ModelList(Message, tag="models"):
     models: list[ModelSummary]
-    type: Literal["models"] = "models"
-    v: int = VERSION
 
 
-# -- proxy <-> simulator ------------------------------------------------------------------------
-@dataclass
-class RunRequest:
-    """Everything a simulator needs for one run; sent by the proxy to simecs/simulators/<id>/run."""
+# -- proxy <-> simulator -----------------------------------------------------------------------------
+class RunRequest(Message, tag="run_request"):
+    """Everything a producer needs for one run; sent by the proxy to simecs/simulators/<node>/run.
 
-    session: str
-    run_id: str
-    run_index: int
-    model_id: str
-    values: dict[str, float]
-    initial: list[float]
-    command: RobotCommand
+    With `recording` set the run replays that recording (its stop_time and output_interval are the
+    recorded ones) instead of simulating the model."""
+
+    session: SessionId
+    run_id: Name
+    run_index: Annotated[int, Meta(ge=0, le=2**32 - 1)]
+    user: Name
+    model_id: Name
+    values: dict[Name, float]
+    initial: Numbers
+    command: RobotCommand | None
     settings: RunSettings
-    type: Literal["run_request"] = "run_request"
-    v: int = VERSION
+    recording: Annotated[str, Meta(max_length=64, description="'' = simulate the model")] = ""
+    paused: Annotated[bool, Meta(description="start paused (resume to go)")] = False
 
 
-@dataclass
-class RunControl:
+class Accepted(Record):
+    """Reply data of a RunRequest: who took the run."""
+
+    simulator: Name
+    pid: int
+
+
+class RunControl(Message, tag="run_control"):
     op: Literal["pause", "resume", "abort", "seek"]
-    run_id: str
-    time: float = 0.0  # seek target in s (replays only)
-    type: Literal["run_control"] = "run_control"
-    v: int = VERSION
+    run_id: Name
+    time: Annotated[Seconds, Meta(description="seek target in s (replay runs)")] = 0.0
 
 
-@dataclass
-class RunStatus:
+class RunStatus(Message, tag="run_status"):
     """A worker's report on simecs/<session>/run; the proxy turns it into SessionState."""
 
-    session: str
-    run_id: str
-    phase: Literal["starting", "running", "paused", "finished", "aborted", "failed"]
-    sim_time: float = 0.0
-    stop_time: float = 0.0
-    rtf: float = 0.0
-    samples: int = 0
-    reason: str = ""
-    type: Literal["run_status"] = "run_status"
-    v: int = VERSION
+    session: SessionId
+    run_id: Name
+    phase: WorkerPhase
+    sim_time: Annotated[float, Meta(ge=0.0)] = 0.0
+    stop_time: Annotated[float, Meta(ge=0.0)] = 0.0
+    rtf: Annotated[float, Meta(ge=0.0)] = 0.0
+    samples: Annotated[int, Meta(ge=0)] = 0
+    reason: Text = ""
 
 
-@dataclass
-class RunLayout:
+class RunContext(Record):
+    """What produced a run, carried with it (the recorder keeps it as the file's metadata)."""
+
+    user: Name
+    values: dict[Name, float]
+    initial: Numbers
+    command: RobotCommand | None
+    settings: RunSettings
+    recording: Annotated[str, Meta(max_length=64, description="replay runs: the recording replayed")] = ""
+
+
+class RunLayout(Message, tag="layout"):
     """Announced once per run on simecs/<session>/vars/layout, before the first frame."""
 
-    session: str
-    run_id: str
-    run_index: int  # the run_index carried in every frame header of this run
-    model_id: str
-    columns: list[str]  # "time" first; every column a float64
-    units: list[str]
-    live_columns: list[str]  # the subset (with "time" first) forwarded on vars/live
-    live_rate_hz: float
-    stop_time: float
-    output_interval: float
-    # Who produces the frames: a simulation, or a replay of a recording (the recorder does not
-    # record replays; a viewer can say what it shows).
-    source: Literal["simulator", "replay"] = "simulator"
-    type: Literal["layout"] = "layout"
-    v: int = VERSION
+    session: SessionId
+    run_id: Name
+    run_index: Annotated[int, Meta(ge=0, le=2**32 - 1, description="carried in every frame header")]
+    model_id: Name
+    columns: Annotated[list[Text], Meta(min_length=1, description='"time" first; every column a float64')]
+    units: list[Text]
+    live_columns: Annotated[
+        list[Text], Meta(min_length=1, description='"time" first: forwarded on vars/live')
+    ]
+    live_rate_hz: Annotated[float, Meta(ge=0.1, le=1000.0)]
+    stop_time: Annotated[float, Meta(ge=0.0)]
+    output_interval: Annotated[float, Meta(ge=0.0)]
+    context: RunContext
+    source: Annotated[
+        Literal["simulator", "replay"],
+        Meta(description="replay: frames from a recording (not recorded again)"),
+    ] = "simulator"
 
 
-@dataclass
-class Notice:
+class Notice(Message, tag="notice"):
     """Something the user must know about a run that is not a failure of it, e.g. the recorder had to
     drop samples. Put on simecs/<session>/notices; the proxy lists it in SessionState.warnings."""
 
-    session: str
-    run_id: str
-    source: str  # role of the node that noticed, e.g. "recorder"
-    message: str
-    type: Literal["notice"] = "notice"
-    v: int = VERSION
+    session: SessionId
+    run_id: Name
+    source: Name
+    message: Text
 
 
-@dataclass
-class JogInput:
+class JogInput(Message, tag="jog"):
     """Reserved for live jogging (telemanipulation): joint velocity offsets in rad/s."""
 
-    run_id: str
-    qd: list[float]
-    type: Literal["jog"] = "jog"
-    v: int = VERSION
+    run_id: Name
+    qd: Numbers
 
 
-# -- nodes --------------------------------------------------------------------------------------
-@dataclass
-class NodeStatus:
-    role: str
-    node_id: str
+# -- nodes and recordings --------------------------------------------------------------------------
+class NodeStatus(Message, tag="node_status"):
+    role: Name
+    node_id: Name
     pid: int
-    host: str
+    host: Text
     state: Literal["starting", "ready", "stopping"]
-    detail: dict[str, Any] = field(default_factory=dict)
-    type: Literal["node_status"] = "node_status"
-    v: int = VERSION
+    detail: dict[str, Any] = {}
 
 
-@dataclass
-class RecordingInfo:
-    name: str
-    session: str
-    run_id: str
-    model_id: str
-    bytes: int
+class RecordingInfo(Record):
+    name: Name
+    session: Annotated[str, Meta(max_length=64)]
+    run_id: Annotated[str, Meta(max_length=64)]
+    model_id: Annotated[str, Meta(max_length=64)]
+    bytes: Annotated[int, Meta(ge=0)]
     recovered: bool = False
+    stop_time: Annotated[float, Meta(ge=0.0, description="s, as the run was set")] = 0.0
 
 
-@dataclass
-class ReplayRequest:
-    """Replay a recording as a session: `speed` x real time (0 = as fast as possible)."""
-
-    speed: float = 1.0
-    session: str = ""  # empty: a new session id
-    paused: bool = False
-    type: Literal["replay_request"] = "replay_request"
-    v: int = VERSION
-
-    def validate(self) -> None:
-        if not 0.0 <= self.speed <= 1000.0:
-            raise DecodeError("speed", f"{self.speed} is outside [0, 1000]")
-
-
-@dataclass
-class RecordingList:
+class RecordingList(Message, tag="recordings"):
     recordings: list[RecordingInfo]
-    type: Literal["recordings"] = "recordings"
-    v: int = VERSION
+
+
+class ResultsAttachment(Record):
+    """The attachment of a results reply: what the frame's columns are, and the run they come from."""
+
+    columns: list[Text]
+    units: list[Text]
+    run: RunInfo
+
+
+#: Reply `data` of every command and request (the schema and the client use it).
+REPLIES: dict[type, Any] = {
+    SetParams: dict[str, float],
+    ResetParams: dict[str, float],
+    SetInitial: list[float],
+    SetCommand: str,
+    SetSettings: RunSettings,
+    Run: RunStarted,
+    Replay: RunStarted,
+    Pause: str,
+    Resume: str,
+    Abort: str,
+    Seek: str,
+    SaveParamSet: str,
+    LoadParamSet: dict[str, float],
+    DeleteParamSet: str,
+    ListParamSets: list[str],
+    GetSession: SessionSnapshot,
+    CloseSession: str,
+    CreateSession: SessionSnapshot,
+    ListSessions: list[SessionEntry],
+}

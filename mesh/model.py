@@ -4,53 +4,55 @@ The kinematic chain follows the paper's Link convention (SIMECS-RI §5.1): joint
 the local z axis by q_i; then the link applies an *initial rotation* (roll-pitch-yaw, no component about
 the joint axis), a *central translation* along x equal to the link length, and a *final translation*
 with no x component. Shapes hang on link frames; at most one per link is resizable along the link axis,
-so a changed length reshapes the arm without a new model.
+so a changed length reshapes the arm without a new model. `shapes.py` says how a shape is drawn.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-from typing import Literal
+import math
+from collections.abc import Mapping, Sequence
+from typing import Annotated, Literal
+
+import msgspec
+from msgspec import Meta
 
 from .codec import DecodeError
-
-VERSION = 1
+from .primitives import FieldProblem, Message, Name, Record, Text
 
 ShapeKind = Literal["cylinder", "pipe", "box", "beam", "sphere"]
+Vec3 = Annotated[list[float], Meta(min_length=3, max_length=3)]
+Size = Annotated[float, Meta(ge=0.0, le=1000.0, description="m")]
 
 
-@dataclass
-class Parameter:
+class Parameter(Record):
     """One tunable value. `name` is a dotted path whose prefix is its `component`."""
 
-    name: str
+    name: Name
     value: float
-    unit: str
-    description: str
+    unit: Annotated[str, Meta(max_length=64)]
+    description: Text
     min: float
     max: float
-    component: str
-    appearance: bool = False  # True: changing it reshapes the 3D arm (e.g. a link length)
-    integer: bool = False  # True: only whole numbers (e.g. a switch 0/1)
+    component: Annotated[str, Meta(max_length=256)]
+    appearance: Annotated[bool, Meta(description="changing it reshapes the 3D arm")] = False
+    integer: Annotated[bool, Meta(description="only whole numbers (e.g. a switch 0/1)")] = False
 
-    def validate(self) -> None:
+    def __post_init__(self) -> None:
         if not self.min <= self.value <= self.max:
-            raise DecodeError("value", f"{self.value} outside [{self.min}, {self.max}]")
+            raise FieldProblem("value", f"{self.value:g} is outside [{self.min:g}, {self.max:g}]")
 
 
-@dataclass
-class Variable:
+class Variable(Record):
     """One scalar output, as a column of the result frames."""
 
-    name: str
-    unit: str
-    description: str
-    component: str
+    name: Name
+    unit: Annotated[str, Meta(max_length=64)]
+    description: Text
+    component: Annotated[str, Meta(max_length=256)]
 
 
-@dataclass
-class Shape:
-    """A solid attached to a link frame (or to the base when `link` is -1).
+class Shape(Record):
+    """A solid attached to a link frame (or to the world when `link` is -1); `shapes.py` draws it.
 
     Sizes in metres: cylinder/pipe use `radius` (`inner_radius` for pipe) and `length` along `axis`;
     box/beam use `length` along `axis` and `width`, `height` across it; sphere uses `radius`.
@@ -62,85 +64,79 @@ class Shape:
     """
 
     kind: ShapeKind
-    link: int
-    origin: list[float]
+    link: Annotated[int, Meta(ge=-1, le=63, description="0-based index into links; -1: the world")]
+    origin: Vec3
     axis: Literal["x", "y", "z"] = "x"
-    length: float = 0.0
-    radius: float = 0.0
-    inner_radius: float = 0.0
-    width: float = 0.0
-    height: float = 0.0
-    color: list[int] = field(default_factory=lambda: [180, 180, 190])
+    length: Size = 0.0
+    radius: Size = 0.0
+    inner_radius: Size = 0.0
+    width: Size = 0.0
+    height: Size = 0.0
+    color: Annotated[list[Annotated[int, Meta(ge=0, le=255)]], Meta(min_length=3, max_length=3)] = (
+        msgspec.field(default_factory=lambda: [180, 180, 190])
+    )
     resizable: bool = False
-    # Appearance that follows parameters beyond the link length: each listed dimension is scaled by
-    # value / default of the named parameter; anchor "end" measures `origin` x from the link's end, so
-    # the shape moves with the link length (a flange, a payload).
-    scales_with: dict[str, str] = field(default_factory=dict)
+    scales_with: Annotated[
+        dict[Literal["length", "radius", "inner_radius", "width", "height"], Name], Meta(max_length=5)
+    ] = {}
     anchor: Literal["start", "end"] = "start"
 
 
-@dataclass
-class Link:
+class Link(Record):
     """Joint i (about local z) followed by link i, in the paper's Link convention."""
 
-    name: str
-    joint: str
-    initial_rotation_rpy: list[float]
-    length_param: str  # name of the Parameter holding the central translation along x
-    final_translation: list[float]
-    joint_min: float  # rad
-    joint_max: float  # rad
+    name: Name
+    joint: Name
+    initial_rotation_rpy: Vec3
+    length_param: Name  # the Parameter holding the central translation along x
+    final_translation: Vec3
+    joint_min: Annotated[float, Meta(description="rad")]
+    joint_max: Annotated[float, Meta(description="rad")]
 
 
-@dataclass
-class InitEquation:
+class InitEquation(Record):
     """How an internal state follows from joint positions at rest (paper §5.2), e.g. q_m = n * q_l."""
 
-    state: str
-    expression: str
-    description: str
+    state: Text
+    expression: Text
+    description: Text
 
 
-@dataclass
-class DocPage:
+class DocPage(Record):
     """One page of read-only hypertext documentation; markdown links `doc:<id>` go to other pages."""
 
-    id: str
-    title: str
-    markdown: str
-    parent: str = ""
-    children: list[str] = field(default_factory=list)
+    id: Name
+    title: Text
+    markdown: Text
+    parent: Annotated[str, Meta(max_length=64)] = ""
+    children: list[Name] = []
 
 
-@dataclass
-class ModelSummary:
-    id: str
-    name: str
-    summary: str
-    joints: int
-    command_levels: list[str]
+class ModelSummary(Record):
+    id: Name
+    name: Text
+    summary: Text
+    joints: Annotated[int, Meta(ge=1, le=64)]
+    command_levels: list[Name]
 
 
-@dataclass
-class ModelDescription:
+class ModelDescription(Message, tag="model"):
     """Everything a client needs to show, animate, parametrise and command a model."""
 
-    id: str
-    name: str
-    summary: str
-    base_translation: list[float]
-    links: list[Link]
-    tool_translation: list[float]
+    id: Name
+    name: Text
+    summary: Text
+    base_translation: Vec3
+    links: Annotated[list[Link], Meta(min_length=1, max_length=64)]
+    tool_translation: Vec3
     shapes: list[Shape]
     parameters: list[Parameter]
     variables: list[Variable]
     init_equations: list[InitEquation]
-    doc_root: str
+    doc_root: Name
     docs: list[DocPage]
-    command_levels: list[str]  # e.g. ["joint_path"]; see docs/PROTOCOL.md for every level
-    environment: list[Shape] = field(default_factory=list)  # floor, bench, obstacles (link = -1)
-    type: Literal["model"] = "model"
-    v: int = VERSION
+    command_levels: Annotated[list[Name], Meta(description="the robot command kinds the model accepts")]
+    environment: Annotated[list[Shape], Meta(description="floor, bench, obstacles (link -1)")] = []
 
     def summary_entry(self) -> ModelSummary:
         return ModelSummary(self.id, self.name, self.summary, len(self.links), list(self.command_levels))
@@ -156,14 +152,12 @@ class ModelDescription:
 
 
 def check_values(
-    model: ModelDescription, changes: dict[str, object], base: dict[str, float] | None = None
+    model: ModelDescription, changes: Mapping[str, object], base: Mapping[str, float] | None = None
 ) -> dict[str, float]:
     """Validate `changes` against the model's parameters and return the whole new value set.
 
     All or nothing: the first bad entry raises DecodeError naming it, and nothing is applied.
     """
-    import math
-
     values = dict(base if base is not None else model.default_values())
     params = {p.name: p for p in model.parameters}
     for name, raw in changes.items():
@@ -182,3 +176,16 @@ def check_values(
             raise DecodeError(where, f"{value:g} must be a whole number")
         values[name] = value
     return values
+
+
+def check_joints(model: ModelDescription, q: Sequence[float], where: str) -> None:
+    """Refuse joint positions that do not fit the arm: their count, or one outside its joint's range."""
+    if len(q) != len(model.links):
+        raise DecodeError(where, f"{len(q)} joint positions for a {len(model.links)}-joint arm")
+    for i, (qi, link) in enumerate(zip(q, model.links, strict=True)):
+        if not link.joint_min <= qi <= link.joint_max:
+            raise DecodeError(
+                f"{where}[{i}]",
+                f"{link.joint} = {qi:.4g} rad is outside its range "
+                f"[{link.joint_min:.4g}, {link.joint_max:.4g}] rad",
+            )

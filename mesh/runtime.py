@@ -49,12 +49,19 @@ class RequestError(Exception):
         return Error(code=self.code, message=self.message, field=self.field)
 
 
+class NotMine(Exception):
+    """Raise in a handler to leave a query unanswered: another node holds what it asks for (one
+    answer per query, from the node that owns the thing asked)."""
+
+
 def error_of(exc: BaseException) -> Error:
     """The Error reply for an exception raised while handling a request."""
     if isinstance(exc, RequestError):
         return exc.to_error()
     if isinstance(exc, codec.DecodeError):
         return Error(code="bad_request", message=str(exc), field=exc.field)
+    if isinstance(exc, keys.KeyProblem):
+        return Error(code="bad_request", message=str(exc), field=exc.chunk)
     return Error(code="internal", message=f"{type(exc).__name__}: {exc}")
 
 
@@ -284,8 +291,8 @@ class Node:
         self.subscribe(key, decoded, **options)
 
     def serve(self, key: str, handle: Callable[[Request], Any], threaded: bool = False) -> None:
-        """Answer queries on `key`: `handle` returns `Binary`, or anything JSON-able (dataclasses too),
-        sent as `Ok{data}`; raising answers an `Error` reply."""
+        """Answer queries on `key`: `handle` returns `Binary`, or any message value, sent as `Ok{data}`;
+        raising answers an `Error` reply, raising `NotMine` answers nothing."""
 
         def answer(query: zenoh.Query) -> None:
             key_str = str(query.key_expr)
@@ -294,12 +301,14 @@ class Node:
                 params = dict(list(query.selector.parameters)) if query.selector.parameters else {}  # type: ignore[call-overload]
                 result = handle(Request(key_str, payload, params))
                 if isinstance(result, Binary):
-                    att = None if result.attachment is None else json.dumps(result.attachment).encode()
+                    att = None if result.attachment is None else codec.dumps(result.attachment)
                     query.reply(query.key_expr, result.payload, attachment=att)
                 else:
                     if not isinstance(result, Ok):
                         result = Ok(data=result)
                     query.reply(query.key_expr, codec.dumps(result))
+            except NotMine:
+                pass
             except Exception as exc:
                 err = error_of(exc)
                 if err.code == "internal":

@@ -14,9 +14,11 @@ import time as _time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
+import msgspec
 import numpy as np
 from simecs.mesh.codec import DecodeError
-from simecs.mesh.kinematics import pose_column_names, rot_rpy
+from simecs.mesh import columns
+from simecs.mesh.kinematics import rot_rpy
 from simecs.mesh.model import (
     InitEquation,
     Link,
@@ -253,7 +255,7 @@ class ModelPackage:
                 links=links,
                 tool_translation=list(s.tool_translation),
                 shapes=self._shapes(),
-                parameters=[Parameter(**vars(p)) for p in self._params],
+                parameters=[msgspec.structs.replace(p) for p in self._params],
                 variables=self.variables(),
                 init_equations=self.init_equations(),
                 doc_root=f"{s.id}",
@@ -519,10 +521,7 @@ class Simulation:
         self.n = package.n
         self.values = dict(values)
         self._desc = package.describe()
-        self.columns = ["time"] + [v.name for v in self._desc.variables] + pose_column_names(self._desc)
-        units = {v.name: v.unit for v in self._desc.variables}
-        self.units = ["s"] + [units[v.name] for v in self._desc.variables]
-        self.units += ["m", "m", "m", "-", "-", "-", "-"] * (self.n + 1)
+        self.columns, self.units = columns.run_columns(self._desc)
         self.P = package.drive_array(self.values)
         self._mech = package.chain_arrays(self.values)
         self.q0 = np.zeros(self.n)

@@ -24,10 +24,10 @@ NODES = {
 
 #: Benchmark name -> "module:function(json_out: bool) -> dict".
 BENCHES = {
-    "model": "simecs.models.bench:run_model_bench",
-    "service": "simecs.nodes.bench_service:run_service_bench",
-    "viewer": "simecs.viewer.bench:run_viewer_bench",
-    "recorder": "simecs.nodes.bench_recorder:run_recorder_bench",
+    "model": "simecs.benchmarks.model:run_model_bench",
+    "service": "simecs.benchmarks.service:run_service_bench",
+    "viewer": "simecs.benchmarks.viewer:run_viewer_bench",
+    "recorder": "simecs.benchmarks.recorder:run_recorder_bench",
 }
 
 
@@ -110,8 +110,8 @@ def cmd_ls(args: argparse.Namespace) -> int:
         live = []
         for reply in z.liveliness().get(keys.NODE_TOKENS, timeout=2.0):
             if reply.ok is not None:
-                parts = str(reply.ok.key_expr).split("/")
-                live.append(f"{parts[2]}/{parts[3]}")
+                token = keys.parse("node_token", reply.ok.key_expr)
+                live.append(f"{token['role']}/{token['node']}")
         time.sleep(0.5)
         for sub in subs:
             sub.undeclare()
@@ -188,7 +188,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
 
     for name, help_text in (
-        ("replay", "republish a recording onto the mesh"),
+        ("replay", "play a recording back onto the mesh as a run of a session"),
         ("export", "export a recording"),
     ):
         p = sub.add_parser(name, help=help_text, add_help=False)

@@ -1,8 +1,10 @@
 """The hot-feedback node: the paper's Hot Feedback Manager.
 
 It takes every session's full-rate frames and forwards at most R frames per wall second per session
-(R from the run's layout; a token bucket of depth 2, so frames arriving at about R Hz pass at once),
-each carrying the newest sample's live columns; the final sample of a run is always forwarded.
+(R from the run's layout): forwarded frames are at least 1/R apart, from the first frame of a run on, so
+no one-second window holds more than R of them (plus the final frame, which always goes). Each carries
+the newest sample's live columns; a sample held back by the limit goes out the moment its turn comes.
+The final frame of a finished run holds its last sample; that of an aborted or failed run holds none.
 Its work per full frame is a few microseconds (header, one row, at most one put), done right in
 zenoh's callback to save a thread wake-up; slow consumers downstream have their own queues, so
 nothing stalls the simulator (a slow zenoh callback would stall the whole link: STACK-NOTES).
@@ -23,9 +25,10 @@ from simecs.mesh import codec, frames, keys
 from simecs.mesh import messages as m
 from simecs.mesh.runtime import Node, main_for
 
-#: Tokens a stream may save up: absorbs the jitter of frames that arrive at about R Hz (real-time
-#: pacing) so each is forwarded at once, while the long-run rate stays at most R.
-BURST = 2.0
+#: Tokens a stream may save up. One: every forwarded frame waits a whole period after the last one,
+#: so the limit holds in every window, the start of a run included. (The simulator's 40 frames per
+#: wall second at real-time pacing stay below the default R = 50: they pass at once.)
+BURST = 1.0
 #: How long an ended stream keeps its publisher, in case the session runs again.
 STREAM_LINGER_NS = 60 * 10**9
 
@@ -90,7 +93,9 @@ class HotFeedback(Node):
             stream = self.streams.get(session)
             if stream is None or stream.layout.run_index != frame.run_index:
                 return  # layout not seen yet: nothing to decimate against
-            if frame.rows.shape[0]:
+            if frame.final and not frame.rows.shape[0]:
+                stream.pending = frame  # aborted or failed: the run ends with no sample, not a stale one
+            elif frame.rows.shape[0]:
                 if frame.rows.shape[1] != len(stream.layout.columns):
                     self.log.warning(
                         "frame of %s has %d columns, layout %d",
@@ -100,8 +105,6 @@ class HotFeedback(Node):
                     )
                     return
                 frame.rows = frame.rows[-1:, stream.live_idx]
-                stream.pending = frame
-            elif stream.pending is None and frame.final:
                 stream.pending = frame
             if frame.final and stream.pending is not None:
                 stream.pending.flags |= frames.FLAG_FINAL

@@ -13,9 +13,10 @@ docs/RECORDINGS.md describes the format for readers; this module is its single s
   values are in `/vars`).
 - `/scene` (`foxglove.SceneUpdate`): the arm's solid shapes as frame-locked entities, once per run.
 - `/log` (`foxglove.Log`): lifecycle events, dropped data, recovery notes.
-Metadata records: `simecs.run` (layout, ids, format version), `simecs.params`, `simecs.session`
-(command, settings, initial pose), `simecs.end` (how the file was closed), `simecs.recovery` (set when
-a torn file was repaired). Attachment `model.json`: the model description of the run.
+Metadata records, all written when the file opens except the last two: `simecs.run` (layout with the
+run's context, ids, format version), `simecs.params` (the values the run used), `simecs.session` (user,
+initial pose, command, settings, replayed recording), `simecs.end` (how the file was closed),
+`simecs.recovery` (set when a torn file was repaired). Attachment `model.json`: the model description.
 """
 
 from __future__ import annotations
@@ -39,11 +40,14 @@ import numpy as np
 import zstandard
 from mcap.records import MessageIndex
 from mcap.writer import CompressionType, Writer
-from simecs.mesh import codec, frames
+from simecs.mesh import codec, columns, frames, shapes
 from simecs.mesh import messages as m
-from simecs.mesh.model import ModelDescription, Shape
+from simecs.mesh.model import ModelDescription
 
-FORMAT_VERSION = "1"
+#: 2: the layout in `simecs.run` carries the run's context (user, values, pose, command, settings).
+FORMAT_VERSION = "2"
+#: Versions this reader reads (1: the context is only in `simecs.params` and `simecs.session`).
+READABLE_VERSIONS = ("1", "2")
 LIBRARY = f"simecs-recorder/{FORMAT_VERSION}"
 SCHEMA_DIR = Path(__file__).resolve().with_name("schemas")
 
@@ -52,7 +56,7 @@ TOPIC_TF = "/tf"
 TOPIC_JOINTS = "/joint_states"
 TOPIC_SCENE = "/scene"
 TOPIC_LOG = "/log"
-WORLD_FRAME = "world"
+WORLD_FRAME = shapes.WORLD
 VARS_SCHEMA = "simecs/msg/Sample"
 
 META_RUN = "simecs.run"
@@ -243,7 +247,8 @@ def build_vars_codec(columns: Sequence[str], units: Sequence[str] = ()) -> VarsC
 
 
 # -- /tf and /joint_states: Foxglove JSON from %-templates (json.dumps is ~10x slower) ---------------
-POSE_FIELDS = ("x", "y", "z", "qx", "qy", "qz", "qw")
+#: Foxglove's order of a pose: translation x, y, z, then the quaternion x, y, z, w.
+FOXGLOVE_POSE = ("x", "y", "z", "qx", "qy", "qz", "qw")
 _NUM = "%.9g"  # 9 significant digits: nanometres at a metre, for display only (/vars is exact)
 _TS = "\x00TS\x00"
 
@@ -251,17 +256,10 @@ _TS = "\x00TS\x00"
 class PoseEncoder:
     """`pose.<frame>.<x,y,z,qw,qx,qy,qz>` columns -> foxglove.FrameTransforms (parent: world)."""
 
-    def __init__(self, columns: Sequence[str]) -> None:
-        index = {c: i for i, c in enumerate(columns)}
-        self.frames: list[str] = []
-        idx: list[int] = []
-        for col in columns:
-            if col.startswith("pose.") and col.endswith(".x"):
-                name = col[5:-2]
-                cols = [f"pose.{name}.{f}" for f in POSE_FIELDS]
-                if all(c in index for c in cols) and name:
-                    self.frames.append(name)
-                    idx += [index[c] for c in cols]
+    def __init__(self, names: Sequence[str]) -> None:
+        index = {c: i for i, c in enumerate(names)}
+        self.frames = columns.posed_frames(names)
+        idx = [index[columns.pose_column(frame, f)] for frame in self.frames for f in FOXGLOVE_POSE]
         self.idx = np.array(idx, dtype=np.int64)
         parts = []
         for name in self.frames:
@@ -283,23 +281,15 @@ class PoseEncoder:
 class JointEncoder:
     """`<joint>.q`, `.qd` and the joint torque column -> foxglove.JointStates."""
 
-    EFFORT = ("tau_gear", "tau", "effort")
-
-    def __init__(self, columns: Sequence[str]) -> None:
-        index = {c: i for i, c in enumerate(columns)}
+    def __init__(self, names: Sequence[str]) -> None:
+        index = {c: i for i, c in enumerate(names)}
         self.joints: list[str] = []
         idx: list[int] = []
         parts = []
-        for col in columns:
-            if not col.endswith(".q") or col.startswith("pose."):
-                continue
-            name = col[:-2]
-            if not name or f"{name}.qd" not in index:
-                continue
-            effort = next((f"{name}.{e}" for e in self.EFFORT if f"{name}.{e}" in index), None)
-            self.joints.append(name)
-            idx += [index[col], index[f"{name}.qd"]]
-            entry = f'{{"name":{_json_key(name)},"position":{_NUM},"velocity":{_NUM}'
+        for joint, position, velocity, effort in columns.joint_state_columns(names):
+            self.joints.append(joint)
+            idx += [index[position], index[velocity]]
+            entry = f'{{"name":{_json_key(joint)},"position":{_NUM},"velocity":{_NUM}'
             if effort is not None:
                 idx.append(index[effort])
                 entry += f',"effort":{_NUM}'
@@ -320,73 +310,59 @@ def _ts_json(ns: int) -> str:
 
 
 # -- /scene: the model's solids as frame-locked entities -------------------------------------------
-_HALF = math.sqrt(0.5)
-#: Rotation that turns Foxglove's cylinder axis (z) onto our shape axis, as x, y, z, w.
-_AXIS_QUAT = {"x": (0.0, _HALF, 0.0, _HALF), "y": (-_HALF, 0.0, 0.0, _HALF), "z": (0.0, 0.0, 0.0, 1.0)}
-_AXIS_VEC = {"x": (1.0, 0.0, 0.0), "y": (0.0, 1.0, 0.0), "z": (0.0, 0.0, 1.0)}
-
-
 def _color(rgb: Sequence[int]) -> dict[str, float]:
     r, g, b = (list(rgb) + [200, 200, 200])[:3]
     return {"r": r / 255.0, "g": g / 255.0, "b": b / 255.0, "a": 1.0}
 
 
-def _pose(center: Sequence[float], quat: Sequence[float]) -> dict[str, Any]:
+def _pose(center: Sequence[float], wxyz: Sequence[float]) -> dict[str, Any]:
     x, y, z = (float(v) for v in center)
-    qx, qy, qz, qw = quat
+    qw, qx, qy, qz = (float(v) for v in wxyz)
     return {"position": {"x": x, "y": y, "z": z}, "orientation": {"x": qx, "y": qy, "z": qz, "w": qw}}
 
 
-def shape_primitive(shape: Shape, length: float) -> tuple[str, dict[str, Any]]:
-    """(entity list name, Foxglove primitive) of one shape; its solid starts at `origin` along `axis`."""
-    axis = _AXIS_VEC[shape.axis]
-    o = [float(v) for v in (list(shape.origin) + [0.0, 0.0, 0.0])[:3]]
-    color = _color(shape.color)
-    if shape.kind in ("cylinder", "pipe"):
-        center = [o[k] + axis[k] * length / 2 for k in range(3)]
-        d = 2 * shape.radius
+def scene_primitive(solid: shapes.Solid) -> tuple[str, dict[str, Any]]:
+    """(entity list name, Foxglove primitive) of one solid, from the geometry the viewer draws too.
+
+    Foxglove has no pipe: a pipe is drawn as a cylinder of its outer radius (the same outside)."""
+    g = solid.geometry
+    color = _color(solid.shape.color)
+    pose = _pose(g.position, g.wxyz)
+    if g.kind in ("cylinder", "pipe"):
+        d = 2 * g.radius
+        size = {"x": d, "y": d, "z": g.length}
         return "cylinders", {
-            "pose": _pose(center, _AXIS_QUAT[shape.axis]),
-            "size": {"x": d, "y": d, "z": length},
+            "pose": pose,
+            "size": size,
             "bottom_scale": 1.0,
             "top_scale": 1.0,
             "color": color,
         }
-    if shape.kind in ("box", "beam"):
-        center = [o[k] + axis[k] * length / 2 for k in range(3)]
-        size = {"x": (length, shape.width, shape.height), "y": (shape.width, length, shape.height)}.get(
-            shape.axis, (shape.width, shape.height, length)
-        )
-        return "cubes", {
-            "pose": _pose(center, (0.0, 0.0, 0.0, 1.0)),
-            "size": {"x": size[0], "y": size[1], "z": size[2]},
-            "color": color,
-        }
-    if shape.kind == "sphere":
-        center = [o[k] + axis[k] * shape.radius for k in range(3)]
-        d = 2 * shape.radius
-        return "spheres", {
-            "pose": _pose(center, (0.0, 0.0, 0.0, 1.0)),
-            "size": {"x": d, "y": d, "z": d},
-            "color": color,
-        }
-    raise FormatError(f"shape kind {shape.kind!r} has no Foxglove primitive")
+    if g.kind == "box":
+        size = {"x": g.dimensions[0], "y": g.dimensions[1], "z": g.dimensions[2]}
+        return "cubes", {"pose": pose, "size": size, "color": color}
+    if g.kind == "sphere":
+        d = 2 * g.radius
+        return "spheres", {"pose": pose, "size": {"x": d, "y": d, "z": d}, "color": color}
+    raise FormatError(f"shape kind {g.kind!r} has no Foxglove primitive")
 
 
 def scene_update(model: ModelDescription, values: Mapping[str, float], stamp_ns: int) -> dict[str, Any]:
-    """foxglove.SceneUpdate: one frame-locked entity per link (frame = link name), plus the environment.
-
-    A resizable shape takes its link's current length parameter, so the scene matches the run."""
+    """foxglove.SceneUpdate: one frame-locked entity per link (frame = link name), plus the world's
+    solids (environment and base) in one entity, all shaped by the run's parameter values."""
     entities: dict[str, dict[str, Any]] = {}
-
-    def entity(frame_id: str, eid: str, locked: bool) -> dict[str, Any]:
+    for solid in shapes.solids(model, values):
+        if not solid.geometry.visible:
+            continue
+        world = solid.frame == shapes.WORLD
+        eid = "environment" if world else solid.frame
         if eid not in entities:
             entities[eid] = {
                 "timestamp": stamp(stamp_ns),
-                "frame_id": frame_id,
+                "frame_id": WORLD_FRAME if world else solid.frame,
                 "id": eid,
                 "lifetime": {"sec": 0, "nsec": 0},
-                "frame_locked": locked,
+                "frame_locked": not world,
                 "metadata": [{"key": "model", "value": model.id}],
                 "arrows": [],
                 "cubes": [],
@@ -397,20 +373,8 @@ def scene_update(model: ModelDescription, values: Mapping[str, float], stamp_ns:
                 "texts": [],
                 "models": [],
             }
-        return entities[eid]
-
-    for shape in list(model.shapes) + list(model.environment):
-        if 0 <= shape.link < len(model.links):
-            link = model.links[shape.link]
-            ent = entity(link.name, link.name, True)
-            length = float(values.get(link.length_param, shape.length)) if shape.resizable else shape.length
-        elif shape.link == -1:
-            ent = entity(WORLD_FRAME, "environment", False)
-            length = shape.length
-        else:
-            continue
-        kind, prim = shape_primitive(shape, length)
-        ent[kind].append(prim)
+        kind, prim = scene_primitive(solid)
+        entities[eid][kind].append(prim)
     return {"deletions": [], "entities": list(entities.values())}
 
 
@@ -505,6 +469,22 @@ def layout_json(layout: m.RunLayout) -> str:
     return codec.dumps(layout).decode()
 
 
+def params_metadata(context: m.RunContext) -> dict[str, str]:
+    """`simecs.params`: every parameter value of the run, exactly (repr round-trips a float)."""
+    return {k: repr(float(v)) for k, v in context.values.items()}
+
+
+def session_metadata(context: m.RunContext) -> dict[str, str]:
+    """`simecs.session`: who ran it, from where, with what command and settings (JSON texts)."""
+    return {
+        "user": context.user,
+        "initial": json.dumps(list(context.initial)),
+        "command": codec.dumps(context.command).decode(),
+        "settings": codec.dumps(context.settings).decode(),
+        "recording": context.recording,
+    }
+
+
 class RunWriter:
     """Writes one run into one MCAP file, crash-safely: zstd chunks of bounded size, `flush()` about
     once a second (the recorder calls it), an exclusive lock while open (recovery skips locked files),
@@ -558,6 +538,8 @@ class RunWriter:
             }
             meta.update(run_meta or {})
             self._w.add_metadata(META_RUN, meta)
+            self._w.add_metadata(META_PARAMS, params_metadata(layout.context))
+            self._w.add_metadata(META_SESSION, session_metadata(layout.context))
             self._register()
             self.flush(force=True)
         except BaseException:

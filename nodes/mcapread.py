@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Any
 
+import msgspec
 import numpy as np
 from mcap.exceptions import McapError
 from mcap.reader import SeekingReader
@@ -259,7 +260,13 @@ class Recording:
             yield int(self.seqs[a]), a, b
 
     def params(self) -> dict[str, float]:
-        return {k: float(v) for k, v in self.metadata.get(fmt.META_PARAMS, {}).items()}
+        return dict(self.layout.context.values)
+
+    def context(self, recording: str = "") -> m.RunContext:
+        """What produced the recorded run; `recording`: the name it is replayed under."""
+        return msgspec.structs.replace(
+            self.layout.context, recording=recording or self.layout.context.recording
+        )
 
 
 def _layout_of(name: str, metadata: dict[str, dict[str, str]]) -> m.RunLayout:
@@ -267,15 +274,35 @@ def _layout_of(name: str, metadata: dict[str, dict[str, str]]) -> m.RunLayout:
     if run is None or "layout" not in run:
         raise RecordingError(f"{name}: not a simecs recording (no {fmt.META_RUN} metadata with a layout)")
     version = run.get("format_version", "")
-    if version != fmt.FORMAT_VERSION:
+    if version not in fmt.READABLE_VERSIONS:
         raise RecordingError(
             f"{name}: recording format version {version!r} is not supported "
-            f"(this reader: {fmt.FORMAT_VERSION})"
+            f"(this reader: {', '.join(fmt.READABLE_VERSIONS)})"
         )
     try:
+        if version == "1":  # the context lived in other metadata records then
+            layout = json.loads(run["layout"])
+            layout["context"] = codec.to_obj(_context_of_metadata(metadata))
+            return codec.from_obj(m.RunLayout, layout)
         return codec.loads(m.RunLayout, run["layout"])
-    except codec.DecodeError as exc:
+    except (codec.DecodeError, ValueError, TypeError) as exc:
         raise RecordingError(f"{name}: its layout metadata is invalid: {exc}") from None
+
+
+def _context_of_metadata(metadata: dict[str, dict[str, str]]) -> m.RunContext:
+    """The run's context from `simecs.params` and `simecs.session` (how format 1 kept it)."""
+    session = metadata.get(fmt.META_SESSION, {})
+    values = {k: float(v) for k, v in metadata.get(fmt.META_PARAMS, {}).items()}
+    command = json.loads(session["command"]) if session.get("command") not in (None, "", "null") else None
+    return m.RunContext(
+        user=session.get("user") or "unknown",
+        values=values,
+        initial=[float(q) for q in json.loads(session.get("initial") or "[]")],
+        command=codec.from_obj(m.RobotCommand, command) if command is not None else None,  # type: ignore[arg-type]
+        settings=codec.from_obj(m.RunSettings, json.loads(session["settings"]))
+        if session.get("settings")
+        else m.RunSettings(),
+    )
 
 
 def load(source: str | os.PathLike[str] | bytes, strict: bool = False) -> Recording:
@@ -358,7 +385,16 @@ def info(path: str | os.PathLike[str]) -> m.RecordingInfo:
         model_id=run.get("model_id", ""),
         bytes=p.stat().st_size,
         recovered=fmt.META_RECOVERY in meta,
+        stop_time=_float(run.get("stop_time", "0")),
     )
+
+
+def _float(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        return 0.0
+    return value if 0.0 <= value < 1e9 else 0.0
 
 
 # -- repair ---------------------------------------------------------------------------------------

@@ -1,31 +1,36 @@
 """The simulator node: the paper's Low Level Simulator Machine, one process per run.
 
-It accepts `RunRequest`s from the proxy, hands each to a warm worker process (models imported and
-drives compiled ahead, so a run starts in milliseconds), keeps one warm worker in reserve, and serves
-the full-resolution results of the last runs of every session from disk.
+It accepts `RunRequest`s from the proxy (a model to simulate, or a recording to replay), hands each to
+a warm worker process (models imported and drives compiled ahead, so a run starts in milliseconds),
+keeps one warm worker in reserve, and serves the full-resolution results of the runs it holds. It
+says it is ready (its liveliness token) only once its first worker is warm: a first run then starts
+at once.
 """
 
 from __future__ import annotations
 
 import argparse
 import os
+import select
 import subprocess
 import sys
 import threading
-from pathlib import Path
+import time
 from typing import Any
 
-import numpy as np
-from simecs.mesh import codec, files, keys
+from simecs.mesh import codec, keys
 from simecs.mesh import messages as m
 from simecs.mesh.results import results_reply
-from simecs.mesh.runtime import Binary, Node, Request, RequestError, main_for, mesh_from_args
+from simecs.mesh.runtime import Binary, Node, NotMine, Request, RequestError, main_for, mesh_from_args
 
-KEEP_RUNS = 10  # full-resolution results kept per session
+from .results_store import ResultsStore
+from .worker import READY
+
+WARM_TIMEOUT_S = 600.0  # a first start compiles the drives (tens of seconds on a cold cache)
 
 
 class Simulator(Node):
-    """Runs simulations in worker processes and serves their results."""
+    """Runs simulations and replays in worker processes and serves their results."""
 
     role = "simulator"
     tick_s = 0.1
@@ -39,7 +44,7 @@ class Simulator(Node):
         warm: int = 1,
     ) -> None:
         super().__init__(mesh, node_id)
-        self.results_dir = Path(results_dir)
+        self.store = ResultsStore(results_dir)
         self.max_runs = max_runs or max(os.cpu_count() or 1, 1) * 4
         self.warm_target = warm
         self.lock = threading.Lock()
@@ -69,22 +74,43 @@ class Simulator(Node):
             return {"running": len(self.busy), "warm": len(self.idle), "max_runs": self.max_runs}
 
     def start(self) -> None:
-        self.results_dir.mkdir(parents=True, exist_ok=True)
+        self.store.folder.mkdir(parents=True, exist_ok=True)
         self.serve(keys.simulator_run(self.node_id), self._on_run)
-        self.serve(keys.ALL_RESULTS_LIST, self._on_list, threaded=True)
-        self.serve(f"{keys.ROOT}/*/results/*", self._on_results, threaded=True)
+        self.serve(keys.ALL_RESULTS, self._on_results, threaded=True)
         self._refill()
+        if self.warm_target:
+            self._wait_warm(self.idle[0])
 
     # -- worker processes ----------------------------------------------------------------------
     def _spawn(self) -> subprocess.Popen[str]:
-        cmd = [sys.executable, "-m", "simecs.nodes.simworker", "--results-dir", str(self.results_dir)]
+        cmd = [sys.executable, "-m", "simecs.nodes.worker", "--results-dir", str(self.store.folder)]
         for ep in self.mesh.connect:
             cmd += ["--connect", ep]
         cmd += ["--cpu", self.cpu_choice]  # where its zenoh threads go (mesh.affinity)
         env = dict(os.environ)
         if self.mesh_config_path:
             env["SIMECS_MESH_CONFIG"] = self.mesh_config_path
-        return subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.DEVNULL, text=True, env=env)
+        return subprocess.Popen(
+            cmd, stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, env=env, bufsize=1
+        )
+
+    def _wait_warm(self, proc: subprocess.Popen[str]) -> None:
+        """Block until `proc` says it is warm (or dies, or the time is up: then runs still start,
+        only slower)."""
+        assert proc.stdout is not None
+        self.log.info("warming up a worker (compiling the drives the first time takes a while)")
+        t0 = time.monotonic()
+        end = t0 + WARM_TIMEOUT_S
+        while time.monotonic() < end and not self.stop_event.is_set():
+            ready, _, _ = select.select([proc.stdout], [], [], 0.5)
+            if ready:
+                line = proc.stdout.readline()
+                if line.strip() == READY:
+                    self.log.info("worker warm after %.1f s", time.monotonic() - t0)
+                    return
+                if not line:  # the worker died
+                    break
+        self.log.warning("no warm worker after %.0f s: runs start cold", time.monotonic() - t0)
 
     def _refill(self) -> None:
         with self.lock:
@@ -113,12 +139,12 @@ class Simulator(Node):
 
         The proxy ignores this if the worker's own final status or the loss of its token came first.
         """
-        session, run_id = key.split("/")
+        session, run_id = key.split(" ")
         reason = f"the simulator process of run {run_id} disappeared (exit code {code})"
         status = m.RunStatus(session=session, run_id=run_id, phase="failed", reason=reason)
         self.z.put(keys.run_status(session), codec.dumps(status))
 
-    def _on_run(self, req: Request) -> dict[str, Any]:
+    def _on_run(self, req: Request) -> m.Accepted:
         run = req.json(m.RunRequest)
         with self.lock:
             if len(self.busy) >= self.max_runs:
@@ -135,15 +161,14 @@ class Simulator(Node):
                 proc.stdin.close()
             except OSError as exc:
                 raise RequestError("internal", f"worker process could not take the run: {exc}") from None
-            key = f"{run.session}/{run.run_id}"
+            key = f"{run.session} {run.run_id}"
             self.busy[key] = proc
             if run.settings.pacing == "fast":
                 self.fast.add(key)
             else:
                 threading.Thread(target=self._refill, daemon=True).start()
-        self._prune(run.session)
         self.log.info("run %s/%s handed to worker pid %d", run.session, run.run_id, proc.pid)
-        return {"simulator": self.node_id, "pid": proc.pid}
+        return m.Accepted(self.node_id, proc.pid)
 
     def stop(self) -> None:
         with self.lock:
@@ -158,58 +183,19 @@ class Simulator(Node):
                 p.kill()
 
     # -- results -------------------------------------------------------------------------------
-    def _prune(self, session: str) -> None:
-        folder = self.results_dir / session
-        if not folder.is_dir():
-            return
-        metas = sorted(folder.glob("r*.json"), key=lambda p: int(p.stem[1:]) if p.stem[1:].isdigit() else 0)
-        for meta in metas[:-KEEP_RUNS]:
-            meta.unlink(missing_ok=True)
-            meta.with_suffix(".npy").unlink(missing_ok=True)
-
-    def _runs(self, session: str) -> list[dict[str, Any]]:
-        folder = self.results_dir / session
-        if not folder.is_dir():
-            raise RequestError("not_found", f"simulator {self.node_id} holds no results of session {session}")
-        out = []
-        for meta in sorted(folder.glob("r*.json")):
-            try:
-                info = files.read_json(meta)
-            except (OSError, ValueError):
-                continue
-            out.append(info)
-        return out
-
-    def _on_list(self, req: Request) -> list[m.RunInfo]:
-        session = keys.session_of(req.key)
-        return [
-            m.RunInfo(
-                run_id=i["run_id"],
-                phase=i["phase"],
-                stop_time=i["stop_time"],
-                sim_time=i["sim_time"],
-                samples=i["samples"],
-                reason=i.get("reason", ""),
-            )
-            for i in self._runs(session)
-        ]
-
     def _on_results(self, req: Request) -> Binary:
-        session = keys.session_of(req.key)
-        run_id = keys.last_chunk(req.key)
+        """A run's results if this host holds them; other hosts (and the proxy, for runs it knows)
+        leave the query to the one that does."""
         try:
-            keys.check_name(run_id, "run id")
-        except ValueError as exc:
-            raise RequestError("bad_request", str(exc), "run_id") from None
-        from simecs.nodes.simworker import results_paths
-
-        npy, meta_path = results_paths(self.results_dir, session, run_id)
-        if not meta_path.is_file():
-            raise RequestError("not_found", f"no results of run {run_id} in session {session}", "run_id")
-        meta = files.read_json(meta_path)
-        data = np.load(npy, mmap_mode="r")
-        run_index = int(run_id[1:]) if run_id[1:].isdigit() else 0
-        return results_reply(data, meta["columns"], meta["units"], req.parameters, run_index)
+            where = keys.parse("results", req.key)
+        except ValueError:
+            raise NotMine() from None
+        found = self.store.load(where["session"], where["run"])
+        if found is None:
+            raise NotMine()
+        run, data = found
+        info = m.RunInfo(run.run_id, run.phase, run.stop_time, run.sim_time, run.samples, run.reason)  # type: ignore[arg-type]
+        return results_reply(data, run.columns, run.units, req.parameters, run.run_index, info)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -93,7 +93,7 @@ class Supervisor:
                     live = set()
                     for reply in z.liveliness().get(keys.NODE_TOKENS, timeout=1.0):
                         if reply.ok is not None:
-                            live.add(str(reply.ok.key_expr).split("/")[2])
+                            live.add(keys.parse("node_token", reply.ok.key_expr)["role"])
                     if all(r in live for r in roles):
                         return True
                 except RuntimeError:

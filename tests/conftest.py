@@ -15,7 +15,7 @@ from typing import Any
 
 import pytest
 from simecs.mesh.client import MeshClient
-from simecs.mesh.launch import LocalMesh, clean_env
+from simecs.testing.launch import LocalMesh, clean_env
 
 ARTIFACTS = Path(__file__).resolve().parent.parent / "artifacts"
 

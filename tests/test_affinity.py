@@ -10,7 +10,7 @@ import sys
 
 import pytest
 from simecs.mesh import affinity
-from simecs.mesh.launch import LocalMesh, clean_env
+from simecs.testing.launch import LocalMesh, clean_env
 
 from .conftest import Mesh, Service, wait_until
 from .test_robustness import watch_status

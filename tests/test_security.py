@@ -9,7 +9,7 @@ import pytest
 from simecs.mesh import messages as m
 from simecs.mesh.client import MeshClient, NoReply
 from simecs.mesh.config import MeshConfig
-from simecs.mesh.launch import LocalMesh
+from simecs.testing.launch import LocalMesh
 from simecs.mesh.runtime import open_session
 
 VIEWER_ACL = {

@@ -15,11 +15,11 @@ from typing import Any
 
 import pytest
 from simecs.mesh.client import MeshClient
-from simecs.viewer import headless
+from simecs.testing import browser as chromium
 
 from .conftest import ARTIFACTS, Mesh, start_service, wait_until
 
-MISSING = headless.browser_missing()
+MISSING = chromium.browser_missing()
 pytestmark = pytest.mark.skipif(bool(MISSING), reason=f"browser tests need chromium: {MISSING}")
 
 SPIDER = "Load Spider arm (joint-independent control)"
@@ -54,7 +54,7 @@ def browser() -> Iterator[Any]:
     from playwright.sync_api import sync_playwright
 
     with sync_playwright() as pw:
-        b = headless.launch(pw)
+        b = chromium.launch(pw)
         try:
             yield b
         finally:
@@ -64,7 +64,7 @@ def browser() -> Iterator[Any]:
 def new_page(context: Any, url: str) -> Any:
     page = context.new_page()
     page.set_default_timeout(30_000)
-    page.add_init_script(headless.PROBE_JS)
+    page.add_init_script(chromium.PROBE_JS)
     page.goto(url)
     return page
 
@@ -78,7 +78,7 @@ def text_appears(page: Any, text: str, timeout: float = 30.0) -> None:
 
 
 def poses_since(page: Any, t_ms: float, link: str | None = None) -> int:
-    return sum(1 for t, _n in headless.pose_batches(page) if t > t_ms)
+    return sum(1 for t, _n in chromium.pose_batches(page) if t > t_ms)
 
 
 def dismiss_notifications(page: Any) -> None:
@@ -102,7 +102,7 @@ def test_use_case_in_the_browser(mesh: Mesh, browser: Any) -> None:
         mesh.start("recorder", "--dir", str(mesh.folder / "recordings"))
     url = start_viewer(mesh)
     client = service.client
-    context = browser.new_context(viewport=headless.VIEWPORT, accept_downloads=True)
+    context = browser.new_context(viewport=chromium.VIEWPORT, accept_downloads=True)
     page = new_page(context, url)
 
     # 1. the models window: the library with summaries; load the Spider
@@ -116,10 +116,10 @@ def test_use_case_in_the_browser(mesh: Mesh, browser: Any) -> None:
     # 2. parameters in place: a valid length reshapes the arm at once; an invalid mass is refused
     page.get_by_role("button", name="link2 (3)").click()
     t = now_ms(page)
-    headless.set_field(page, page.get_by_label("length [m]"), "0.5")
+    chromium.set_field(page, page.get_by_label("length [m]"), "0.5")
     wait_until(lambda: session.snapshot().values["link2.length"] == 0.5, timeout=10, what="length stored")
     wait_until(lambda: poses_since(page, t) > 0, timeout=10, what="the 3D arm reshaped")
-    headless.set_field(page, page.get_by_label("mass [kg]"), "9999")
+    chromium.set_field(page, page.get_by_label("mass [kg]"), "9999")
     text_appears(page, "outside [0, 500] kg")
     assert session.snapshot().values["link2.mass"] == 6.0
 
@@ -141,7 +141,7 @@ def test_use_case_in_the_browser(mesh: Mesh, browser: Any) -> None:
     # 4. initial pose with the sliders: the 3D arm follows at once; the server gets it
     page.get_by_role("button", name="Initialise").click()
     t = now_ms(page)
-    headless.set_field(page, headless.slider_input(page, "joint2 [deg]"), "20")
+    chromium.set_field(page, chromium.slider_input(page, "joint2 [deg]"), "20")
     wait_until(lambda: poses_since(page, t) > 0, timeout=10, what="the 3D arm following the slider")
     wait_until(
         lambda: abs(session.snapshot().initial[1] - math.radians(20)) < 1e-3, timeout=10, what="initial pose"
@@ -151,12 +151,12 @@ def test_use_case_in_the_browser(mesh: Mesh, browser: Any) -> None:
     # 5. a 2-node joint path in the teach pendant
     page.get_by_role("button", name="Teach").click()
     page.get_by_role("button", name="Teach").click()
-    headless.set_field(page, headless.slider_input(page, "joint1 target [deg]"), "30")
+    chromium.set_field(page, chromium.slider_input(page, "joint1 target [deg]"), "30")
     text_appears(page, "▶2")
 
     # 6. simulation settings: a 2 s run
     page.get_by_role("button", name="Settings").click()
-    headless.set_field(page, page.get_by_label("Stop time [s]"), "2")
+    chromium.set_field(page, page.get_by_label("Stop time [s]"), "2")
     page.get_by_role("button", name="Apply settings").click()
     wait_until(lambda: session.snapshot().settings.stop_time == 2.0, timeout=10, what="settings stored")
 
@@ -171,7 +171,7 @@ def test_use_case_in_the_browser(mesh: Mesh, browser: Any) -> None:
         abs(cmd.nodes[1].q[0] - math.radians(30)) < 1e-3 and abs(cmd.nodes[0].q[1] - math.radians(20)) < 1e-3
     )
     assert poses_since(page, t) >= 10, "the 3D arm did not animate from the live stream"
-    live_points = [n for tt, n in headless.plot_points(page) if tt > t]
+    live_points = [n for tt, n in chromium.plot_points(page) if tt > t]
     assert live_points and max(live_points) >= 10, f"the live plot got no data: {live_points[-5:]}"
 
     # 9-10. full-resolution transient on request
@@ -179,7 +179,7 @@ def test_use_case_in_the_browser(mesh: Mesh, browser: Any) -> None:
     page.get_by_role("button", name="Full resolution").first.click()
     text_appears(page, "r1 full res")
     wait_until(
-        lambda: max(n for _t, n in headless.plot_points(page)) >= 1000, timeout=20, what="full-res data"
+        lambda: max(n for _t, n in chromium.plot_points(page)) >= 1000, timeout=20, what="full-res data"
     )
 
     # 11. save the results: CSV of the chosen variables, and the MCAP recording when a recorder runs
@@ -213,7 +213,7 @@ def test_two_tabs_get_independent_sessions(mesh: Mesh, browser: Any) -> None:
     service = start_service(mesh)
     url = start_viewer(mesh)
     client = service.client
-    context = browser.new_context(viewport=headless.VIEWPORT)  # one browser, one user, two tabs
+    context = browser.new_context(viewport=chromium.VIEWPORT)  # one browser, one user, two tabs
     a = new_page(context, url)
     a.get_by_role("button", name=SPIDER).click()
     text_appears(a, "Spider arm (joint-independent control)")
@@ -224,7 +224,7 @@ def test_two_tabs_get_independent_sessions(mesh: Mesh, browser: Any) -> None:
     assert sid_a != sid_b
 
     a.get_by_role("button", name="link3 (3)").click()
-    headless.set_field(a, a.get_by_label("length [m]"), "0.9")
+    chromium.set_field(a, a.get_by_label("length [m]"), "0.9")
     wait_until(lambda: client.session(sid_a).snapshot().values["link3.length"] == 0.9, timeout=10, what="A")
     assert client.session(sid_b).snapshot().values["link3.length"] == 0.7
 

@@ -21,7 +21,7 @@ from simecs.mesh.codec import DecodeError
 from simecs.mesh.kinematics import link_poses, pose_column_names
 from simecs.mesh.model import DocPage, InitEquation, Link, ModelDescription, Parameter, Shape, Variable
 from simecs.viewer import docs, joints, library, params, pendant, plots, results, run, scene, tree
-from simecs.viewer.bench import viewer_latency
+from simecs.benchmarks.viewer import viewer_latency
 from simecs.viewer.browser import describe_error
 
 VIEWER = Path(__file__).resolve().parent.parent / "viewer"

@@ -32,7 +32,7 @@ def run_case(
     substeps=None,
     out: float = OUT,
 ):
-    from . import get_model
+    from simecs.models import get_model
 
     pkg = get_model(model)
     sim = pkg.build(values or {})
@@ -64,7 +64,7 @@ def timed_runs(step: float, model: str, out: float) -> list[tuple]:
 
 
 def run_model_bench(json_out: bool = False, model: str = "spider") -> dict:
-    from . import get_model, warmup
+    from simecs.models import get_model, warmup
 
     t_warm = warmup()
     pkg = get_model(model)

@@ -16,8 +16,8 @@ import tempfile
 import time
 from pathlib import Path
 
-from .client import MeshClient
-from .config import MeshConfig
+from simecs.mesh.client import MeshClient
+from simecs.mesh.config import MeshConfig
 
 
 def clean_env() -> dict[str, str]:

@@ -21,9 +21,9 @@ import socket
 import time
 from typing import Any
 
-from simecs.mesh.launch import LocalMesh
+from simecs.testing.launch import LocalMesh
 
-from . import headless
+from simecs.testing import browser
 
 STANDARD_TARGET = (0.8, 0.6, -0.7, 1.0, 0.9, -0.8, 1.2)  # rad: models/spider.py STANDARD_TARGET
 MODEL_BUTTON = "Load Spider arm (joint-independent control)"
@@ -71,11 +71,11 @@ def measure(page: Any, run_timeout_s: float = 60.0) -> dict[str, Any]:
     page.get_by_role("button", name=MODEL_BUTTON).click(timeout=60_000)
     page.get_by_role("button", name="Teach").click(timeout=30_000)
     for k, q in enumerate(STANDARD_TARGET, start=1):
-        headless.set_field(
-            page, headless.slider_input(page, f"joint{k} target [deg]"), f"{math.degrees(q):.1f}"
+        browser.set_field(
+            page, browser.slider_input(page, f"joint{k} target [deg]"), f"{math.degrees(q):.1f}"
         )
     time.sleep(0.6)  # the path reaches the server after the edits pause (the Run click sends it anyway)
-    before = len(headless.pose_batches(page))
+    before = len(browser.pose_batches(page))
     page.get_by_role("button", name="Run", exact=True).click()
     end = time.monotonic() + run_timeout_s
     while time.monotonic() < end:
@@ -83,9 +83,9 @@ def measure(page: Any, run_timeout_s: float = 60.0) -> dict[str, Any]:
             break
         time.sleep(0.25)
     else:
-        raise TimeoutError(f"the run did not finish within {run_timeout_s} s: {headless.status_text(page)!r}")
-    run_clicks = [t for t, label in headless.clicks(page) if label == "Run"]
-    batches = headless.pose_batches(page)[before:]
+        raise TimeoutError(f"the run did not finish within {run_timeout_s} s: {browser.status_text(page)!r}")
+    run_clicks = [t for t, label in browser.clicks(page) if label == "Run"]
+    batches = browser.pose_batches(page)[before:]
     if not run_clicks or not batches:
         raise RuntimeError("no pose update reached the page after Run")
     clicked = run_clicks[-1]
@@ -97,7 +97,7 @@ def measure(page: Any, run_timeout_s: float = 60.0) -> dict[str, Any]:
         "first_frame_s": (first - clicked) / 1000.0,
         "pose_updates": len(after),
         "moving_s": span,
-        "status": headless.status_text(page),
+        "status": browser.status_text(page),
     }
 
 
@@ -107,7 +107,7 @@ def _ms(seconds: float | None) -> str:
 
 def run_viewer_bench(json_out: bool) -> dict[str, Any] | None:
     """Run the benchmark; print a table (and with `json_out` one JSON object on the last line)."""
-    missing = headless.browser_missing()
+    missing = browser.browser_missing()
     if missing:
         print(f"simecs bench viewer: cannot run: {missing}")
         return None
@@ -131,10 +131,10 @@ def run_viewer_bench(json_out: bool) -> dict[str, Any] | None:
         warm_s = warm_up(mesh)
         setup_s = time.monotonic() - t0
         with sync_playwright() as pw:
-            browser = headless.launch(pw)
+            browser = browser.launch(pw)
             try:
-                page = browser.new_page(viewport=headless.VIEWPORT)
-                page.add_init_script(headless.PROBE_JS)
+                page = browser.new_page(viewport=browser.VIEWPORT)
+                page.add_init_script(browser.PROBE_JS)
                 page.goto(f"http://127.0.0.1:{port}")
                 result = measure(page)
             finally:

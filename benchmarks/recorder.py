@@ -31,10 +31,10 @@ from simecs.mesh import codec, frames, keys, kinematics
 from simecs.mesh import messages as m
 from simecs.mesh.client import MeshClient
 from simecs.mesh.config import MeshConfig
-from simecs.mesh.launch import LocalMesh, clean_env
+from simecs.testing.launch import LocalMesh, clean_env
 from simecs.mesh.runtime import open_session
 
-from . import mcapread
+from simecs.nodes import mcapread
 
 STOP = 5.0
 OUTPUT = 0.002
@@ -224,7 +224,7 @@ def overhead(rec_dir: Path, pairs: int = PAIRS) -> dict[str, Any]:
         for i in range(pairs):
             off.append(standard_rtf(client)[0])
             proc = subprocess.Popen(
-                [sys.executable, "-m", "simecs.nodes.bench_recorder", "--sink", mesh.endpoint],
+                [sys.executable, "-m", "simecs.benchmarks.recorder", "--sink", mesh.endpoint],
                 env=clean_env(),
             )
             time.sleep(1.0)

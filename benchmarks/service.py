@@ -29,7 +29,7 @@ import zenoh
 from simecs.mesh import affinity, frames, keys
 from simecs.mesh.client import MeshClient, SessionClient
 from simecs.mesh.config import MeshConfig
-from simecs.mesh.launch import LocalMesh, clean_env
+from simecs.testing.launch import LocalMesh, clean_env
 from simecs.mesh.runtime import open_session
 
 STOP = 5.0
@@ -70,7 +70,7 @@ class RawPing:
 
     def __init__(self, mesh: LocalMesh, cpu: str) -> None:
         self.echo = subprocess.Popen(
-            [sys.executable, "-m", "simecs.nodes.bench_service", "--echo", mesh.endpoint]
+            [sys.executable, "-m", "simecs.benchmarks.service", "--echo", mesh.endpoint]
             + ["--seconds", "300", "--cpu", cpu],
             env=clean_env(),
         )

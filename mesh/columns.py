@@ -1,0 +1,112 @@
+"""The columns of a run's sample frames: their names, and which of them a consumer picks.
+
+A run's columns are `time`, then every variable of the model's catalog, then the pose of every link
+frame and of the tool (`pose.<frame>.<field>`, fields in `POSE_FIELDS` order). The simulator writes
+them in this order, the viewer poses the arm from them, the recorder turns them into Foxglove
+transforms and joint states: all through this module.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from .model import ModelDescription
+
+TIME = "time"
+#: Position in m, then the orientation quaternion w first.
+POSE_FIELDS = ("x", "y", "z", "qw", "qx", "qy", "qz")
+POSE_UNITS = ("m", "m", "m", "-", "-", "-", "-")
+TOOL_FRAME = "tool"
+#: The per-joint quantities Foxglove JointStates shows: position, velocity, and the first effort found.
+JOINT_POSITION, JOINT_VELOCITY = "q", "qd"
+JOINT_EFFORTS = ("tau_gear", "tau", "effort")
+
+
+def pose_column(frame: str, field: str) -> str:
+    return f"pose.{frame}.{field}"
+
+
+def pose_frames(model: ModelDescription) -> list[str]:
+    """The frames whose pose a run streams: every link, then the tool."""
+    return [link.name for link in model.links] + [TOOL_FRAME]
+
+
+def pose_column_names(model: ModelDescription) -> list[str]:
+    return [pose_column(frame, f) for frame in pose_frames(model) for f in POSE_FIELDS]
+
+
+def run_columns(model: ModelDescription) -> tuple[list[str], list[str]]:
+    """Every column of a run of `model` and its unit, in frame order."""
+    names = [TIME] + [v.name for v in model.variables] + pose_column_names(model)
+    units = ["s"] + [v.unit for v in model.variables] + list(POSE_UNITS) * len(pose_frames(model))
+    return names, units
+
+
+def is_pose(column: str) -> bool:
+    return column.startswith("pose.")
+
+
+def live_columns(columns: Sequence[str], live_vars: Sequence[str]) -> list[str]:
+    """What a run forwards live: time, the chosen variables (all when none are chosen) that the run
+    has, and every pose column (the 3D arm always moves)."""
+    present = set(columns)
+    variables = [c for c in columns[1:] if not is_pose(c)]
+    chosen = [v for v in live_vars if v in present] if live_vars else variables
+    return [TIME, *chosen, *[c for c in columns if is_pose(c)]]
+
+
+def joint_column(joint: str, quantity: str) -> str:
+    return f"{joint}.{quantity}"
+
+
+def joint_position_columns(model: ModelDescription) -> list[str]:
+    """Each joint's position column (always streamed: it tells the pose after a run)."""
+    names = {v.name for v in model.variables}
+    return [c for c in (joint_column(link.joint, JOINT_POSITION) for link in model.links) if c in names]
+
+
+def pose_indices(columns: Sequence[str], frames: Sequence[str]) -> np.ndarray | None:
+    """Column indices (len(frames), 7) of each frame's pose in `columns`, fields in POSE_FIELDS order;
+    None if any is missing."""
+    where = {c: i for i, c in enumerate(columns)}
+    out = np.empty((len(frames), len(POSE_FIELDS)), dtype=int)
+    for r, frame in enumerate(frames):
+        for c, field in enumerate(POSE_FIELDS):
+            idx = where.get(pose_column(frame, field))
+            if idx is None:
+                return None
+            out[r, c] = idx
+    return out
+
+
+def posed_frames(columns: Sequence[str]) -> list[str]:
+    """The frames that have all seven pose columns in `columns`, in column order."""
+    present = set(columns)
+    frames = []
+    for c in columns:
+        if is_pose(c) and c.endswith(".x"):
+            frame = c[len("pose.") : -len(".x")]
+            if frame and all(pose_column(frame, f) in present for f in POSE_FIELDS):
+                frames.append(frame)
+    return frames
+
+
+def joint_state_columns(columns: Sequence[str]) -> list[tuple[str, str, str, str | None]]:
+    """(joint, position column, velocity column, effort column or None) of every joint that has a
+    position and a velocity column."""
+    present = set(columns)
+    out = []
+    for c in columns:
+        if is_pose(c) or not c.endswith(f".{JOINT_POSITION}"):
+            continue
+        joint = c[: -len(JOINT_POSITION) - 1]
+        velocity = joint_column(joint, JOINT_VELOCITY)
+        if not joint or velocity not in present:
+            continue
+        effort = next(
+            (joint_column(joint, e) for e in JOINT_EFFORTS if joint_column(joint, e) in present), None
+        )
+        out.append((joint, c, velocity, effort))
+    return out

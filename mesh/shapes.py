@@ -1,0 +1,171 @@
+"""How a model's shapes are drawn: one geometry for the viewer's 3D arm and the recordings' /scene.
+
+A shape (model.py `Shape`) starts at `origin` in its link frame and extends `length` along `axis`,
+centred across it; a sphere is centred on `origin`. Boxes and beams put `width` and `height` on the
+two axes that follow `axis` cyclically (axis x: width along y, height along z; y: width z, height x;
+z: width x, height y). Parameters reshape shapes in three ways (PROTOCOL.md §5.1): the resizable
+shape of a link takes its link length, `scales_with` scales a dimension by value / default of a
+parameter, and `anchor = "end"` measures the origin from the link's end.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterator, Mapping
+from dataclasses import dataclass
+
+import msgspec
+import numpy as np
+
+from .model import ModelDescription, Shape
+
+WORLD = "world"
+_S = math.sqrt(0.5)
+#: Rotation that takes the local z axis onto each shape axis (w, x, y, z).
+AXIS_WXYZ: dict[str, tuple[float, float, float, float]] = {
+    "z": (1.0, 0.0, 0.0, 0.0),
+    "x": (_S, 0.0, _S, 0.0),  # +90 deg about y: z -> x
+    "y": (_S, -_S, 0.0, 0.0),  # -90 deg about x: z -> y
+}
+_AXIS_INDEX = {"x": 0, "y": 1, "z": 2}
+#: Dimensions a shape may tie to a parameter.
+SCALABLE = ("length", "radius", "inner_radius", "width", "height")
+
+
+@dataclass
+class ShapeGeometry:
+    """Where and how big one solid is in its parent frame: what a renderer needs to draw it.
+
+    `kind` is cylinder, pipe, box or sphere (a beam is a box; a pipe without a usable bore a cylinder).
+    Cylinders and pipes have their axis along the local z of `wxyz`; boxes are axis-aligned."""
+
+    kind: str
+    position: np.ndarray  # centre of the solid
+    wxyz: tuple[float, float, float, float]
+    radius: float = 0.0
+    inner_ratio: float = 0.0  # pipe: inner radius / radius
+    length: float = 0.0  # along the axis (cylinder, pipe)
+    dimensions: tuple[float, float, float] = (0.0, 0.0, 0.0)  # box: x, y, z in the parent frame
+
+    @property
+    def visible(self) -> bool:
+        return self.kind in ("box", "sphere") or self.length > 1e-6
+
+
+def effective_shape(
+    shape: Shape, model: ModelDescription, values: Mapping[str, float], defaults: Mapping[str, float]
+) -> Shape:
+    """The shape as parameter values make it: what a changed appearance parameter reshapes."""
+    out = msgspec.structs.replace(shape, origin=list(shape.origin))
+    if shape.resizable and 0 <= shape.link < len(model.links):
+        out.length = float(values.get(model.links[shape.link].length_param, shape.length))
+    for dim, name in shape.scales_with.items():
+        base = defaults.get(name)
+        if dim in SCALABLE and base and name in values:
+            setattr(out, dim, getattr(shape, dim) * float(values[name]) / float(base))
+    if shape.anchor == "end" and 0 <= shape.link < len(model.links):
+        param = model.links[shape.link].length_param
+        out.origin[0] += float(values.get(param, 0.0)) - float(defaults.get(param, 0.0))
+    return out
+
+
+def shape_geometry(shape: Shape) -> ShapeGeometry:
+    """Centre, orientation and size of `shape` (already made effective)."""
+    origin = np.asarray(shape.origin, dtype=float)
+    axis = shape.axis if shape.axis in _AXIS_INDEX else "x"
+    k = _AXIS_INDEX[axis]
+    length = max(float(shape.length), 0.0)
+    centre = origin.copy()
+    if shape.kind == "sphere":
+        return ShapeGeometry("sphere", centre, AXIS_WXYZ["z"], radius=float(shape.radius))
+    centre[k] += length / 2.0
+    if shape.kind in ("box", "beam"):
+        dims = [0.0, 0.0, 0.0]
+        dims[k] = length
+        dims[(k + 1) % 3] = float(shape.width)
+        dims[(k + 2) % 3] = float(shape.height)
+        return ShapeGeometry("box", centre, AXIS_WXYZ["z"], dimensions=(dims[0], dims[1], dims[2]))
+    if shape.kind == "pipe" and 0.0 < shape.inner_radius < shape.radius:
+        ratio = float(shape.inner_radius) / float(shape.radius)
+        return ShapeGeometry(
+            "pipe", centre, AXIS_WXYZ[axis], radius=float(shape.radius), inner_ratio=ratio, length=length
+        )
+    return ShapeGeometry("cylinder", centre, AXIS_WXYZ[axis], radius=float(shape.radius), length=length)
+
+
+@dataclass
+class Solid:
+    """One drawn solid: the shape as described, the frame it hangs on, and its geometry now."""
+
+    index: int  # position in model.shapes (or in model.environment for the world)
+    frame: str  # a link name, or WORLD
+    shape: Shape
+    geometry: ShapeGeometry
+
+
+def solids(model: ModelDescription, values: Mapping[str, float]) -> Iterator[Solid]:
+    """Every solid of the model as `values` shape it: the environment and base shapes in the world
+    frame, then each link's shapes on its link frame."""
+    defaults = model.default_values()
+    for k, shape in enumerate(model.environment):
+        yield Solid(k, WORLD, shape, shape_geometry(shape))
+    for k, shape in enumerate(model.shapes):
+        if shape.link < 0:
+            yield Solid(k, WORLD, shape, shape_geometry(shape))
+    for k, shape in enumerate(model.shapes):
+        if 0 <= shape.link < len(model.links):
+            now = effective_shape(shape, model, values, defaults)
+            yield Solid(k, model.links[shape.link].name, shape, shape_geometry(now))
+
+
+def appearance_parameters(model: ModelDescription) -> set[str]:
+    """Parameters whose change reshapes the 3D arm."""
+    names = {p.name for p in model.parameters if p.appearance}
+    return names | {link.length_param for link in model.links}
+
+
+def shape_bottom(geom: ShapeGeometry) -> float:
+    """Lowest z of a solid whose parent frame is the world (for placing the floor)."""
+    z = float(geom.position[2])
+    if geom.kind == "box":
+        return z - geom.dimensions[2] / 2
+    if geom.kind == "sphere":
+        return z - geom.radius
+    if geom.wxyz == AXIS_WXYZ["z"]:
+        return z - geom.length / 2
+    return z - geom.radius
+
+
+def pipe_mesh(inner_ratio: float, segments: int = 32) -> tuple[np.ndarray, np.ndarray]:
+    """A hollow tube of unit outer radius and unit length along z, centred on the origin.
+
+    Scaled by (radius, radius, length) it is any pipe of that bore ratio; the walls and the two end
+    rings have their own vertices so the edges stay crisp.
+    """
+    a = np.linspace(0.0, 2 * np.pi, segments, endpoint=False)
+    ring = np.stack([np.cos(a), np.sin(a)], axis=1)
+    outer, inner = ring, ring * inner_ratio
+    verts = []
+    for radius_ring in (outer, inner):  # walls: bottom ring then top ring
+        for z in (-0.5, 0.5):
+            verts.append(np.column_stack([radius_ring, np.full(segments, z)]))
+    for z in (-0.5, 0.5):  # end rings: outer then inner
+        verts.append(np.column_stack([outer, np.full(segments, z)]))
+        verts.append(np.column_stack([inner, np.full(segments, z)]))
+    v = np.concatenate(verts).astype(np.float32)
+    i = np.arange(segments)
+    j = (i + 1) % segments
+    n = segments
+    faces = []
+    # outer wall (normals outward): bottom 0..n-1, top n..2n-1
+    faces += [np.stack([i, j, n + j], 1), np.stack([i, n + j, n + i], 1)]
+    # inner wall (normals inward): bottom 2n.., top 3n..
+    b, t = 2 * n, 3 * n
+    faces += [np.stack([b + i, t + j, b + j], 1), np.stack([b + i, t + i, t + j], 1)]
+    # bottom ring (normal -z): outer 4n.., inner 5n..
+    o, q = 4 * n, 5 * n
+    faces += [np.stack([o + i, q + j, o + j], 1), np.stack([o + i, q + i, q + j], 1)]
+    # top ring (normal +z): outer 6n.., inner 7n..
+    o, q = 6 * n, 7 * n
+    faces += [np.stack([o + i, o + j, q + j], 1), np.stack([o + i, q + j, q + i], 1)]
+    return v, np.concatenate(faces).astype(np.uint32)

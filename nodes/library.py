@@ -1,0 +1,50 @@
+"""The model library as the proxy serves it: descriptions, documentation pages, and the check of
+parameter values against a model (its bounds, then the model's own cross-checks)."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any
+
+from simecs.mesh import messages as m
+from simecs.mesh.model import DocPage, ModelDescription, check_values
+from simecs.mesh.runtime import RequestError
+
+
+class ModelLibrary:
+    def __init__(self) -> None:
+        # The models installed with this server: the proxy uses their descriptions and value checks
+        # only; simulations run in simulator nodes, reached over the mesh.
+        from simecs import models
+
+        self._packages: dict[str, Any] = {s.id: models.get_model(s.id) for s in models.list_models()}
+        self.descriptions: dict[str, ModelDescription] = {
+            model_id: pkg.describe() for model_id, pkg in self._packages.items()
+        }
+
+    def summaries(self) -> m.ModelList:
+        return m.ModelList(models=[d.summary_entry() for d in self.descriptions.values()])
+
+    def describe(self, model_id: str) -> ModelDescription:
+        desc = self.descriptions.get(model_id)
+        if desc is None:
+            raise RequestError(
+                "not_found", f"no model {model_id!r} (models: {', '.join(self.descriptions)})", "model_id"
+            )
+        return desc
+
+    def doc(self, model_id: str, page: str) -> DocPage:
+        desc = self.describe(model_id)
+        for doc in desc.docs:
+            if doc.id == page:
+                return doc
+        raise RequestError("not_found", f"model {desc.id} has no documentation page {page!r}", "page")
+
+    def check(self, model_id: str, changes: Mapping[str, Any], base: Mapping[str, float]) -> dict[str, float]:
+        """`base` with `changes` applied, if the model accepts every value; nothing partially."""
+        values = check_values(self.describe(model_id), changes, base)
+        try:
+            return dict(self._packages[model_id].check_values(values))
+        except ValueError as exc:  # the model's cross-checks (models.ParameterError)
+            name = getattr(exc, "name", "")
+            raise RequestError("bad_request", str(exc), f"values.{name}" if name else "values") from None

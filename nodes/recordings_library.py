@@ -1,0 +1,202 @@
+"""The recordings library: the MCAP files in the recordings folder, as users list, download and upload
+them, and torn files (a recorder killed mid-run) repaired before anything else touches the folder.
+
+The recording pipeline tells the library which files it is still writing: those are listed with their
+current size, and a download waits briefly for them to be closed.
+"""
+
+from __future__ import annotations
+
+import fcntl
+import logging
+import os
+import threading
+import time
+from pathlib import Path
+
+from simecs.mesh import files, keys
+from simecs.mesh import messages as m
+from simecs.mesh.runtime import Binary, RequestError
+
+from . import mcapread
+
+log = logging.getLogger("simecs.recorder")
+
+DOWNLOAD_WAIT_S = 5.0  # a download of a run that is just ending waits this long for its file
+MAX_FILE_BYTES = 1 << 30  # largest recording served or accepted over the mesh
+
+
+class RecordingsLibrary:
+    def __init__(self, folder: str | os.PathLike[str]) -> None:
+        self.dir = Path(folder).resolve()
+        self.lock = threading.Condition()  # guards open_names and info_cache
+        self.open_names: dict[str, m.RecordingInfo] = {}
+        self.info_cache: dict[str, tuple[tuple[int, int], m.RecordingInfo | None]] = {}
+        self.recovered = 0
+
+    # -- files being written --------------------------------------------------------------------------
+    def opened(self, info: m.RecordingInfo) -> None:
+        with self.lock:
+            self.open_names[info.name] = info
+
+    def closed(self, name: str) -> None:
+        with self.lock:
+            self.open_names.pop(name, None)
+            self.lock.notify_all()
+
+    def writing(self) -> list[str]:
+        with self.lock:
+            return sorted(self.open_names)
+
+    def free_name(self, base: str) -> str:
+        """`base`, or `base.2`, `base.3`, ... when a file of that name exists already."""
+        name, k = base, 2
+        while (self.dir / f"{name}.mcap").exists():
+            name, k = f"{base}.{k}", k + 1
+        return name
+
+    def path_of(self, name: str) -> Path:
+        return self.dir / f"{name}.mcap"
+
+    # -- crash recovery -------------------------------------------------------------------------------
+    def recover_all(self) -> None:
+        """Repair every torn file left by a crash; skip files another writer holds locked."""
+        self.dir.mkdir(parents=True, exist_ok=True)
+        for tmp in self.dir.glob(".*.tmp"):
+            try:
+                tmp.unlink()
+            except OSError:
+                pass
+        for path in sorted(self.dir.glob("*.mcap")):
+            if mcapread.has_footer(path) or _locked(path):
+                continue
+            try:
+                rec = mcapread.recover(path)
+            except (mcapread.RecordingError, OSError) as exc:
+                log.error("cannot recover %s (left as it is): %s", path, exc)
+                continue
+            if rec is not None:
+                self.recovered += 1
+                log.warning(
+                    "recovered torn recording %s: kept %d messages (%s)", path.name, rec.messages, rec.problem
+                )
+
+    # -- serving --------------------------------------------------------------------------------------
+    def _path(self, name: str) -> Path:
+        try:
+            keys.check_name(name, "recording name")
+        except ValueError as exc:
+            raise RequestError("bad_request", str(exc), "name") from None
+        return self.path_of(name)
+
+    def _info(self, path: Path) -> m.RecordingInfo | None:
+        name = path.name[: -len(".mcap")]
+        with self.lock:
+            if name in self.open_names:
+                info = self.open_names[name]
+                return m.RecordingInfo(
+                    info.name,
+                    info.session,
+                    info.run_id,
+                    info.model_id,
+                    path.stat().st_size,
+                    False,
+                    info.stop_time,
+                )
+        st = path.stat()
+        stamp = (st.st_mtime_ns, st.st_size)
+        cached = self.info_cache.get(name)
+        if cached is not None and cached[0] == stamp:
+            return cached[1]
+        try:
+            info: m.RecordingInfo | None = mcapread.info(path)
+        except (mcapread.RecordingError, OSError) as exc:
+            log.warning("not listing %s: %s", path.name, exc)
+            info = None
+        with self.lock:
+            self.info_cache[name] = (stamp, info)
+        return info
+
+    def listing(self) -> m.RecordingList:
+        paths = sorted(self.dir.glob("*.mcap"), key=lambda p: p.stat().st_mtime_ns, reverse=True)
+        out = []
+        for p in paths:
+            try:
+                info = self._info(p)
+            except FileNotFoundError:
+                continue
+            if info is not None:
+                out.append(info)
+        return m.RecordingList(out)
+
+    def info(self, name: str) -> m.RecordingInfo:
+        path = self._path(name)
+        if not path.is_file():
+            raise RequestError("not_found", f"no recording {name!r} in {self.dir}", "name")
+        info = self._info(path)
+        if info is None:
+            raise RequestError("bad_request", f"{name} is not a readable simecs recording", "name")
+        return info
+
+    def download(self, name: str) -> Binary:
+        path = self._path(name)
+        end = time.monotonic() + DOWNLOAD_WAIT_S
+        with self.lock:
+            while name in self.open_names and time.monotonic() < end:
+                self.lock.wait(0.1)
+            if name in self.open_names:
+                raise RequestError(
+                    "conflict",
+                    f"recording {name} is still being written (its run is going on): "
+                    "download it when the run has ended",
+                    "name",
+                )
+        if not path.is_file():
+            raise RequestError("not_found", f"no recording {name!r} in {self.dir}", "name")
+        size = path.stat().st_size
+        if size > MAX_FILE_BYTES:
+            raise RequestError(
+                "unsupported", f"recording {name} is {size} bytes, more than the {MAX_FILE_BYTES} served"
+            )
+        info = self._info(path)
+        return Binary(path.read_bytes(), attachment=info)
+
+    def upload(self, name: str, data: bytes) -> m.RecordingInfo:
+        path = self._path(name)
+        if len(data) > MAX_FILE_BYTES:
+            raise RequestError(
+                "bad_request", f"upload {name}: {len(data)} bytes is more than {MAX_FILE_BYTES}"
+            )
+        try:
+            mcapread.validate(data)
+            rec = mcapread.load(data, strict=True)
+        except mcapread.RecordingError as exc:
+            raise RequestError(
+                "bad_request",
+                f"upload {name} refused: {str(exc).replace('uploaded file', 'the file', 1)}",
+                "payload",
+            ) from None
+        with self.lock:
+            if path.exists() or name in self.open_names:
+                raise RequestError(
+                    "conflict", f"a recording named {name!r} already exists; choose another name", "name"
+                )
+            files.atomic_write(path, data)
+        log.info("stored uploaded recording %s (%d bytes, %d samples)", path.name, len(data), len(rec.rows))
+        lay = rec.layout
+        return m.RecordingInfo(
+            name, lay.session, lay.run_id, lay.model_id, len(data), rec.recovered, lay.stop_time
+        )
+
+
+def _locked(path: Path) -> bool:
+    try:
+        with open(path, "rb") as fh:
+            try:
+                fcntl.flock(fh.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:
+                return True
+            fcntl.flock(fh.fileno(), fcntl.LOCK_UN)
+    except OSError:
+        return True
+    return False

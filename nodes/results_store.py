@@ -1,0 +1,77 @@
+"""Full-resolution results on a simulator host's disk: one `.npy` of rows and one `.json` of what they
+are per run, the last `RUNS_KEPT` runs of each session. The worker that ran a run writes it; the
+simulator node serves it.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from simecs.mesh import files, keys
+from simecs.mesh.results import RUNS_KEPT
+
+
+@dataclass
+class StoredRun:
+    """What the store knows of a run besides its rows."""
+
+    run_id: str
+    run_index: int
+    phase: str
+    reason: str
+    stop_time: float
+    sim_time: float
+    samples: int
+    columns: list[str]
+    units: list[str]
+    model_id: str
+
+
+class ResultsStore:
+    def __init__(self, folder: str | os.PathLike[str]) -> None:
+        self.folder = Path(folder)
+
+    def _paths(self, session: str, run_id: str) -> tuple[Path, Path]:
+        keys.check_name(run_id, "run id")
+        if not keys.is_session_id(session):
+            raise ValueError(f"{session!r:.40} is not a session id")
+        base = self.folder / session
+        return base / f"{run_id}.npy", base / f"{run_id}.json"
+
+    def save(self, session: str, run: StoredRun, rows: np.ndarray) -> None:
+        """Store a run's rows and description atomically, then forget the session's oldest runs."""
+        npy, meta = self._paths(session, run.run_id)
+        npy.parent.mkdir(parents=True, exist_ok=True)
+        tmp = npy.with_name(f".{npy.name}.tmp.npy")
+        np.save(tmp, rows)
+        os.replace(tmp, npy)
+        files.write_json(meta, {**vars(run), "saved": time.time()})
+        self.prune(session)
+
+    def prune(self, session: str) -> None:
+        runs = sorted(self._metas(session), key=lambda p: _run_number(p.stem))
+        for meta in runs[:-RUNS_KEPT]:
+            meta.unlink(missing_ok=True)
+            meta.with_suffix(".npy").unlink(missing_ok=True)
+
+    def _metas(self, session: str) -> list[Path]:
+        folder = self.folder / session
+        return list(folder.glob("r*.json")) if folder.is_dir() else []
+
+    def load(self, session: str, run_id: str) -> tuple[StoredRun, np.ndarray] | None:
+        """A run's description and rows (memory-mapped), or None when this host does not hold it."""
+        npy, meta = self._paths(session, run_id)
+        if not meta.is_file() or not npy.is_file():
+            return None
+        data: dict[str, Any] = files.read_json(meta)
+        data.pop("saved", None)
+        return StoredRun(**data), np.load(npy, mmap_mode="r")
+
+
+def _run_number(stem: str) -> int:
+    return int(stem[1:]) if stem[1:].isdigit() else 0

@@ -1,0 +1,203 @@
+"""The proxy's sessions: who they belong to, their values, pose, command, settings, runs and state;
+kept in memory, written to disk on every change (one JSON file each, atomically), and published on
+the session's latched `state` and `params` keys. Phases move only as `mesh.phases` allows.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from simecs.mesh import codec, files, keys, phases
+from simecs.mesh import messages as m
+from simecs.mesh.model import ModelDescription
+from simecs.mesh.results import RUNS_KEPT
+from simecs.mesh.runtime import RequestError
+
+log = logging.getLogger("simecs.proxy")
+
+
+@dataclass
+class SessionRecord:
+    id: str
+    user: str
+    model_id: str
+    values: dict[str, float]
+    initial: list[float]
+    command: m.RobotCommand | None
+    settings: m.RunSettings
+    state: m.SessionState
+    runs: list[m.RunInfo] = field(default_factory=list)
+    run_counter: int = 0
+    pubs: dict[str, Any] = field(default_factory=dict)
+    #: A RunRequest is on its way to a simulator; the proxy's lock is not held meanwhile.
+    starting: bool = False
+    #: The run the user aborted: asked again on each of its status reports until it ends (a worker
+    #: that was just starting may not have been listening yet).
+    abort_run: str = ""
+
+    def snapshot(self) -> m.SessionSnapshot:
+        return m.SessionSnapshot(
+            session=self.id,
+            user=self.user,
+            model_id=self.model_id,
+            values=dict(self.values),
+            initial=list(self.initial),
+            command=self.command,
+            settings=self.settings,
+            state=self.state,
+            runs=list(self.runs),
+        )
+
+    def run_info(self, run_id: str) -> m.RunInfo | None:
+        return next((r for r in self.runs if r.run_id == run_id), None)
+
+    def add_run(self, info: m.RunInfo) -> None:
+        """A new run; the session keeps (and its simulator stores) the last RUNS_KEPT."""
+        self.runs = [*self.runs, info][-RUNS_KEPT:]
+
+    @property
+    def phase(self) -> str:
+        return self.state.phase
+
+
+class SessionStore:
+    """Every open session, on disk and on the mesh."""
+
+    def __init__(
+        self,
+        folder: str | os.PathLike[str],
+        latched_publisher: Callable[[str], Any],
+        release: Callable[[Any], None],
+    ) -> None:
+        self.folder = Path(folder)
+        self._publisher = latched_publisher
+        self._release = release
+        self.records: dict[str, SessionRecord] = {}
+
+    def __len__(self) -> int:
+        return len(self.records)
+
+    def __iter__(self) -> Iterator[SessionRecord]:
+        return iter(list(self.records.values()))
+
+    def _path(self, sid: str) -> Path:
+        return self.folder / f"{sid}.json"
+
+    # -- on disk -------------------------------------------------------------------------------------
+    def persist(self, rec: SessionRecord) -> None:
+        data = codec.to_obj(rec.snapshot())
+        data["run_counter"] = rec.run_counter
+        files.write_json(self._path(rec.id), data)
+
+    def load(self, library: dict[str, ModelDescription]) -> None:
+        """Restore every session file; one that cannot be read is logged and left in place."""
+        if not self.folder.is_dir():
+            return
+        for path in sorted(self.folder.glob("*.json")):
+            try:
+                data = files.read_json(path)
+                counter = int(data.pop("run_counter", 0))
+                snap = codec.from_obj(m.SessionSnapshot, data)
+                if snap.model_id not in library:
+                    raise ValueError(f"model {snap.model_id} is no longer in the library")
+            except Exception as exc:
+                log.error("cannot restore session file %s: %s (left in place)", path, exc)
+                continue
+            if snap.state.phase == "closed":
+                continue
+            rec = SessionRecord(
+                snap.session,
+                snap.user,
+                snap.model_id,
+                snap.values,
+                snap.initial,
+                snap.command,
+                snap.settings,
+                snap.state,
+                snap.runs,
+                counter,
+            )
+            self._add(rec)
+        log.info("restored %d sessions from %s", len(self.records), self.folder)
+
+    # -- lifecycle -----------------------------------------------------------------------------------
+    def _add(self, rec: SessionRecord) -> None:
+        self.records[rec.id] = rec
+        rec.pubs["state"] = self._publisher(keys.state(rec.id))
+        rec.pubs["params"] = self._publisher(keys.params(rec.id))
+
+    def create(self, user: str, desc: ModelDescription) -> SessionRecord:
+        sid = keys.new_session_id()
+        rec = SessionRecord(
+            id=sid,
+            user=user,
+            model_id=desc.id,
+            values=desc.default_values(),
+            initial=[0.0] * len(desc.links),
+            command=None,
+            settings=m.RunSettings(),
+            state=m.SessionState(session=sid, phase="created"),
+        )
+        self._add(rec)
+        self.publish_state(rec)
+        self.publish_params(rec, [])
+        return rec
+
+    def get(self, key: str) -> SessionRecord:
+        """The session a per-session key names."""
+        try:
+            sid = keys.session_of(key)
+        except ValueError as exc:
+            raise RequestError("bad_request", str(exc), "session") from None
+        rec = self.records.get(sid)
+        if rec is None:
+            raise RequestError("not_found", f"no session {sid} (closed, or never created)", "session")
+        return rec
+
+    def close(self, rec: SessionRecord) -> None:
+        """The user's explicit end of a session: its file goes (parameter sets and results stay)."""
+        self.move(rec, "closed", persist=False)
+        for pub in rec.pubs.values():
+            self._release(pub)
+        del self.records[rec.id]
+        self._path(rec.id).unlink(missing_ok=True)
+
+    def of_user(self, user: str) -> list[m.SessionEntry]:
+        return [m.SessionEntry(r.id, r.model_id, r.phase) for r in self.records.values() if r.user == user]  # type: ignore[arg-type]
+
+    # -- publishing ----------------------------------------------------------------------------------
+    def publish_state(self, rec: SessionRecord, persist: bool = True) -> None:
+        rec.state.seq += 1
+        rec.pubs["state"].put(codec.dumps(rec.state))
+        if persist:
+            self.persist(rec)
+
+    def publish_params(self, rec: SessionRecord, changed: list[str]) -> None:
+        msg = m.ParamValues(session=rec.id, model_id=rec.model_id, values=rec.values, changed=changed)
+        rec.pubs["params"].put(codec.dumps(msg))
+
+    def move(self, rec: SessionRecord, event: str, persist: bool = True, **fields: Any) -> None:
+        """Apply a lifecycle event (mesh.phases) and publish the new state."""
+        rec.state.phase = phases.after(rec.phase, event)  # type: ignore[assignment]
+        for name, value in fields.items():
+            setattr(rec.state, name, value)
+        self.publish_state(rec, persist)
+
+    def edited(self, rec: SessionRecord) -> None:
+        """Values, pose, command or settings changed: stored, and `created` becomes `configured`."""
+        if rec.phase == "created":
+            self.move(rec, "edited")
+        else:
+            self.persist(rec)
+
+    def persist_all(self) -> None:
+        for rec in self:
+            try:
+                self.persist(rec)
+            except Exception as exc:
+                log.error("could not persist session %s: %s", rec.id, exc)

@@ -1,0 +1,180 @@
+"""Where a run's samples come from: a simulation of a model, or a recording played back.
+
+The worker drives either through the same few calls (start, advance chunk by chunk, seek, end), so a
+replay is a run like any other: paced, paused, aborted, streamed and stored the same way.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Protocol
+
+import numpy as np
+from simecs.mesh import messages as m
+from simecs.mesh.client import MeshClient, NoReply, RemoteError
+
+from . import mcapread
+
+
+class RunSource(Protocol):
+    kind: str  # "simulator" | "replay"
+    model_id: str
+    columns: list[str]
+    units: list[str]
+    stop_time: float
+    output_interval: float
+    context: m.RunContext
+
+    @property
+    def time(self) -> float: ...
+
+    @property
+    def finished(self) -> bool: ...
+
+    def start(self) -> None: ...
+
+    def advance(self, until: float) -> np.ndarray: ...
+
+    def seek(self, t: float) -> None: ...
+
+    def end(self) -> tuple[str, str]: ...
+
+    def results(self, played: list[np.ndarray]) -> np.ndarray: ...
+
+    def close(self) -> None: ...
+
+
+class SimulationSource:
+    """A model simulated in Exudyn (models/)."""
+
+    kind = "simulator"
+
+    def __init__(self, req: m.RunRequest) -> None:
+        from simecs import models
+
+        if not isinstance(req.command, m.JointPath):
+            level = req.command.kind if req.command is not None else "no command"
+            raise ValueError(f"this simulator runs joint paths, not {level}")
+        self.req = req
+        self.model_id = req.model_id
+        self.sim = models.get_model(req.model_id).build(req.values)
+        self.columns, self.units = list(self.sim.columns), list(self.sim.units)
+        self.stop_time = req.settings.stop_time
+        self.output_interval = req.settings.output_interval
+        self.context = m.RunContext(req.user, dict(req.values), list(req.initial), req.command, req.settings)
+        self.sim.set_initial(req.initial)
+        self.sim.set_joint_path([(n.q, n.speed_pct, n.acc_pct) for n in req.command.nodes])
+
+    @property
+    def time(self) -> float:
+        return float(self.sim.time)
+
+    @property
+    def finished(self) -> bool:
+        return bool(self.sim.finished)
+
+    def start(self) -> None:
+        st = self.req.settings
+        self.sim.start(st.stop_time, st.output_interval, st.step or None)
+
+    def advance(self, until: float) -> np.ndarray:
+        return self.sim.advance(until)
+
+    def seek(self, t: float) -> None:
+        raise ValueError("a simulation cannot seek: only replay runs can")
+
+    def end(self) -> tuple[str, str]:
+        return "finished", ""
+
+    def results(self, played: list[np.ndarray]) -> np.ndarray:
+        return np.concatenate(played) if played else np.empty((0, len(self.columns)))
+
+    def close(self) -> None:
+        self.sim.close()
+
+
+class RecordingSource:
+    """A recording from the server's library, played back row by row at the recorded times."""
+
+    kind = "replay"
+
+    def __init__(self, req: m.RunRequest, client: MeshClient) -> None:
+        try:
+            data = client.download_recording(req.recording, timeout=60.0)
+        except RemoteError as exc:
+            raise ValueError(f"recording {req.recording}: {exc.error.message}") from None
+        except NoReply:
+            raise ValueError(f"recording {req.recording}: no recorder on the mesh serves it") from None
+        try:
+            rec = mcapread.load(data)
+        except mcapread.RecordingError as exc:
+            raise ValueError(f"recording {req.recording}: {exc}") from None
+        if rec.layout.model_id != req.model_id:
+            raise ValueError(
+                f"recording {req.recording} is of model {rec.layout.model_id}, the session of {req.model_id}"
+            )
+        if len(rec.rows) == 0:
+            raise ValueError(f"recording {req.recording} holds no samples")
+        self.rec = rec
+        self.model_id = rec.layout.model_id
+        self.columns, self.units = list(rec.layout.columns), list(rec.layout.units)
+        self.rows = rec.rows
+        self.stop_time = rec.layout.stop_time or float(self.rows[-1, 0])
+        self.output_interval = rec.layout.output_interval
+        self.context = rec.context(req.recording)
+        self._next = 0  # index of the next row to play
+        self._time = float(self.rows[0, 0])
+        self._played_to = -1  # index of the last row played
+
+    @property
+    def time(self) -> float:
+        return self._time
+
+    @property
+    def finished(self) -> bool:
+        return self._next >= len(self.rows)
+
+    def start(self) -> None:
+        self._next = 0
+
+    def advance(self, until: float) -> np.ndarray:
+        """The recorded rows with time up to `until` not played yet (all that is left at the end)."""
+        end = int(np.searchsorted(self.rows[:, 0], until, side="right"))
+        if until >= self.stop_time:
+            end = len(self.rows)
+        out = self.rows[self._next : end]
+        if end > self._next:
+            self._time = float(self.rows[end - 1, 0])
+            self._played_to = max(self._played_to, end - 1)
+            self._next = end
+        else:
+            self._time = max(self._time, min(until, float(self.rows[-1, 0])))
+        return np.asarray(out)
+
+    def seek(self, t: float) -> None:
+        self._next = int(np.searchsorted(self.rows[:, 0], t, side="left"))
+        self._time = min(max(t, float(self.rows[0, 0])), float(self.rows[-1, 0]))
+
+    def end(self) -> tuple[str, str]:
+        """How the recorded run ended: a replay that plays to its end ends as the recording did."""
+        end = self.rec.metadata.get("simecs.end", {})
+        phase = end.get("phase", "")
+        if phase in ("aborted", "failed"):
+            reason = end.get("reason", "")
+            return phase, f"as recorded: {reason}" if reason else "as recorded"
+        if not self.rec.complete or self.rec.recovered:
+            return "finished", "the recording was cut short (recovered after a crash of its recorder)"
+        return "finished", ""
+
+    def results(self, played: list[np.ndarray]) -> np.ndarray:
+        """The recording up to the furthest row played (seeks may have played parts twice)."""
+        return np.asarray(self.rows[: self._played_to + 1])
+
+    def close(self) -> None:
+        pass
+
+
+def open_source(req: m.RunRequest, z: Any) -> RunSource:
+    """The source a run request asks for."""
+    if req.recording:
+        return RecordingSource(req, MeshClient(z, timeout=10.0))
+    return SimulationSource(req)

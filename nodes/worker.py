@@ -1,0 +1,305 @@
+"""One run in its own process (Exudyn holds the GIL for a whole solve: STACK-NOTES).
+
+Started warm by the simulator node: it imports the models and compiles their drives first, says
+`ready` on stdout, then waits for one `RunRequest` line on stdin. It runs that request in chunks
+from its source (a simulation, or a recording played back), publishing every output sample as binary
+frames on `vars/full`, its progress on `run`, and obeying pause / resume / abort / seek on `control`
+between chunks. At the end it stores the full-resolution results where the simulator node serves
+them from, and exits.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import math
+import os
+import sys
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import zenoh
+import zenoh.ext
+from simecs.mesh import affinity, codec, columns, frames, keys
+from simecs.mesh import messages as m
+from simecs.mesh.runtime import mesh_from_args, node_arguments, open_session, setup_logging
+
+from .results_store import ResultsStore, StoredRun
+from .sources import RunSource, open_source
+
+# Simulated seconds per chunk at real-time pacing: pause/abort act within one chunk. 25 ms gives
+# 40 frames per wall second, below the default live rate of 50 Hz: the hot-feedback rate limit then
+# never holds frames back in steady real time.
+CHUNK_S = 0.025
+MAX_CHUNK_S = 0.1  # faster pacing: bigger chunks (fewer, larger frames), still a few ms of wall time
+STATUS_PERIOD_S = 0.1  # at most 10 progress reports per wall second
+READY = "ready"  # the line a warm worker writes on stdout
+
+
+def chunk_length(speed: float, output_interval: float) -> float:
+    """About 40 chunks per wall second: 25 ms simulated in real time, up to 100 ms when faster."""
+    return max(min(CHUNK_S * speed, MAX_CHUNK_S), CHUNK_S, output_interval)
+
+
+class Control:
+    """Pause, resume, abort and seek, as the proxy sends them on the session's control key."""
+
+    def __init__(self, run_id: str, paused: bool) -> None:
+        self.run_id = run_id
+        self.paused = threading.Event()
+        if paused:
+            self.paused.set()
+        self.aborted = threading.Event()
+        self.wake = threading.Event()
+        self.seek_to: float | None = None
+
+    def on_sample(self, sample: zenoh.Sample) -> None:
+        try:
+            ctl = codec.loads(m.RunControl, sample.payload.to_bytes())
+        except codec.DecodeError:
+            return
+        if ctl.run_id != self.run_id:
+            return
+        if ctl.op == "pause":
+            self.paused.set()
+        elif ctl.op == "resume":
+            self.paused.clear()
+        elif ctl.op == "seek":
+            self.seek_to = ctl.time
+        else:
+            self.aborted.set()
+        self.wake.set()
+
+    def sleep(self, seconds: float) -> None:
+        self.wake.wait(seconds)
+        self.wake.clear()
+
+
+class Run:
+    def __init__(self, z: zenoh.Session, req: m.RunRequest, store: ResultsStore) -> None:
+        self.z, self.req, self.store = z, req, store
+        self.control = Control(req.run_id, req.paused)
+        self.samples = 0
+        self.chunks: list[np.ndarray] = []
+        self.source: RunSource | None = None
+        self.sim_time = 0.0
+        self.rtf = 0.0
+        s = req.session
+        self.full = z.declare_publisher(
+            keys.vars_full(s), congestion_control=zenoh.CongestionControl.BLOCK, express=True
+        )
+        self.status_pub = z.declare_publisher(keys.run_status(s))
+        self.layout_pub = zenoh.ext.declare_advanced_publisher(
+            z, keys.layout(s), cache=zenoh.ext.CacheConfig(1), publisher_detection=True
+        )
+        self.control_sub = z.declare_subscriber(keys.control(s), self.control.on_sample)
+        self.token = z.liveliness().declare_token(keys.run_token(s, req.run_id))
+        self.seq = 0
+        self.final_sent = False
+
+    @property
+    def stop_time(self) -> float:
+        return self.source.stop_time if self.source is not None else self.req.settings.stop_time
+
+    def status(self, phase: str, reason: str = "") -> None:
+        msg = m.RunStatus(
+            session=self.req.session,
+            run_id=self.req.run_id,
+            phase=phase,  # type: ignore[arg-type]
+            sim_time=max(self.sim_time, 0.0),
+            stop_time=self.stop_time,
+            rtf=self.rtf,
+            samples=self.samples,
+            reason=reason,
+        )
+        self.status_pub.put(codec.dumps(msg))
+
+    def publish(self, rows: np.ndarray, final: bool = False) -> None:
+        self.final_sent = self.final_sent or final
+        flags = frames.FLAG_FINAL if final else 0
+        frame = frames.Frame(self.req.run_index, self.seq, time.time_ns(), rows, flags)
+        self.full.put(frames.encode(frame))
+        self.seq += 1
+
+    def execute(self) -> tuple[str, str]:
+        """Run the request to its end; (phase, reason) of how it ended."""
+        req = self.req
+        self.source = source = open_source(req, self.z)
+        try:
+            layout = m.RunLayout(
+                session=req.session,
+                run_id=req.run_id,
+                run_index=req.run_index,
+                model_id=source.model_id,
+                columns=source.columns,
+                units=source.units,
+                live_columns=columns.live_columns(source.columns, req.settings.live_vars),
+                live_rate_hz=req.settings.live_rate_hz,
+                stop_time=source.stop_time,
+                output_interval=source.output_interval,
+                context=source.context,
+                source=source.kind,  # type: ignore[arg-type]
+            )
+            self.layout_pub.put(codec.dumps(layout))
+            source.start()
+            self._loop(source)
+            if self.control.aborted.is_set():
+                return "aborted", "aborted by the user"
+            return source.end()
+        finally:
+            source.close()
+
+    def _loop(self, source: RunSource) -> None:
+        st, ctl = self.req.settings, self.control
+        speed = st.speed
+        chunk = chunk_length(speed, source.output_interval)
+        wall0 = time.monotonic()
+        last_status = 0.0
+        simulated = busy = 0.0  # over the run so far, pauses left out: the RTF
+        t0 = t = source.time
+        if not ctl.paused.is_set():
+            self.status("running")
+        while not source.finished and not ctl.aborted.is_set():
+            moved = self._seek(source)
+            if ctl.paused.is_set():
+                self.status("paused")
+                while ctl.paused.is_set() and not ctl.aborted.is_set():
+                    ctl.sleep(0.5)
+                    if self._seek(source):
+                        moved = True
+                        self.status("paused")
+                if ctl.aborted.is_set():
+                    break
+                moved = True
+                self.status("running")
+            if moved:  # pacing starts again from here
+                wall0, t0 = time.monotonic(), source.time
+            step_wall, step_t = time.monotonic(), source.time
+            until = min(source.time + chunk, source.stop_time)
+            rows = source.advance(until)
+            t = source.time
+            if rows.size and not np.all(np.isfinite(rows)):
+                bad = source.columns[int(np.where(~np.isfinite(rows))[1][0])]
+                raise FloatingPointError(f"{bad} became non-finite at t = {t:.4f} s")
+            if rows.shape[0]:
+                self.chunks.append(rows)
+                self.samples += rows.shape[0]
+                self.publish(rows, final=source.finished)
+            self.sim_time = t
+            if math.isfinite(speed):
+                ahead = (t - t0) / speed - (time.monotonic() - wall0)
+                if ahead > 0:
+                    ctl.sleep(ahead)
+            simulated += max(t - step_t, 0.0)
+            busy += time.monotonic() - step_wall
+            self.rtf = simulated / max(busy, 1e-9)
+            now = time.monotonic()
+            if now - last_status >= STATUS_PERIOD_S:
+                self.status("running")
+                last_status = now
+
+    def _seek(self, source: RunSource) -> bool:
+        """Obey a pending seek (replays); True when one happened."""
+        target, self.control.seek_to = self.control.seek_to, None
+        if target is None:
+            return False
+        source.seek(target)
+        self.sim_time = source.time
+        return True
+
+    def save(self, phase: str, reason: str) -> None:
+        source = self.source
+        cols = source.columns if source is not None else ["time"]
+        data = source.results(self.chunks) if source is not None else np.empty((0, 1))
+        run = StoredRun(
+            run_id=self.req.run_id,
+            run_index=self.req.run_index,
+            phase=phase,
+            reason=reason,
+            stop_time=self.stop_time,
+            sim_time=float(data[-1, 0]) if data.shape[0] else 0.0,
+            samples=int(data.shape[0]),
+            columns=list(cols),
+            units=list(source.units) if source is not None else ["s"],
+            model_id=self.req.model_id,
+        )
+        self.store.save(self.req.session, run, data)
+        self.samples = run.samples
+
+    def close(self) -> None:
+        for e in (self.control_sub, self.layout_pub, self.full, self.status_pub, self.token):
+            try:
+                e.undeclare()
+            except Exception:
+                pass
+
+
+def run_request(z: zenoh.Session, req: m.RunRequest, store: ResultsStore, log: Any) -> int:
+    run = Run(z, req, store)
+    phase, reason = "failed", ""
+    try:
+        phase, reason = run.execute()
+    except Exception as exc:
+        from simecs import models
+
+        known = isinstance(exc, models.SimulationError | ValueError)
+        reason = str(exc) if known else f"{type(exc).__name__}: {exc}"
+        log.error("run %s/%s failed: %s", req.session, req.run_id, reason)
+    try:
+        if not run.final_sent:  # an aborted or failed run ends with an empty final frame
+            run.publish(np.empty((0, len(run.source.columns) if run.source else 1)), final=True)
+        run.save(phase, reason)
+    except Exception as exc:  # the stream and status still tell the user
+        log.error("could not store results of %s: %s", req.run_id, exc)
+    run.status(phase, reason)
+    time.sleep(0.05)  # let the last status leave before the token goes
+    run.close()
+    return 0 if phase != "failed" else 3
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(prog="simecs-worker", description=__doc__)
+    node_arguments(parser)
+    parser.add_argument("--results-dir", required=True)
+    args = parser.parse_args(argv)
+    setup_logging("worker", args.log_level)
+    log = logging.getLogger("simecs.worker")
+    code = 0
+    # Warming up (imports, compiling) is background work: it must not slow the runs going on.
+    # Once a run is ours we take normal priority back (possible as root or within RLIMIT_NICE).
+    os.nice(10)
+    try:
+        from simecs import models
+
+        models.warmup()
+        cfg = mesh_from_args(args)
+        z = affinity.open_on_mesh_core(lambda: open_session(cfg), args.cpu)
+        try:
+            print(READY, flush=True)
+            line = sys.stdin.readline()
+            if line.strip():
+                try:
+                    affinity.renice_process(0)  # zenoh's threads too: they carry the frames
+                except OSError:
+                    log.info("running at nice 10: no right to raise the priority back")
+                req = codec.loads(m.RunRequest, line)
+                if req.settings.pacing == "fast":
+                    # Throughput, not latency: on the mesh core its frames would take CPU time
+                    # from the simulation whenever the OS puts both there.
+                    affinity.pin_process(os.sched_getaffinity(0))
+                code = run_request(z, req, ResultsStore(Path(args.results_dir)), log)
+        finally:
+            z.close()
+    except Exception as exc:
+        log.error("worker failed: %s", exc)
+        code = 1
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(code)
+
+
+if __name__ == "__main__":
+    main()
