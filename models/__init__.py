@@ -3,14 +3,20 @@
 from simecs.models import list_models, get_model
 pkg = get_model("spider"); sim = pkg.build({}); sim.set_initial([0]*7)
 sim.set_joint_path([([0.5]*7, 100, 100)]); sim.start(5.0, 0.01); rows = sim.advance(0.02) ...
+
+The modules, from the data a model author writes to the running simulation (docs/MODELS.md):
+spec (ArmSpec), spider/puma (the models), drives_catalog (drive size classes), description (what
+clients see), docs (its hypertext pages), mechanics (arrays and initial states), drive (numba
+kernels), exudyn_chain (the Exudyn system), simulation (one run), package (ModelPackage).
 """
 
 from __future__ import annotations
 
 from simecs.mesh.model import ModelSummary
 
-from .arm import ModelPackage, Simulation
 from .errors import ParameterError, SimulationError
+from .package import ModelPackage
+from .simulation import Simulation
 
 __all__ = [
     "list_models",
@@ -35,10 +41,12 @@ def _load() -> dict[str, ModelPackage]:
 
 
 def list_models() -> list[ModelSummary]:
+    """One summary per model of the library, in registration order."""
     return [p.describe().summary_entry() for p in _load().values()]
 
 
 def get_model(model_id: str) -> ModelPackage:
+    """The model `model_id`; KeyError naming the known ids otherwise."""
     reg = _load()
     if model_id not in reg:
         raise KeyError(f"unknown model {model_id!r}; known: {', '.join(sorted(reg))}")

@@ -6,14 +6,12 @@ parameter defaults, so the documentation never disagrees with the model.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from collections.abc import Sequence
 
-from simecs.mesh.model import DocPage
+from simecs.mesh.model import DocPage, InitEquation, Parameter
 
 from . import drive as dr
-
-if TYPE_CHECKING:
-    from .arm import ModelPackage
+from .spec import ArmSpec
 
 SUBS = {
     "motor": (
@@ -112,18 +110,15 @@ feed-forward speed qd_ref.""",
 }
 
 
-def _const_table(pkg: ModelPackage, sub: str) -> str:
-    names = [n for n in dr.DRIVE_PARAMS if n.startswith(sub + ".")]
-    head = (
-        "| parameter | unit | "
-        + " | ".join(f"j{i}" for i in range(1, pkg.n + 1))
-        + " | bounds | description |"
-    )
-    sep = "|" + "---|" * (pkg.n + 4)
+def _const_table(n: int, by: dict[str, Parameter], sub: str) -> str:
+    """The constants of one sub-component, one column per joint, from the parameter defaults."""
+    names = [nm for nm in dr.DRIVE_PARAMS if nm.startswith(sub + ".")]
+    joints = " | ".join(f"j{i}" for i in range(1, n + 1))
+    head = f"| parameter | unit | {joints} | bounds | description |"
+    sep = "|" + "---|" * (n + 4)
     rows = [head, sep]
-    by = {p.name: p for p in pkg.parameters()}
     for nm in names:
-        ps = [by[f"joint{i}.{nm}"] for i in range(1, pkg.n + 1)]
+        ps = [by[f"joint{i}.{nm}"] for i in range(1, n + 1)]
         vals = " | ".join(f"{p.value:.4g}" for p in ps)
         rows.append(
             f"| {nm} | {ps[0].unit} | {vals} | [{ps[0].min:g}, {ps[0].max:g}] | {ps[0].description} |"
@@ -131,9 +126,14 @@ def _const_table(pkg: ModelPackage, sub: str) -> str:
     return "\n".join(rows)
 
 
-def build_docs(pkg: ModelPackage) -> list[DocPage]:
-    s = pkg.spec
+def build_docs(
+    s: ArmSpec, parameters: Sequence[Parameter], init_equations: Sequence[InitEquation]
+) -> list[DocPage]:
+    """Every page of the model's docs, from its spec, its parameters (constants tables) and its
+    initialisation equations: what the client receives, so nothing here needs the simulator."""
     mid = s.id
+    n = len(s.links)
+    by = {p.name: p for p in parameters}
     pages: list[DocPage] = []
     sub_ids = [f"{mid}.{k}" for k in SUBS]
     children = [
@@ -154,7 +154,7 @@ def build_docs(pkg: ModelPackage) -> list[DocPage]:
 {s.summary}.
 
 ## Components
-- [Mechanical chain](doc:{mid}.chain): {pkg.n} revolute joints, links in the Link convention, Exudyn
+- [Mechanical chain](doc:{mid}.chain): {n} revolute joints, links in the Link convention, Exudyn
   KinematicTree.
 - [Joint drive](doc:{mid}.joint), one per joint: [motor](doc:{mid}.motor),
   [current controller](doc:{mid}.current), [gear box](doc:{mid}.gear),
@@ -239,7 +239,7 @@ alone. States per joint: q_m, w_m, i_a, i_b, two current integrators, speed inte
             DocPage(
                 f"{mid}.{key}",
                 title,
-                f"# {title}\n\n{body.format(id=mid)}\n\n## Constants\n\n{_const_table(pkg, key)}\n\n"
+                f"# {title}\n\n{body.format(id=mid)}\n\n## Constants\n\n{_const_table(n, by, key)}\n\n"
                 f"Part of the [joint drive](doc:{mid}.joint).\n",
                 parent=f"{mid}.joint",
             )
@@ -257,7 +257,7 @@ Default {s.payload_mass:g} kg, {s.payload_size:g} m. Back to [{s.name}](doc:{mid
             parent=mid,
         )
     )
-    eqs = "\n".join(f"- `{e.state} = {e.expression}`: {e.description}" for e in pkg.init_equations())
+    eqs = "\n".join(f"- `{e.state} = {e.expression}`: {e.description}" for e in init_equations)
     pages.append(
         DocPage(
             f"{mid}.init",

@@ -8,7 +8,8 @@ from __future__ import annotations
 
 import math
 
-from .arm import ParamInfo
+from .drive import DRIVE_PARAMS
+from .spec import ParamInfo
 
 # (unit, description, min, max, integer)
 META = {
@@ -107,13 +108,17 @@ META = {
 
 
 def drive_table(**values: float) -> dict[str, ParamInfo]:
-    from .drive import DRIVE_PARAMS
-
+    """Every drive parameter (`motor_R=...`: the dotted name with "_") with its unit, text and bounds."""
     out = {}
     for name in DRIVE_PARAMS:
         unit, desc, lo, hi, integer = META[name]
         out[name] = ParamInfo(
-            float(values[name.replace(".", "_")]), unit, desc, float(lo), float(hi), integer
+            value=float(values[name.replace(".", "_")]),
+            unit=unit,
+            description=desc,
+            min=float(lo),
+            max=float(hi),
+            integer=integer,
         )
     return out
 

@@ -12,8 +12,8 @@ import math
 
 import numpy as np
 
-from .arm import ArmSpec, LinkSpec
 from .drives_catalog import size_class
+from .spec import ArmSpec, LinkSpec, Vec3
 
 BIG = size_class(
     R=0.6,
@@ -56,7 +56,12 @@ WRIST = size_class(
 )
 
 
+def _vec3(v: np.ndarray) -> Vec3:
+    return (float(v[0]), float(v[1]), float(v[2]))
+
+
 def _links() -> list[LinkSpec]:
+    """The PUMA's DH rows and link data converted to the Link convention (see the module docstring)."""
     from exudyn.robotics.models import ManipulatorPuma560
 
     robot = ManipulatorPuma560()
@@ -66,20 +71,20 @@ def _links() -> list[LinkSpec]:
         assert theta == 0.0
         final = (0.0, d * math.sin(alpha), d * math.cos(alpha))
         shift = np.array([a, 0.0, 0.0]) + np.array(final)
-        com = tuple(float(v) for v in np.asarray(lk["COM"], float) + shift)
-        inertia = tuple(float(v) for v in np.diag(np.asarray(lk["inertia"], float)))
+        com = _vec3(np.asarray(lk["COM"], float) + shift)
+        inertia = _vec3(np.diag(np.asarray(lk["inertia"], float)))
         lo, hi = (float(v) for v in lk["jointLimits"])
         out.append(
             LinkSpec(
-                f"link{i + 1}",
-                (alpha, 0.0, 0.0),
-                a,
-                final,
-                lo,
-                hi,
-                float(lk["mass"]),
-                0.06 if i < 3 else 0.035,
-                "big" if i < 3 else "wrist",
+                name=f"link{i + 1}",
+                rpy=(alpha, 0.0, 0.0),
+                length=a,
+                final=final,
+                joint_min=lo,
+                joint_max=hi,
+                mass=float(lk["mass"]),
+                radius=0.06 if i < 3 else 0.035,
+                drive="big" if i < 3 else "wrist",
                 length_max=1.5,
                 com=com,
                 inertia=inertia,
@@ -100,6 +105,7 @@ does not change the tabulated inertias.
 
 
 def spec() -> ArmSpec:
+    """The PUMA 560's spec (a new one per call)."""
     return ArmSpec(
         id="puma560",
         name="PUMA 560 (joint-independent control)",

@@ -6,8 +6,8 @@ import math
 
 from simecs.mesh.model import Shape
 
-from .arm import ArmSpec, LinkSpec
 from .drives_catalog import size_class
+from .spec import ArmSpec, LinkSpec
 
 H = math.pi / 2
 
@@ -59,60 +59,90 @@ SMALL = size_class(
 LINKS = [
     # shoulder roll: the column rises along the joint-1 axis; joint 2 axis horizontal
     LinkSpec(
-        "link1",
-        (0.0, -H, 0.0),
-        0.30,
-        (0.0, 0.0, 0.0),
-        -math.pi,
-        math.pi,
-        9.0,
-        0.075,
-        "large",
+        name="link1",
+        rpy=(0.0, -H, 0.0),
+        length=0.30,
+        final=(0.0, 0.0, 0.0),
+        joint_min=-math.pi,
+        joint_max=math.pi,
+        mass=9.0,
+        radius=0.075,
+        drive="large",
         color=(200, 205, 215),
     ),
     # shoulder pitch: short offset block; joint 3 axis across it
-    LinkSpec("link2", (-H, 0.0, 0.0), 0.12, (0.0, 0.0, 0.0), -2.6, 2.6, 6.0, 0.075, "large"),
+    LinkSpec(
+        name="link2",
+        rpy=(-H, 0.0, 0.0),
+        length=0.12,
+        final=(0.0, 0.0, 0.0),
+        joint_min=-2.6,
+        joint_max=2.6,
+        mass=6.0,
+        radius=0.075,
+        drive="large",
+    ),
     # upper arm: rolls about joint 3, i.e. about its own axis
     LinkSpec(
-        "link3",
-        (0.0, -H, 0.0),
-        0.70,
-        (0.0, 0.0, 0.0),
-        -math.pi,
-        math.pi,
-        8.0,
-        0.06,
-        "large",
+        name="link3",
+        rpy=(0.0, -H, 0.0),
+        length=0.70,
+        final=(0.0, 0.0, 0.0),
+        joint_min=-math.pi,
+        joint_max=math.pi,
+        mass=8.0,
+        radius=0.06,
+        drive="large",
         color=(235, 235, 240),
     ),
     # elbow pitch block
-    LinkSpec("link4", (H, 0.0, 0.0), 0.12, (0.0, 0.0, 0.0), -2.6, 2.6, 5.0, 0.06, "large"),
+    LinkSpec(
+        name="link4",
+        rpy=(H, 0.0, 0.0),
+        length=0.12,
+        final=(0.0, 0.0, 0.0),
+        joint_min=-2.6,
+        joint_max=2.6,
+        mass=5.0,
+        radius=0.06,
+        drive="large",
+    ),
     # forearm: rolls about joint 5
     LinkSpec(
-        "link5",
-        (0.0, -H, 0.0),
-        0.65,
-        (0.0, 0.0, 0.0),
-        -math.pi,
-        math.pi,
-        6.0,
-        0.05,
-        "small",
+        name="link5",
+        rpy=(0.0, -H, 0.0),
+        length=0.65,
+        final=(0.0, 0.0, 0.0),
+        joint_min=-math.pi,
+        joint_max=math.pi,
+        mass=6.0,
+        radius=0.05,
+        drive="small",
         color=(235, 235, 240),
     ),
     # wrist pitch block
-    LinkSpec("link6", (H, 0.0, 0.0), 0.10, (0.0, 0.0, 0.0), -2.2, 2.2, 3.5, 0.05, "small"),
+    LinkSpec(
+        name="link6",
+        rpy=(H, 0.0, 0.0),
+        length=0.10,
+        final=(0.0, 0.0, 0.0),
+        joint_min=-2.2,
+        joint_max=2.2,
+        mass=3.5,
+        radius=0.05,
+        drive="small",
+    ),
     # wrist roll and tool flange
     LinkSpec(
-        "link7",
-        (0.0, -H, 0.0),
-        0.15,
-        (0.0, 0.0, 0.0),
-        -math.pi,
-        math.pi,
-        2.5,
-        0.045,
-        "small",
+        name="link7",
+        rpy=(0.0, -H, 0.0),
+        length=0.15,
+        final=(0.0, 0.0, 0.0),
+        joint_min=-math.pi,
+        joint_max=math.pi,
+        mass=2.5,
+        radius=0.045,
+        drive="small",
         color=(180, 185, 195),
     ),
 ]
@@ -155,6 +185,7 @@ points up along +z: the arm is folded in a horizontal L, clear of the floor.
 
 
 def spec() -> ArmSpec:
+    """The Spider's spec (a new one per call)."""
     return ArmSpec(
         id="spider",
         name="Spider arm (joint-independent control)",

@@ -7,7 +7,8 @@ import re
 
 import numpy as np
 import pytest
-from simecs.mesh.kinematics import link_poses, pose_column_names
+from simecs.mesh.columns import pose_column_names
+from simecs.mesh.kinematics import link_poses
 from simecs.models import ParameterError, SimulationError, get_model, list_models
 from simecs.models import drive as dr
 
@@ -339,6 +340,39 @@ def test_docs_navigable(spider):
     resizable = [s for s in d.shapes if s.resizable]
     assert sorted(s.link for s in resizable) == list(range(len(d.links)))
     assert d.init_equations and any("n * q" in e.expression for e in d.init_equations)
+
+
+def test_specs_are_keyword_only_and_docs_need_no_package(spider):
+    """A link has nine numbers and names: a positional slip must fail, not build a wrong arm. The docs
+    are built from the spec and the parameter list alone (docs.py does not know the package)."""
+    from simecs.models import docs
+    from simecs.models.spec import ArmSpec, LinkSpec, ParamInfo
+
+    lk = spider.spec.links[0]
+    with pytest.raises(TypeError):
+        LinkSpec(
+            lk.name, lk.rpy, lk.length, lk.final, lk.joint_min, lk.joint_max, lk.mass, lk.radius, "large"
+        )
+    with pytest.raises(TypeError):
+        ParamInfo(1.0, "-", "x", 0.0, 2.0)
+    with pytest.raises(TypeError):
+        ArmSpec("x", "x", "x", [], {})
+    with pytest.raises(ValueError, match="com and inertia"):
+        LinkSpec(
+            name="l",
+            rpy=(0, 0, 0),
+            length=1.0,
+            final=(0, 0, 0),
+            joint_min=-1,
+            joint_max=1,
+            mass=1.0,
+            radius=0.05,
+            drive="large",
+            com=(0.5, 0, 0),
+        )
+    d = spider.describe()
+    pages = docs.build_docs(spider.spec, d.parameters, d.init_equations)
+    assert [p.markdown for p in pages] == [p.markdown for p in d.docs]
 
 
 def test_puma_runs_same_drive_family():

@@ -1,0 +1,390 @@
+"""One run of a model: Exudyn integrates the chain, the compiled drives act in its PreStep.
+
+The simulator node drives a `Simulation` chunk by chunk: `set_values` / `set_initial` /
+`set_joint_path` between runs, then `start` and `advance` until `finished`; each `advance` is one
+Exudyn solver call, and the output rows are taken inside the step loop (docs/MODELS.md, "Coupling").
+"""
+
+from __future__ import annotations
+
+import math
+import numbers
+import time as _time
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import numpy as np
+from simecs.mesh import columns
+from simecs.mesh.kinematics import rot_rpy
+
+from . import drive as dr
+from .description import ArmDescription
+from .errors import SimulationError
+from .exudyn_chain import ExudynChain, exudyn
+from .mechanics import MECH_PREFIXES, chain_arrays, drive_array, init_states, tool_point, vec
+
+
+class Simulation:
+    """One run of a model in Exudyn; the simulator node drives it chunk by chunk.
+
+    `package` is the model (a `ModelPackage`); `values` a full, checked value set (`check_values`)."""
+
+    def __init__(self, package: ArmDescription, values: dict[str, float]) -> None:
+        self.package = package
+        self.n = package.n
+        self.values = dict(values)
+        self._desc = package.describe()
+        self.columns, self.units = columns.run_columns(self._desc)
+        self.P = drive_array(self.n, self.values)
+        self._mech = chain_arrays(package.spec, self.values)
+        self.q0 = np.zeros(self.n)
+        self.qd0 = np.zeros(self.n)
+        self.X, self.hold = init_states(self.P, self.q0)
+        self.seg = np.zeros((0, 3 + 2 * self.n))
+        self._nodes: list[tuple[np.ndarray, float, float]] = []
+        self._solver: Any = None
+        self._running = False
+        self._stop_time = 0.0
+        self._time = 0.0
+        self.timing = {"mechanics+drive": 0.0, "drive": 0.0, "output": 0.0}
+        self._Rrpy = np.array([rot_rpy(lk.rpy) for lk in package.spec.links])
+        self._tool_loc = np.zeros(3)
+        self._rows = np.zeros((0, len(self.columns)))
+        self._nrows = 0
+        self._k_next = 0
+        self._t_next = 0.0
+        self._chain = ExudynChain(self._mech, self._tool_local(), self._prestep)
+        self._mbs: Any = self._chain.mbs  # the hot path reads these two on every step
+        self._kt = self._chain.kt
+
+    def _tool_local(self) -> np.ndarray:
+        return tool_point(self.package.spec, self.values)
+
+    def _update_mechanics(self) -> None:
+        self._mech = chain_arrays(self.package.spec, self.values)
+        self._chain.update(self._mech, self._tool_local())
+
+    # ---- API ----
+    def set_values(self, values: Mapping[str, float]) -> None:
+        """Change parameters between runs, in place (drive array, Exudyn item parameters): a new
+        value set never rebuilds the system. All or nothing: ParameterError leaves every value as is."""
+        if self._running:
+            self._finalize()  # parameters change between runs: a run in progress ends here
+        merged = dict(self.values)
+        merged.update(values)
+        full = self.package.check_values(merged)
+        mech_changed = any(full[k] != self.values[k] for k in full if k.startswith(MECH_PREFIXES))
+        self.values = full
+        self.P[:] = drive_array(self.n, full)  # in place: no rebuild
+        if mech_changed:
+            self._update_mechanics()  # Exudyn item parameters: no rebuild either
+        self.X, self.hold = init_states(self.P, self.q0)
+
+    def set_initial(self, q: Sequence[float], qd: Sequence[float] | None = None) -> None:
+        """Joint positions at rest -> every internal state; `qd` (extension) is for drives-off studies."""
+        qv = vec(q)
+        if qv.shape != (self.n,) or not np.all(np.isfinite(qv)):
+            raise ValueError(f"expected {self.n} finite joint positions")
+        for i, lk in enumerate(self._desc.links):
+            if not lk.joint_min - 1e-12 <= qv[i] <= lk.joint_max + 1e-12:
+                raise ValueError(f"{lk.joint}: {qv[i]:g} rad outside [{lk.joint_min:g}, {lk.joint_max:g}]")
+        self.q0 = qv.copy()
+        self.qd0 = np.zeros(self.n) if qd is None else vec(qd).copy()
+        self.X, self.hold = init_states(self.P, self.q0)
+        self.seg = np.zeros((0, 3 + 2 * self.n))
+
+    def set_joint_path(self, nodes: Sequence[tuple[Sequence[float], float, float]]) -> None:
+        """The path of the next run (or, during a run, from now on): every node (destination in rad,
+        speed %, acceleration %) is reached and stopped at. Checked here, so a bad node fails early."""
+        parsed: list[tuple[np.ndarray, float, float]] = []
+        for k, node in enumerate(nodes):
+            try:
+                dest_in, sp, ac = node
+            except (TypeError, ValueError):
+                raise ValueError(f"path node {k}: expected (joint vector, speed %, acc %)") from None
+            dest = vec(dest_in)
+            if dest.shape != (self.n,) or not np.all(np.isfinite(dest)):
+                raise ValueError(f"path node {k}: expected {self.n} finite joint positions")
+            for i, lk in enumerate(self._desc.links):
+                if not lk.joint_min <= dest[i] <= lk.joint_max:
+                    raise ValueError(
+                        f"path node {k}: {lk.joint} {dest[i]:g} rad outside "
+                        f"[{lk.joint_min:g}, {lk.joint_max:g}]"
+                    )
+            for what, v in (("speed", sp), ("acc", ac)):
+                if isinstance(v, bool) or not (isinstance(v, numbers.Real) and 0 < float(v) <= 100):
+                    raise ValueError(f"path node {k}: {what} % must be in (0, 100], got {v!r}")
+            parsed.append((dest, float(sp), float(ac)))
+        self._nodes = parsed
+        t0 = self._time if self._running else 0.0
+        self.seg = self._plan(t0)
+
+    def _plan(self, t0: float) -> np.ndarray:
+        vmax = self.P[:, dr.P_VMAX]
+        amax = self.P[:, dr.P_AMAX]
+        if self._running:
+            qr = np.empty(self.n)
+            qdr = np.empty(self.n)
+            dr.traj_eval(self.seg, self.hold, t0, qr, qdr)
+            self.hold = qr.copy()
+            q = qr
+        else:
+            q = self.hold.copy()
+        rows = []
+        t = t0
+        for dest, sp, ac in self._nodes:
+            # destinations are load angles; the set point is expressed in measured (resolver) angles
+            dest_m = dest + self.P[:, dr.P_EL] * np.sin(dest)
+            row = dr.plan_segment(q, dest_m, vmax * sp / 100.0, amax * ac / 100.0, t)
+            rows.append(row)
+            t += row[1]
+            q = dest_m
+        return np.array(rows) if rows else np.zeros((0, 3 + 2 * self.n))
+
+    def path_duration(self) -> float:
+        """Seconds from the first segment's start to the last one's end (0 without a path)."""
+        if self.seg.shape[0] == 0:
+            return 0.0
+        return float(self.seg[-1, 0] + self.seg[-1, 1] - (self.seg[0, 0]))
+
+    def start(
+        self, stop_time: float, output_interval: float, step: float | None = None, substeps: int | None = None
+    ) -> None:
+        """Begin a run at t = 0 from the initial state; `step` = Exudyn mechanics step (None: model default),
+        `substeps` = drive RK4 substeps per mechanics step (None: model default)."""
+        exu = exudyn()
+        h = float(step) if step is not None else self.package.spec.default_step
+        if not (math.isfinite(stop_time) and stop_time > 0):
+            raise ValueError("stop_time must be > 0")
+        if not (1e-6 <= h <= 0.01):
+            raise ValueError("step must be in [1e-6, 0.01] s")
+        if not (math.isfinite(output_interval) and output_interval > 0):
+            raise ValueError("output_interval must be > 0")
+        if self._running:
+            self._finalize()
+        self.h = h
+        self.k_out = max(1, int(round(output_interval / h)))
+        self.dt_out = self.k_out * h
+        self._stop_time = float(stop_time)
+        self.n_steps = int(math.ceil(stop_time / h - 1e-9))
+        self.nsub = int(substeps) if substeps else self.package.spec.substeps
+        ss = exu.SimulationSettings()
+        ss.timeIntegration.numberOfSteps = self.n_steps
+        ss.timeIntegration.endTime = self.n_steps * h
+        ss.timeIntegration.startTime = 0.0
+        ss.timeIntegration.solverType = exu.DynamicSolverType.RK44
+        # fixed steps: Exudyn takes t = startTime + i*h instead of summing (and clipping) the steps, so
+        # every step is exactly h, wherever a chunk ends; advance() sets startTime per chunk
+        ss.timeIntegration.adaptiveStep = False
+        ss.timeIntegration.verboseMode = 0
+        ss.timeIntegration.explicit.computeEndOfStepAccelerations = False
+        ss.solution.file.write = False
+        ss.solution.sensors.writePeriod = 1e9
+        self._ss = ss
+        mbs = self._mbs
+        mbs.SetObjectParameter(self._kt, "jointForceVector", [0.0] * self.n)
+        mbs.systemData.SetODE2Coordinates(list(self.q0), configuration=exu.ConfigurationType.Initial)
+        mbs.systemData.SetODE2Coordinates_t(list(self.qd0), configuration=exu.ConfigurationType.Initial)
+        self.X, self.hold = init_states(self.P, self.q0)
+        self._nodes_copy = list(self._nodes)
+        self.seg = self._plan(0.0) if self._nodes else np.zeros((0, 3 + 2 * self.n))
+        self._Xbak = self.X.copy()
+        self._last_k = -1
+        self._tau = np.zeros(self.n)
+        self._work = np.zeros((5, self.n, dr.NL))
+        self._fail: str | None = None
+        self._drives_on = self.values["drives.enabled"] > 0.5
+        self._mech_arrays = self._mech
+        self._tool_loc = self._tool_local()
+        self._solver = exu.MainSolverExplicit()
+        self._solver.InitializeSolver(mbs, ss)
+        self._it = self._solver.it
+        self._sd = mbs.systemData
+        self._running = True
+        self._time = 0.0
+        self._k_next = 0  # index of the next output sample; its time is _t_next
+        self._t_next = 0.0
+        self.timing = {"mechanics+drive": 0.0, "drive": 0.0, "output": 0.0}
+
+    def _prestep(self, mbs: Any, t: float) -> bool:
+        """Once per mechanics step, before it: the output row at the step start when one is due, then
+        the drives over the step. Exudyn passes the time at the END of the coming step."""
+        h = self._it.currentStepSize
+        ts = t - h  # the step start: the chain state and the drive states are those of ts
+        due = ts >= self._t_next - 0.5 * self.h
+        if not (due or self._drives_on):
+            return True
+        t0 = _time.perf_counter()
+        out0 = self.timing["output"]
+        sd = self._sd
+        q = sd.GetODE2Coordinates()
+        qd = sd.GetODE2Coordinates_t()
+        if due:
+            if ts > self._t_next + 0.5 * self.h:
+                self._fail = f"output sample at t = {self._t_next:.6f} s missed (step at {ts:.6f} s)"
+                return False
+            if not self._emit_row(q, qd):
+                return False
+        if not self._drives_on:
+            return True
+        k = round(ts / self.h)  # the step index: the drive time comes from the grid, not from a sum
+        repeat = k <= self._last_k  # the same step again (a step reduction): restore the drive states
+        self._last_k = k
+        m = self._mech_arrays
+        ok = dr.drive_prestep(
+            self.P,
+            self.seg,
+            self.hold,
+            m[0],
+            m[1],
+            m[2],
+            m[3],
+            m[4],
+            self.X,
+            self._Xbak,
+            repeat,
+            q,
+            qd,
+            k * self.h,
+            h,
+            self.nsub,
+            self._tau,
+            self._work,
+        )
+        if not ok:
+            bad = [j + 1 for j in range(self.n) if not np.all(np.isfinite(self.X[j, : dr.NS]))]
+            self._fail = f"drive states of joint(s) {bad or '?'} not finite at t = {ts:.6f} s"
+            return False
+        mbs.SetObjectParameter(self._kt, "jointForceVector", self._tau)
+        self.timing["drive"] += _time.perf_counter() - t0 - (self.timing["output"] - out0)
+        return True
+
+    def _emit_row(self, q: np.ndarray, qd: np.ndarray) -> bool:
+        """The output row of sample `_k_next` (time `_t_next`) from the chain state q, qd and the drive
+        states into the chunk buffer; False (with `_fail` set) when something is not finite."""
+        t0 = _time.perf_counter()
+        t = self._t_next
+        k = self._nrows
+        if k >= self._rows.shape[0]:  # never with the size advance() reserves; kept safe anyway
+            self._rows = np.concatenate([self._rows, np.empty((k + 8, self._rows.shape[1]))])
+        m = self._mech_arrays
+        status = dr.output_row(
+            self.P,
+            self.seg,
+            self.hold,
+            self.X,
+            q,
+            qd,
+            t,
+            m[0],
+            m[1],
+            self._Rrpy,
+            self._tool_loc,
+            self._rows,
+            k,
+        )
+        if status:
+            if status == 1:
+                bad = [j + 1 for j in range(self.n) if not (math.isfinite(q[j]) and math.isfinite(qd[j]))]
+                self._fail = f"chain coordinates of joint(s) {bad} not finite at t = {t:.6f} s"
+            else:
+                self._fail = f"non-finite output at t = {t:.6f} s"
+            return False
+        self._nrows = k + 1
+        self._k_next += 1
+        self._t_next = min(self._k_next * self.dt_out, self.n_steps * self.h)
+        self.timing["output"] += _time.perf_counter() - t0
+        return True
+
+    def _row_now(self) -> None:
+        """The due output row from the current chain state (between solver calls)."""
+        sd = self._sd
+        if not self._emit_row(sd.GetODE2Coordinates(), sd.GetODE2Coordinates_t()):
+            raise SimulationError(self._fail)
+
+    def _sensor_poses(self) -> np.ndarray:
+        """Link and tool poses now, read from the Exudyn sensors: the cross-check of `dr.pose_rows`."""
+        return self._chain.sensor_poses(self._Rrpy)
+
+    def advance(self, until: float) -> np.ndarray:
+        """Simulate up to `until` (on the step grid); the output rows with time in (previous until, until],
+        the t = 0 row on the first call. One solver call per chunk: the rows inside the chunk are taken
+        in the PreStep at the start of the step that begins at their time."""
+        if not self._running:
+            raise SimulationError("advance() before start()")
+        t_wall = _time.perf_counter()
+        out_before = self.timing["output"]
+        h = self.h
+        t_end = self.n_steps * h
+        until = float(until)
+        if until >= self._stop_time - 1e-12:
+            until = t_end  # the run ends on the step grid, at or just after stop_time
+        until = min(until, t_end)
+        n_max = int(max(until - self._time, 0.0) / self.dt_out) + 3
+        self._rows = np.empty((n_max, len(self.columns)))
+        self._nrows = 0
+        if self._k_next == 0:
+            self._row_now()  # t = 0
+        # the chunk ends on the last grid point within `until`; at an output sample, exactly on its time
+        t_mid = math.floor(until / h + 1e-9) * h
+        t_row = t_end if t_mid > t_end - 0.5 * h else round(t_mid / self.dt_out) * self.dt_out
+        row_end = abs(t_row - t_mid) < 0.5 * h and t_row > self._time + 0.5 * h
+        t_stop = t_row if row_end else t_mid
+        if t_stop > self._time + 0.5 * h:
+            self._it.startTime = self._time
+            self._it.endTime = t_stop
+            try:
+                self._solver.SolveSteps(self._mbs, self._ss)
+            except Exception as e:  # the solver's own errors
+                raise SimulationError(f"Exudyn solver failed before t = {t_stop:.6f} s: {e}") from e
+            if self._fail:
+                raise SimulationError(self._fail)
+            t_now = self._sd.GetTime()
+            if t_now < t_stop - 1e-9:
+                raise SimulationError(f"Exudyn stopped at t = {t_now:.6f} s before {t_stop:.6f} s")
+            self._time = t_stop  # the grid time (Exudyn's startTime + i*h may differ by rounding)
+            if row_end:
+                if abs(self._t_next - t_stop) > 0.5 * h:
+                    raise SimulationError(f"output sample at t = {self._t_next:.6f} s missed")
+                self._row_now()
+        out = self._rows[: self._nrows]
+        wall = _time.perf_counter() - t_wall
+        self.timing["mechanics+drive"] += wall - (self.timing["output"] - out_before)
+        return out
+
+    @property
+    def time(self) -> float:
+        """Simulated time reached by the last `advance` (on the step grid)."""
+        return self._time
+
+    @property
+    def finished(self) -> bool:
+        """The run reached its stop time (on the step grid): no more rows will come."""
+        return self._running and self._time >= self.n_steps * self.h - 1e-9
+
+    def state(self) -> tuple[np.ndarray, np.ndarray]:
+        """Chain coordinates (q, qd) now."""
+        mbs = self._mbs
+        return np.array(mbs.systemData.GetODE2Coordinates()), np.array(mbs.systemData.GetODE2Coordinates_t())
+
+    def mass_matrix(self, q: Sequence[float]) -> np.ndarray:
+        """M(q) of the chain as the drive kernel sees it (energy checks, controller tuning)."""
+        M = np.zeros((self.n, self.n))
+        pre_R, pre_p, masses, coms, inertias = self._mech
+        dr.mass_matrix(pre_R, pre_p, masses, coms, inertias, vec(q), M)
+        return M
+
+    def _finalize(self) -> None:
+        if self._solver is not None and self._running:
+            try:
+                self._solver.FinalizeSolver(self._mbs, self._ss)
+            except Exception:
+                pass
+        self._running = False
+
+    def close(self) -> None:
+        """End the run and free the Exudyn system; the simulation cannot be used afterwards."""
+        self._finalize()
+        self._solver = None
+        self._mbs = None
+        self._chain.close()

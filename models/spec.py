@@ -1,0 +1,70 @@
+"""The specification of an arm model: the data a model author writes (see spider.py, puma.py).
+
+Everything else (parameters, variables, shapes, docs, the Exudyn chain, the drives) is derived from an
+`ArmSpec`, so adding a model is writing a spec, not editing the simulator. Every spec is built with
+named arguments only: a link has nine numbers and names, and a positional slip would go unnoticed.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from simecs.mesh.model import Shape
+
+Vec3 = tuple[float, float, float]
+
+
+@dataclass(kw_only=True)
+class ParamInfo:
+    """Default, unit, description and bounds of one drive parameter (per joint)."""
+
+    value: float
+    unit: str
+    description: str
+    min: float
+    max: float
+    integer: bool = False
+
+
+@dataclass(kw_only=True)
+class LinkSpec:
+    """Joint i and link i in the Link convention (paper §5.1), with its default length, mass and look."""
+
+    name: str
+    rpy: Vec3  # initial rotation (roll, pitch, yaw), none about the joint axis
+    length: float  # central translation along x (the `linkN.length` default)
+    final: Vec3  # final translation, no x component
+    joint_min: float
+    joint_max: float
+    mass: float
+    radius: float
+    drive: str  # key into ArmSpec.drives
+    length_max: float = 3.0
+    com: Vec3 | None = None  # fixed COM in the link frame; None: uniform tube
+    inertia: Vec3 | None = None  # principal inertia at COM (link axes); None: tube
+    color: tuple[int, int, int] = (200, 200, 210)
+
+    def __post_init__(self) -> None:
+        if (self.com is None) != (self.inertia is None):
+            raise ValueError(f"{self.name}: com and inertia are given together or not at all")
+
+
+@dataclass(kw_only=True)
+class ArmSpec:
+    """A whole model: its links, its drive size classes, defaults of the run and documentation text."""
+
+    id: str
+    name: str
+    summary: str
+    links: list[LinkSpec]
+    drives: dict[str, dict[str, ParamInfo]]  # size class -> DRIVE_PARAMS name -> info
+    base_translation: Vec3 = (0.0, 0.0, 0.0)
+    tool_translation: Vec3 = (0.0, 0.0, 0.0)
+    payload_mass: float = 0.0
+    payload_size: float = 0.2
+    default_step: float = 1e-3
+    substeps: int = 5
+    assumptions: str = ""
+    chain_doc: str = ""
+    standard_target: tuple[float, ...] = ()
+    environment: list[Shape] = field(default_factory=list)
