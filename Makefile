@@ -4,8 +4,12 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 TEST_STAMP := $(VENV)/.installed-test
+# The browser the viewer's tests and benchmark drive (Debian's chromium; Playwright never downloads one).
+CHROMIUM ?= /usr/bin/chromium
+export SIMECS_CHROMIUM := $(CHROMIUM)
+CODE := mesh models nodes viewer testing benchmarks tests docs/examples
 
-.PHONY: up test lint format bench clean
+.PHONY: up test lint format bench warm schema clean
 
 $(BIN)/python:
 	$(PY) -m venv $(VENV)
@@ -19,22 +23,43 @@ $(TEST_STAMP): pyproject.toml | $(BIN)/python
 	$(BIN)/pip install --quiet -e '.[test]'
 	touch $(STAMP) $@
 
-up: $(STAMP)
+# The browser tests need chromium: installed from Debian's packages where we may (root with apt),
+# otherwise `make test` stops here and says what is missing (it never skips those tests).
+$(CHROMIUM):
+	@if command -v apt-get >/dev/null 2>&1 && [ "$$(id -u)" = 0 ]; then \
+		echo "installing Debian's chromium for the browser tests"; \
+		apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium >/dev/null; \
+	else \
+		echo "make test: the browser tests need chromium at $(CHROMIUM): install Debian's chromium" \
+			"package (apt-get install chromium, as root) or pass CHROMIUM=/path/to/chromium" >&2; \
+		exit 1; \
+	fi
+
+# Compile the drive kernels into numba's cache once, so no node or test pays it on its first run.
+warm: $(STAMP)
+	$(BIN)/python -c "from simecs import models; print(f'drives compiled in {models.warmup():.1f} s')"
+
+up: $(STAMP) warm
 	$(BIN)/simecs up
 
 lint: $(TEST_STAMP)
-	$(BIN)/ruff check mesh models nodes viewer tests docs/examples
-	$(BIN)/ruff format --check mesh models nodes viewer tests docs/examples
+	$(BIN)/ruff check $(CODE)
+	$(BIN)/ruff format --check $(CODE)
 	$(BIN)/mypy
+	$(BIN)/python -m simecs.mesh.schema --check
 
 format: $(TEST_STAMP)
-	$(BIN)/ruff check --fix mesh models nodes viewer tests docs/examples
-	$(BIN)/ruff format mesh models nodes viewer tests docs/examples
+	$(BIN)/ruff check --fix $(CODE)
+	$(BIN)/ruff format $(CODE)
 
-test: lint
+# Rewrite docs/protocol.schema.json and the generated tables of docs/PROTOCOL.md from mesh/.
+schema: $(STAMP)
+	$(BIN)/python -m simecs.mesh.schema
+
+test: lint $(CHROMIUM) warm
 	$(BIN)/python -m pytest -q -n 2 --dist loadfile
 
-bench: $(STAMP)
+bench: $(STAMP) warm
 	$(BIN)/simecs bench model
 	$(BIN)/simecs bench service
 	$(BIN)/simecs bench recorder

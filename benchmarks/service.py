@@ -29,8 +29,8 @@ import zenoh
 from simecs.mesh import affinity, frames, keys
 from simecs.mesh.client import MeshClient, SessionClient
 from simecs.mesh.config import MeshConfig
-from simecs.testing.launch import LocalMesh, clean_env
 from simecs.mesh.runtime import open_session
+from simecs.testing.launch import LocalMesh, clean_env
 
 STOP = 5.0
 OUTPUT = 0.002

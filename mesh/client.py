@@ -82,7 +82,7 @@ class MeshClient:
         answers = self._replies(key, payload, timeout)
         for answer in answers:
             if answer.ok is not None:
-                data = codec.loads(m.Ok, answer.ok.payload.to_bytes()).data
+                data: Any = codec.loads(m.Ok, answer.ok.payload.to_bytes()).data
                 return data if reply is Any else codec.from_obj(reply, data)
         for answer in answers:
             if answer.err is not None:

@@ -75,7 +75,7 @@ def to_obj(obj: Any) -> Any:
 
 # -- decoding --------------------------------------------------------------------------------------
 @cache
-def _decoder(tp: Any) -> msgspec.json.Decoder[Any]:
+def _decoder(tp: Any) -> msgspec.json.Decoder[Any]:  # tp: a class or a union, both hashable
     return msgspec.json.Decoder(tp)
 
 
@@ -86,8 +86,12 @@ def loads(tp: type[T] | Any, payload: bytes | bytearray | memoryview | str) -> T
         payload = payload.encode("utf-8", "surrogatepass")
     if len(payload) > MAX_MESSAGE_BYTES:
         raise DecodeError("", f"message of {len(payload)} bytes is larger than {MAX_MESSAGE_BYTES} bytes")
+    try:  # the whole text, unknown fields included: nothing that is not UTF-8 gets through
+        bytes(payload).decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise DecodeError("", f"not UTF-8 text: {exc.reason} at byte {exc.start}") from None
     try:
-        obj = _decoder(tp).decode(payload)
+        obj = _decoder(typing.cast(Any, tp)).decode(payload)
     except msgspec.ValidationError as exc:
         raise _validation_error(tp, exc, lambda: json.loads(bytes(payload))) from None
     except msgspec.DecodeError as exc:

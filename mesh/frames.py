@@ -28,6 +28,18 @@ VERSION = 1
 FLAG_FINAL = 1
 FLAG_LIVE = 2
 HEADER = struct.Struct("<4sHHIIQQII")
+#: The header, field by field: (name, offset, size, meaning); PROTOCOL.md §6.1 and the schema show it.
+HEADER_FIELDS = (
+    ("magic", 0, 4, 'b"SMF1"'),
+    ("version", 4, 2, "1"),
+    ("flags", 6, 2, "1 = final frame of the run, 2 = decimated live frame"),
+    ("run_index", 8, 4, "= RunLayout.run_index"),
+    ("reserved", 12, 4, "0"),
+    ("seq", 16, 8, "frame number within the run (per stream), from 0"),
+    ("wall_ns", 24, 8, "when the producer sent the sample (ns since the Unix epoch); live frames keep it"),
+    ("n_rows", 32, 4, "rows of samples"),
+    ("n_cols", 36, 4, "columns per row"),
+)
 MAX_CELLS = 16_000_000  # 128 MB of float64: refuse anything larger before allocating
 
 

@@ -29,19 +29,24 @@ class KeyProblem(ValueError):
         super().__init__(problem)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class KeySpec:
-    """One key of the protocol. `writer`: the role that puts, queries or declares it; `answerer`: the
-    role that answers a query (""for puts and tokens). Roles: client, proxy, simulator, worker,
-    hotfeedback, recorder, any node."""
+    """One key of the protocol.
+
+    `writer` is the role that puts it, sends the query, or declares the token; `answerer` the role that
+    answers a query. Roles: client, proxy, simulator, worker (a simulator's run process), hotfeedback,
+    recorder, any node. `payload` and `reply` name what travels: a message type of mesh/messages.py or
+    mesh/model.py (replies are `Ok{data: <type>}` or an `Error`), `frame` (a binary frame, §6),
+    `mcap` (the bytes of an MCAP file), or `per command` (messages.REPLIES); `|` separates choices.
+    """
 
     name: str
     pattern: str
     kind: str  # query | put | cached put | token
     writer: str
-    answerer: str
-    payload: str  # message type(s) written
-    reply: str  # what a query is answered with
+    answerer: str = ""
+    payload: str = ""
+    reply: str = ""
     meaning: str
 
     @property
@@ -49,237 +54,211 @@ class KeySpec:
         return _PLACEHOLDER.findall(self.pattern)
 
 
-KEYS: dict[str, KeySpec] = {
-    k.name: k
-    for k in (
-        # -- server-wide -------------------------------------------------------------------------
-        KeySpec(
-            "library", "simecs/library", "query", "client", "proxy", "", "ModelList", "the model library"
-        ),
-        KeySpec(
-            "model",
-            "simecs/library/<model>",
-            "query",
-            "client",
-            "proxy",
-            "",
-            "ModelDescription",
-            "everything a client needs to show, animate, parametrise and command a model",
-        ),
-        KeySpec(
-            "doc",
-            "simecs/library/<model>/doc/<page>",
-            "query",
-            "client",
-            "proxy",
-            "",
-            "DocPage",
-            "one page of the model's hypertext documentation",
-        ),
-        KeySpec(
-            "sessions",
-            "simecs/sessions",
-            "query",
-            "client",
-            "proxy",
-            "CreateSession | ListSessions",
-            "SessionSnapshot | [SessionEntry]",
-            "create a session, or list a user's sessions",
-        ),
-        KeySpec(
-            "recordings",
-            "simecs/recordings",
-            "query",
-            "client",
-            "recorder",
-            "",
-            "RecordingList",
-            "the recordings kept on the server, newest first",
-        ),
-        KeySpec(
-            "recording",
-            "simecs/recordings/<name>",
-            "query",
-            "client",
-            "recorder",
-            "MCAP bytes or none",
-            "MCAP bytes (binary, attachment RecordingInfo) | RecordingInfo",
-            "download a recording; with an MCAP file as payload: upload it under <name>",
-        ),
-        KeySpec(
-            "recording_info",
-            "simecs/recordings/<name>/info",
-            "query",
-            "client",
-            "recorder",
-            "",
-            "RecordingInfo",
-            "what one recording holds",
-        ),
-        KeySpec(
-            "simulator_run",
-            "simecs/simulators/<node>/run",
-            "query",
-            "proxy",
-            "simulator",
-            "RunRequest",
-            "Accepted",
-            "hand one run to a simulator host, which starts it in a worker process",
-        ),
-        KeySpec(
-            "node_status",
-            "simecs/nodes/<role>/<node>/status",
-            "cached put",
-            "any node",
-            "",
-            "NodeStatus",
-            "",
-            "a node's state and figures: on start, on change (at most 5/s), every 5 s",
-        ),
-        # -- per session -----------------------------------------------------------------------
-        KeySpec(
-            "cmd",
-            "simecs/<session>/cmd",
-            "query",
-            "client",
-            "proxy",
-            "a session command (§5.2)",
-            "Ok{data} per command | Error",
-            "every change to a session, and its runs",
-        ),
-        KeySpec(
-            "params",
-            "simecs/<session>/params",
-            "cached put",
-            "proxy",
-            "",
-            "ParamValues",
-            "",
-            "every parameter value, after each change",
-        ),
-        KeySpec(
-            "state",
-            "simecs/<session>/state",
-            "cached put",
-            "proxy",
-            "",
-            "SessionState",
-            "",
-            "lifecycle and progress (at most 10 per s, and on every phase change)",
-        ),
-        KeySpec(
-            "control",
-            "simecs/<session>/control",
-            "put",
-            "proxy",
-            "",
-            "RunControl",
-            "",
-            "pause, resume, abort, seek to the worker of the session's run",
-        ),
-        KeySpec(
-            "run_status",
-            "simecs/<session>/run",
-            "put",
-            "worker",
-            "",
-            "RunStatus",
-            "",
-            "a worker's report on its run (at most 10 per s, and on every phase change)",
-        ),
-        KeySpec(
-            "layout",
-            "simecs/<session>/vars/layout",
-            "cached put",
-            "worker",
-            "",
-            "RunLayout",
-            "",
-            "what the frames of a run mean, once per run before its first frame",
-        ),
-        KeySpec(
-            "vars_full",
-            "simecs/<session>/vars/full",
-            "put",
-            "worker",
-            "",
-            "frames (§6.1)",
-            "",
-            "every output sample, all columns",
-        ),
-        KeySpec(
-            "vars_live",
-            "simecs/<session>/vars/live",
-            "put",
-            "hotfeedback",
-            "",
-            "frames (§6.1)",
-            "",
-            "the newest sample, live columns only, at most live_rate_hz per wall second",
-        ),
-        KeySpec(
-            "results_list",
-            "simecs/<session>/results",
-            "query",
-            "client",
-            "proxy",
-            "",
-            "[RunInfo]",
-            "the runs whose full-resolution results are kept",
-        ),
-        KeySpec(
-            "results",
-            "simecs/<session>/results/<run>",
-            "query",
-            "client",
-            "simulator",
-            "",
-            "one frame (binary, attachment ResultsAttachment)",
-            "full-resolution results of a run (§6.2); the proxy answers not_found for unknown runs",
-        ),
-        KeySpec(
-            "notices",
-            "simecs/<session>/notices",
-            "put",
-            "recorder",
-            "",
-            "Notice",
-            "",
-            "something the user must know about a run; the proxy lists it in SessionState.warnings",
-        ),
-        KeySpec(
-            "jog",
-            "simecs/<session>/jog",
-            "put",
-            "client",
-            "",
-            "JogInput",
-            "",
-            "live jogging of a real-time run (reserved; not yet obeyed)",
-        ),
-        # -- liveliness tokens: under '@' chunks, so `simecs/**` data subscribers never match them --
-        KeySpec(
-            "node_token",
-            "simecs/@node/<role>/<node>",
-            "token",
-            "any node",
-            "",
-            "",
-            "",
-            "the node is up and ready; its loss: stopped, crashed or cut off",
-        ),
-        KeySpec(
-            "run_token",
-            "simecs/@run/<session>/<run>",
-            "token",
-            "worker",
-            "",
-            "",
-            "",
-            "the worker of a run is alive; its loss fails the run within 1 s",
-        ),
-    )
-}
+_TABLE = (
+    # -- server-wide ----------------------------------------------------------------------------------
+    KeySpec(
+        name="library",
+        pattern="simecs/library",
+        kind="query",
+        writer="client",
+        answerer="proxy",
+        reply="ModelList",
+        meaning="the model library",
+    ),
+    KeySpec(
+        name="model",
+        pattern="simecs/library/<model>",
+        kind="query",
+        writer="client",
+        answerer="proxy",
+        reply="ModelDescription",
+        meaning="everything a client needs to show, animate, parametrise and command a model",
+    ),
+    KeySpec(
+        name="doc",
+        pattern="simecs/library/<model>/doc/<page>",
+        kind="query",
+        writer="client",
+        answerer="proxy",
+        reply="DocPage",
+        meaning="one page of the model's hypertext documentation",
+    ),
+    KeySpec(
+        name="sessions",
+        pattern="simecs/sessions",
+        kind="query",
+        writer="client",
+        answerer="proxy",
+        payload="SessionRequest",
+        reply="per command",
+        meaning="create a session, or list a user's sessions",
+    ),
+    KeySpec(
+        name="recordings",
+        pattern="simecs/recordings",
+        kind="query",
+        writer="client",
+        answerer="recorder",
+        reply="RecordingList",
+        meaning="the recordings kept on the server, newest first",
+    ),
+    KeySpec(
+        name="recording",
+        pattern="simecs/recordings/<name>",
+        kind="query",
+        writer="client",
+        answerer="recorder",
+        payload="mcap",
+        reply="mcap | RecordingInfo",
+        meaning="without payload: download the recording (binary reply, attachment RecordingInfo); with an "
+        "MCAP file as payload: upload it under <name> (reply RecordingInfo)",
+    ),
+    KeySpec(
+        name="recording_info",
+        pattern="simecs/recordings/<name>/info",
+        kind="query",
+        writer="client",
+        answerer="recorder",
+        reply="RecordingInfo",
+        meaning="what one recording holds",
+    ),
+    KeySpec(
+        name="simulator_run",
+        pattern="simecs/simulators/<node>/run",
+        kind="query",
+        writer="proxy",
+        answerer="simulator",
+        payload="RunRequest",
+        reply="Accepted",
+        meaning="hand one run to a simulator host, which starts it in a worker process",
+    ),
+    KeySpec(
+        name="node_status",
+        pattern="simecs/nodes/<role>/<node>/status",
+        kind="cached put",
+        writer="any node",
+        payload="NodeStatus",
+        meaning="a node's state and figures: on start, on change (at most 5 per s), every 5 s",
+    ),
+    # -- per session ----------------------------------------------------------------------------------
+    KeySpec(
+        name="cmd",
+        pattern="simecs/<session>/cmd",
+        kind="query",
+        writer="client",
+        answerer="proxy",
+        payload="SessionCommand",
+        reply="per command",
+        meaning="every change to a session, and its runs (§5.2)",
+    ),
+    KeySpec(
+        name="params",
+        pattern="simecs/<session>/params",
+        kind="cached put",
+        writer="proxy",
+        payload="ParamValues",
+        meaning="every parameter value, after each change",
+    ),
+    KeySpec(
+        name="state",
+        pattern="simecs/<session>/state",
+        kind="cached put",
+        writer="proxy",
+        payload="SessionState",
+        meaning="lifecycle and progress (at most 10 per s, and on every phase change)",
+    ),
+    KeySpec(
+        name="control",
+        pattern="simecs/<session>/control",
+        kind="put",
+        writer="proxy",
+        payload="RunControl",
+        meaning="pause, resume, abort or seek, to the worker of the session's run",
+    ),
+    KeySpec(
+        name="run_status",
+        pattern="simecs/<session>/run",
+        kind="put",
+        writer="worker",
+        payload="RunStatus",
+        meaning="a worker's report on its run (at most 10 per s, and on every phase change)",
+    ),
+    KeySpec(
+        name="layout",
+        pattern="simecs/<session>/vars/layout",
+        kind="cached put",
+        writer="worker",
+        payload="RunLayout",
+        meaning="what the frames of a run mean, once per run before its first frame",
+    ),
+    KeySpec(
+        name="vars_full",
+        pattern="simecs/<session>/vars/full",
+        kind="put",
+        writer="worker",
+        payload="frame",
+        meaning="every output sample, all columns",
+    ),
+    KeySpec(
+        name="vars_live",
+        pattern="simecs/<session>/vars/live",
+        kind="put",
+        writer="hotfeedback",
+        payload="frame",
+        meaning="the newest sample, live columns only, at most live_rate_hz per wall second",
+    ),
+    KeySpec(
+        name="results_list",
+        pattern="simecs/<session>/results",
+        kind="query",
+        writer="client",
+        answerer="proxy",
+        reply="RunList",
+        meaning="the runs the session keeps (the last 10), oldest first",
+    ),
+    KeySpec(
+        name="results",
+        pattern="simecs/<session>/results/<run>",
+        kind="query",
+        writer="client",
+        answerer="simulator",
+        reply="frame",
+        meaning="full-resolution results of a run (§6.2), answered by the host that holds them (binary "
+        "reply, attachment ResultsAttachment); the proxy answers not_found for a run the session lacks",
+    ),
+    KeySpec(
+        name="notices",
+        pattern="simecs/<session>/notices",
+        kind="put",
+        writer="recorder",
+        payload="Notice",
+        meaning="something the user must know about a run; the proxy lists it in SessionState.warnings",
+    ),
+    KeySpec(
+        name="jog",
+        pattern="simecs/<session>/jog",
+        kind="put",
+        writer="client",
+        payload="JogInput",
+        meaning="live jogging of a real-time run (reserved; not yet obeyed)",
+    ),
+    # -- liveliness tokens: under '@' chunks, so `simecs/**` data subscribers never match them ----------
+    KeySpec(
+        name="node_token",
+        pattern="simecs/@node/<role>/<node>",
+        kind="token",
+        writer="any node",
+        meaning="the node is up and ready; its loss: stopped, crashed or cut off",
+    ),
+    KeySpec(
+        name="run_token",
+        pattern="simecs/@run/<session>/<run>",
+        kind="token",
+        writer="worker",
+        meaning="the worker of a run is alive; its loss fails the run within 1 s",
+    ),
+)
+KEYS: dict[str, KeySpec] = {k.name: k for k in _TABLE}
 
 # Wildcards used by nodes that serve or watch every session (and in PROTOCOL.md §3.4).
 LIBRARY = "simecs/library"

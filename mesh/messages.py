@@ -20,7 +20,7 @@ from .model import ModelSummary
 from .phases import Phase, WorkerPhase
 from .primitives import FieldProblem, Message, Name, Numbers, Record, SessionId, Text
 
-VERSION = 1
+VERSION: Literal[1] = 1
 
 
 class Command(Record, kw_only=True, tag_field="op"):
@@ -319,6 +319,9 @@ class SessionSnapshot(Message, tag="session"):
     settings: RunSettings
     state: SessionState
     runs: Annotated[list[RunInfo], Meta(description="the runs whose results are kept, oldest first")] = []
+
+
+RunList = list[RunInfo]
 
 
 class SessionEntry(Record):

@@ -18,11 +18,10 @@ NAME_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,63}$"
 MAX_TEXT = 100_000
 MAX_NUMBERS = 100_000
 
-Name = Annotated[
-    str,
-    Meta(pattern=NAME_PATTERN, description="1-64 letters, digits, '_', '-', '.', not starting with a sign"),
-]
-SessionId = Annotated[str, Meta(pattern=SESSION_ID_PATTERN, description="22 characters of A-Z a-z 0-9 _ -")]
+#: 1-64 letters, digits, '_', '-', '.', starting with a letter or digit (PROTOCOL.md calls it "name").
+Name = Annotated[str, Meta(pattern=NAME_PATTERN)]
+#: 22 characters of A-Z a-z 0-9 _ - (PROTOCOL.md calls it "session id").
+SessionId = Annotated[str, Meta(pattern=SESSION_ID_PATTERN)]
 Text = Annotated[str, Meta(max_length=MAX_TEXT)]
 Numbers = Annotated[list[float], Meta(max_length=MAX_NUMBERS)]
 

@@ -46,7 +46,7 @@ class RequestError(Exception):
         self.code, self.message, self.field = code, message, field
 
     def to_error(self) -> Error:
-        return Error(code=self.code, message=self.message, field=self.field)
+        return Error(code=self.code, message=self.message, field=self.field)  # type: ignore[arg-type]
 
 
 class NotMine(Exception):

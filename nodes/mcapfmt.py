@@ -94,7 +94,7 @@ class _FastZstd(threading.local):
         return self._c.compress(data)
 
 
-mcap.writer.zstandard = _FastZstd()  # type: ignore[attr-defined]  # one compressor per thread
+mcap.writer.zstandard = _FastZstd()  # type: ignore[attr-defined,assignment]  # one compressor per thread
 
 
 class FormatError(ValueError):

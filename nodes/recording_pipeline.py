@@ -171,7 +171,7 @@ class RecordingPipeline:
         self.z = z
 
         def ring(key: str, latched: bool) -> Any:
-            channel = zenoh.handlers.RingChannel(RING_FRAMES)
+            channel: Any = zenoh.handlers.RingChannel(RING_FRAMES)
             if latched:
                 history = zenoh.ext.HistoryConfig(detect_late_publishers=True)
                 return declare(zenoh.ext.declare_advanced_subscriber(z, key, channel, history=history))

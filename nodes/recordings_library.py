@@ -14,6 +14,7 @@ import threading
 import time
 from pathlib import Path
 
+import msgspec
 from simecs.mesh import files, keys
 from simecs.mesh import messages as m
 from simecs.mesh.runtime import Binary, RequestError
@@ -92,17 +93,9 @@ class RecordingsLibrary:
     def _info(self, path: Path) -> m.RecordingInfo | None:
         name = path.name[: -len(".mcap")]
         with self.lock:
-            if name in self.open_names:
-                info = self.open_names[name]
-                return m.RecordingInfo(
-                    info.name,
-                    info.session,
-                    info.run_id,
-                    info.model_id,
-                    path.stat().st_size,
-                    False,
-                    info.stop_time,
-                )
+            writing = self.open_names.get(name)
+        if writing is not None:  # its size grows while the run goes on
+            return msgspec.structs.replace(writing, bytes=path.stat().st_size)
         st = path.stat()
         stamp = (st.st_mtime_ns, st.st_size)
         cached = self.info_cache.get(name)

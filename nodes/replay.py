@@ -48,8 +48,12 @@ def put_in_library(client: MeshClient, path: Path, rec: mcapread.Recording) -> s
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="simecs replay", description=__doc__)
     parser.add_argument("file", help="MCAP recording to replay")
-    parser.add_argument("--speed", type=float, default=1.0, help="x real time (default 1; 0 = as fast as possible)")
-    parser.add_argument("--session", default="", help="replay in this session (same model) instead of a new one")
+    parser.add_argument(
+        "--speed", type=float, default=1.0, help="x real time (default 1; 0 = as fast as possible)"
+    )
+    parser.add_argument(
+        "--session", default="", help="replay in this session (same model) instead of a new one"
+    )
     parser.add_argument("--user", default="replay", help="owner of the new session (default replay)")
     parser.add_argument("--paused", action="store_true", help="start paused (resume from a client)")
     parser.add_argument("--detach", action="store_true", help="return once the replay has started")

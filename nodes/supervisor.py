@@ -48,9 +48,10 @@ class Supervisor:
     def say(text: str) -> None:
         print(text, flush=True)
 
-    def _start(self, child: Child) -> None:
+    def _start(self, child: Child) -> subprocess.Popen[bytes]:
         child.proc = subprocess.Popen(child.argv, start_new_session=True)
         child.started = time.monotonic()
+        return child.proc
 
     def start_all(self) -> None:
         for child in self.children:
@@ -63,11 +64,9 @@ class Supervisor:
             proc = child.proc
             if proc is None:
                 if now >= child.next_start:
-                    self._start(child)
+                    started = self._start(child)
                     child.restarts += 1
-                    self.say(
-                        f"simecs: restarted {child.name} (pid {child.proc.pid}, restart {child.restarts})"
-                    )
+                    self.say(f"simecs: restarted {child.name} (pid {started.pid}, restart {child.restarts})")
                 continue
             code = proc.poll()
             if code is None:

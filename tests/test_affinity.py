@@ -55,7 +55,7 @@ def test_live_path_shares_the_mesh_core(service: Service) -> None:
     out = subprocess.run(
         ["ps", "-o", "pid=,args=", "--ppid", str(procs["simulator"].pid)], capture_output=True, text=True
     )
-    workers = [int(line.split()[0]) for line in out.stdout.splitlines() if "simworker" in line]
+    workers = [int(line.split()[0]) for line in out.stdout.splitlines() if "simecs.nodes.worker" in line]
     assert workers
     worker = workers[0]
 

@@ -1,97 +1,132 @@
-"""docs/PROTOCOL.md documents every key built in mesh/keys.py and every message type of mesh/."""
+"""The protocol is one schema: docs/protocol.schema.json and PROTOCOL.md's tables are generated from
+mesh/ and up to date; every message is documented; keys, frames and phases have one owner each."""
 
 from __future__ import annotations
 
-import dataclasses
 import inspect
+import json
+import re
 from pathlib import Path
 
+import jsonschema
 import pytest
-from simecs.mesh import keys, messages, model
+from simecs.mesh import codec, frames, keys, phases, protocol_doc, schema
+from simecs.mesh import messages as m
 
-DOC = (Path(__file__).resolve().parent.parent / "docs" / "PROTOCOL.md").read_text()
-
-SESSION = keys.new_session_id()
-PLACEHOLDERS = {
-    "session": SESSION,
-    "model_id": "m0del",
-    "page": "p4ge",
-    "run_id": "r9",
-    "name": "n4me",
-    "role": "r0le",
-    "node_id": "n0de",
-    "host_id": "n0de",
-}
-BACK = {
-    SESSION: "<session>",
-    "m0del": "<model>",
-    "p4ge": "<page>",
-    "r9": "<run>",
-    "n4me": "<name>",
-    "r0le": "<role>",
-    "n0de": "<node>",
-}
+ROOT = Path(__file__).resolve().parent.parent
+DOC = (ROOT / "docs" / "PROTOCOL.md").read_text()
+SCHEMA = json.loads((ROOT / "docs" / "protocol.schema.json").read_text())
+CODE = ("mesh", "models", "nodes", "viewer", "testing", "benchmarks")
 
 
-def documented_form(key: str) -> str:
-    for value, placeholder in BACK.items():
-        key = key.replace(value, placeholder)
-    return key
+def test_schema_and_document_are_generated_from_mesh_and_current() -> None:
+    assert schema.main(["--check", "--root", str(ROOT)]) == 0, "run: python -m simecs.mesh.schema"
+    assert json.loads(schema.schema_text()) == SCHEMA
 
 
-def key_builders() -> list[tuple[str, str]]:
-    out = []
-    for name, fn in inspect.getmembers(keys, inspect.isfunction):
-        if fn.__module__ != keys.__name__ or name in {
-            "new_session_id",
-            "is_session_id",
-            "check_name",
-            "session_of",
-            "last_chunk",
-            "recording_name",
-        }:
-            continue
-        params = inspect.signature(fn).parameters
-        args = {p: PLACEHOLDERS[p] for p in params if p in PLACEHOLDERS}
-        out.append((name, documented_form(fn(**args))))
-        if "run_id" in params and params["run_id"].default is None:
-            out.append((f"{name}(run)", documented_form(fn(**{**args, "run_id": "r9"}))))
-    return out
+def test_every_message_type_is_in_the_document_once() -> None:
+    grouped = [name for _group, names in protocol_doc.GROUPS for name in names]
+    assert len(grouped) == len(set(grouped))
+    assert sorted(grouped) == sorted(SCHEMA["$defs"]), "a message type is missing from protocol_doc.GROUPS"
+    for name in grouped:
+        assert f"**{name}**" in DOC
 
 
-@pytest.mark.parametrize(("builder", "key"), key_builders())
-def test_every_key_builder_is_documented(builder: str, key: str) -> None:
-    assert f"`{key}`" in DOC, f"{builder} builds {key}, which docs/PROTOCOL.md does not list"
+def test_every_key_of_the_table_is_built_and_parsed_by_the_table() -> None:
+    sid = keys.new_session_id()
+    chunks = {
+        "session": sid,
+        "model": "m0",
+        "page": "p0",
+        "name": "n0",
+        "run": "r3",
+        "role": "proxy",
+        "node": "n1",
+    }
+    for name, spec in keys.KEYS.items():
+        key = keys.build(name, **{c: chunks[c] for c in spec.chunks})
+        assert keys.parse(name, key) == {c: chunks[c] for c in spec.chunks}
+        assert f"`{spec.pattern}`" in DOC
+    builders = [f for n, f in inspect.getmembers(keys, inspect.isfunction) if f.__module__ == keys.__name__]
+    assert {"cmd", "state", "results", "run_token", "node_status"} <= {f.__name__ for f in builders}
 
 
-CONSTANTS = [
-    (n, v)
-    for n, v in vars(keys).items()
-    if n.isupper() and n != "ROOT" and isinstance(v, str) and v.startswith("simecs")
-]
-
-
-@pytest.mark.parametrize(("name", "key"), CONSTANTS)
-def test_every_key_constant_is_documented(name: str, key: str) -> None:
-    assert f"`{key}`" in DOC, f"keys.{name} = {key} is not in docs/PROTOCOL.md"
-
-
-MESSAGES = [
-    c
-    for mod in (messages, model)
-    for c in vars(mod).values()
-    if isinstance(c, type) and dataclasses.is_dataclass(c) and c.__module__ == mod.__name__
-]
-
-
-@pytest.mark.parametrize("cls", MESSAGES, ids=lambda c: c.__name__)
-def test_every_message_is_documented_with_its_fields(cls: type) -> None:
-    tags = [
-        f.default for f in dataclasses.fields(cls) if f.name in {"op", "kind"} and isinstance(f.default, str)
+def test_keys_are_taken_apart_only_in_mesh_keys() -> None:
+    pattern = re.compile(r"""\.r?split\(\s*["']/["']""")
+    offenders = [
+        f"{path.relative_to(ROOT)}:{n}"
+        for folder in CODE
+        for path in (ROOT / folder).rglob("*.py")
+        if path != ROOT / "mesh" / "keys.py"
+        for n, line in enumerate(path.read_text().splitlines(), 1)
+        if pattern.search(line)
     ]
-    named = cls.__name__ in DOC or any(f"`{tag}`" in DOC for tag in tags)
-    assert named, f"message {cls.__name__} is not in docs/PROTOCOL.md"
-    for f in dataclasses.fields(cls):
-        if f.name in {"type", "v", "op", "kind"}:
-            continue
-        assert f.name in DOC, f"field {cls.__name__}.{f.name} is not described in docs/PROTOCOL.md"
+    assert not offenders, f"keys split by hand (use keys.parse): {offenders}"
+
+
+def test_frame_headers_are_read_only_in_mesh_frames() -> None:
+    offenders = [
+        f"{path.relative_to(ROOT)}:{n}"
+        for folder in CODE
+        for path in (ROOT / folder).rglob("*.py")
+        if path != ROOT / "mesh" / "frames.py"
+        for n, line in enumerate(path.read_text().splitlines(), 1)
+        if "HEADER.unpack" in line or re.search(r"unpack_from\([^)]*,\s*(8|16|24|32|36)\)", line)
+    ]
+    assert not offenders, f"frame header read by byte offset (use frames.peek): {offenders}"
+
+
+def test_the_frame_header_table_is_the_struct() -> None:
+    offset = 0
+    for _name, at, size, _meaning in frames.HEADER_FIELDS:
+        assert at == offset
+        offset += size
+    assert offset == frames.HEADER.size == SCHEMA["x-simecs-frame"]["header_bytes"]
+
+
+def test_phase_table_is_closed_and_every_command_has_its_phases() -> None:
+    for event, moves in phases.TRANSITIONS.items():
+        assert set(moves) <= set(phases.PHASES) and set(moves.values()) <= set(phases.PHASES), event
+    for cls in m.REPLIES:
+        op = cls.__struct_config__.tag
+        if cls not in (m.CreateSession, m.ListSessions):
+            assert op in phases.ALLOWED, f"command {op} has no phases in mesh/phases.py"
+    assert phases.refusal("pause", "finished") == "nothing to pause: the session is finished"
+    assert phases.refusal("run", "created") == ""
+
+
+def validator(name: str) -> jsonschema.Draft202012Validator:
+    return jsonschema.Draft202012Validator({"$ref": f"#/$defs/{name}", "$defs": SCHEMA["$defs"]})
+
+
+def test_what_the_codec_accepts_the_schema_accepts_and_refuses_alike() -> None:
+    sid = keys.new_session_id()
+    good = [
+        ("SessionCommand", m.SetParams({"joint1.ctrl.kp_pos": 60.0})),
+        ("SessionCommand", m.Replay("x_r1", speed=2.0)),
+        ("SessionCommand", m.SetCommand(m.JointPath([m.PathNode([0.1, 0.2])]))),
+        ("SessionState", m.SessionState(sid, "running", progress=0.5)),
+        ("RunSettings", m.RunSettings(stop_time=2.0)),
+    ]
+    for name, msg in good:
+        validator(name).validate(codec.to_obj(msg))
+    bad = [
+        ("SessionCommand", {"op": "set_params", "values": {"a": 1}}),  # no v
+        ("SessionCommand", {"op": "run", "v": 1, "extra": 1}),
+        ("SessionCommand", {"op": "set_settings", "v": 1, "settings": {"stop_time": 0}}),
+        ("SessionState", {"type": "state", "v": 1, "session": "short", "phase": "created"}),
+        ("SessionCommand", {"op": "save_param_set", "v": 1, "name": "-bad"}),
+    ]
+    for name, value in bad:
+        assert not validator(name).is_valid(value), value
+        with pytest.raises(codec.DecodeError):
+            codec.from_obj(m.SessionCommand if name == "SessionCommand" else getattr(m, name), value)
+
+
+def test_each_commands_reply_is_in_the_schema() -> None:
+    commands = SCHEMA["x-simecs-commands"]
+    assert set(commands) == {c.__struct_config__.tag for c in m.REPLIES}
+    ok = commands["run"]["reply"]
+    jsonschema.Draft202012Validator({**ok, "$defs": SCHEMA["$defs"]}).validate(
+        {"type": "ok", "v": 1, "data": {"run_id": "r1", "phase": "queued", "queue_position": 0}}
+    )

@@ -31,7 +31,6 @@ def write_run(
     model = arm_model()
     w = fmt.RunWriter(path, lay, chunk_size=chunk_size)
     w.write_log(fmt.LOG_INFO, "started", 0.0)
-    w.write_metadata(fmt.META_PARAMS, {k: repr(v) for k, v in model.default_values().items()})
     w.write_scene(model, model.default_values())
     sent = []
     rows = make_rows(model, n_frames * rows_per_frame)
@@ -61,7 +60,9 @@ def test_written_run_reads_back_exactly_with_valid_schemas(tmp_path: Path) -> No
     assert rec.complete and not rec.recovered
     assert rec.layout.columns == layout_for(SID).columns
     assert rec.params() == arm_model().default_values()
-    assert set(v.metadata) >= {fmt.META_RUN, fmt.META_PARAMS, fmt.META_END}
+    assert set(v.metadata) >= {fmt.META_RUN, fmt.META_PARAMS, fmt.META_SESSION, fmt.META_END}
+    assert rec.context() == layout_for(SID).context  # the run's context travels in the file
+    assert json.loads(v.metadata[fmt.META_SESSION]["command"])["kind"] == "joint_path"
     info = mcapread.info(path)
     assert (info.session, info.run_id, info.model_id, info.recovered) == (SID, "r1", "testarm", False)
 
@@ -78,6 +79,65 @@ def test_scene_uses_link_frames_and_resized_lengths() -> None:
     assert pipe["size"]["z"] == pytest.approx(0.7) and pipe["pose"]["position"]["x"] == pytest.approx(0.35)
     assert len(ents["link2"]["spheres"]) == 1 and len(ents["link2"]["cubes"]) == 1
     assert ents["environment"]["frame_id"] == fmt.WORLD_FRAME
+
+
+@pytest.mark.parametrize(
+    "changes",
+    [
+        {},
+        {"link2.length": 0.9, "link4.length": 0.2},
+        {"link3.radius": 0.09, "link1.radius": 0.02},
+        {"payload.size": 0.5, "link7.length": 0.4},
+    ],
+    ids=["defaults", "lengths", "radii", "payload"],
+)
+def test_foxglove_scene_draws_the_shape_geometry_the_viewer_draws(changes: dict[str, float]) -> None:
+    """One rule (mesh.shapes) for both: every Foxglove primitive sits and measures as its solid."""
+    from simecs import models
+    from simecs.mesh import shapes
+
+    model = models.get_model("spider").describe()
+    values = {**model.default_values(), **changes}
+    scene = fmt.scene_update(model, values, 1)
+    prims: dict[str, list[dict]] = {}
+    for entity in scene["entities"]:
+        for kind in ("cylinders", "cubes", "spheres"):
+            prims.setdefault(entity["id"], []).extend((kind, p) for p in entity[kind])
+    kind_of = {"cylinder": "cylinders", "pipe": "cylinders", "box": "cubes", "sphere": "spheres"}
+    order = ["cylinders", "cubes", "spheres"]  # how an entity lists its primitives
+    drawn: dict[str, list] = {}
+    for solid in shapes.solids(model, values):
+        if solid.geometry.visible:
+            drawn.setdefault("environment" if solid.frame == shapes.WORLD else solid.frame, []).append(solid)
+    for solids in drawn.values():
+        solids.sort(key=lambda sol: order.index(kind_of[sol.geometry.kind]))
+    assert set(drawn) == set(prims)
+    for frame, solids in drawn.items():
+        assert len(solids) == len(prims[frame])
+        for solid, (kind, prim) in zip(solids, prims[frame], strict=True):
+            g = solid.geometry
+            assert kind == kind_of[g.kind]
+            pos, rot = prim["pose"]["position"], prim["pose"]["orientation"]
+            assert [pos["x"], pos["y"], pos["z"]] == pytest.approx(list(g.position))
+            assert [rot["w"], rot["x"], rot["y"], rot["z"]] == pytest.approx(list(g.wxyz))
+            size = [prim["size"]["x"], prim["size"]["y"], prim["size"]["z"]]
+            if kind == "cylinders":
+                assert size == pytest.approx([2 * g.radius, 2 * g.radius, g.length])
+            elif kind == "cubes":
+                assert size == pytest.approx(list(g.dimensions))
+            else:
+                assert size == pytest.approx([2 * g.radius] * 3)
+    # and the parameters really reshape: the payload cube, a link tube, a housing
+    payload = [p["size"]["x"] for k, p in prims["link7"] if k == "cubes"]
+    assert payload == pytest.approx([values["payload.size"]])
+    tubes = [p for k, p in prims["link2"] if k == "cylinders"]
+    assert any(p["size"]["z"] == pytest.approx(values["link2.length"]) for p in tubes)
+    if "link3.radius" in changes:
+        scale = changes["link3.radius"] / model.default_values()["link3.radius"]
+        housing = [p for k, p in prims["link3"] if k == "cylinders"][0]
+        default = fmt.scene_update(model, model.default_values(), 1)
+        base = next(e for e in default["entities"] if e["id"] == "link3")["cylinders"][0]
+        assert housing["size"]["x"] == pytest.approx(base["size"]["x"] * scale)
 
 
 def test_vars_schema_is_ros2_and_fields_map_to_columns() -> None:

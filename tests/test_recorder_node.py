@@ -56,11 +56,12 @@ def test_published_run_is_recorded_listed_downloaded_uploaded(mesh: Mesh) -> Non
     name = path.stem
     listed = {r.name: r for r in client.recordings()}
     assert listed[name].session == SID and listed[name].run_id == "r1" and not listed[name].recovered
-    data, att = client.request_binary(keys.recording(name))
-    assert data == path.read_bytes() and att["name"] == name
+    data, att = client.request_binary(keys.recording(name), m.RecordingInfo)
+    assert data == path.read_bytes() and att.name == name
+    assert client.recording_info(name) == att
 
-    info = client.request(keys.recording("uploaded-copy"), data)
-    assert info["name"] == "uploaded-copy" and (rec_dir / "uploaded-copy.mcap").read_bytes() == data
+    info = client.upload_recording("uploaded-copy", data)
+    assert info.name == "uploaded-copy" and (rec_dir / "uploaded-copy.mcap").read_bytes() == data
     with pytest.raises(RemoteError, match="already exists") as err:
         client.request(keys.recording("uploaded-copy"), data)
     assert err.value.code == "conflict"
@@ -70,8 +71,11 @@ def test_published_run_is_recorded_listed_downloaded_uploaded(mesh: Mesh) -> Non
     with pytest.raises(RemoteError, match="incomplete MCAP"):
         client.request(keys.recording("torn"), data[: len(data) // 2])
     with pytest.raises(RemoteError) as err:
-        client.request_binary(keys.recording("nosuch"))
+        client.request_binary(keys.recording("nosuch"), m.RecordingInfo)
     assert err.value.code == "not_found"
+    with pytest.raises(RemoteError) as err:
+        client.recording_info("nosuch")
+    assert err.value.code == "not_found" and err.value.field == "name"
     assert not (rec_dir / "junk.mcap").exists() and not (rec_dir / "torn.mcap").exists()
 
 
@@ -146,7 +150,7 @@ def test_real_run_leaves_a_valid_recording(mesh: Mesh) -> None:
     assert {f"link{i}" for i in range(1, 8)} <= ids
     name = path.stem
     assert name in {r.name for r in client.recordings()}
-    data, _att = client.request_binary(keys.recording(name))
+    data = client.download_recording(name)
     assert mcapread.validate(data).messages == v.messages
 
 

@@ -21,7 +21,7 @@ from mcap.data_stream import ReadDataStream
 from mcap.reader import SeekingReader
 from mcap.records import Chunk, MessageIndex
 from mcap.stream_reader import StreamReader, get_chunk_data_stream
-from simecs.mesh import codec, frames, keys, kinematics
+from simecs.mesh import codec, columns, frames, keys, kinematics
 from simecs.mesh import messages as m
 from simecs.mesh.model import Link, ModelDescription, Parameter, Shape, Variable
 from simecs.nodes import mcapfmt as fmt
@@ -70,13 +70,18 @@ def arm_model() -> ModelDescription:
 
 
 def columns_of(model: ModelDescription) -> tuple[list[str], list[str]]:
-    cols = ["time"] + [v.name for v in model.variables] + kinematics.pose_column_names(model)
-    units = (
-        ["s"]
-        + [v.unit for v in model.variables]
-        + ["m", "m", "m", "-", "-", "-", "-"] * (len(model.links) + 1)
+    return columns.run_columns(model)
+
+
+def context_of(model: ModelDescription) -> m.RunContext:
+    """What a worker carries with a run: who, with which values, pose, command and settings."""
+    return m.RunContext(
+        user="tester",
+        values=model.default_values(),
+        initial=[0.0, 0.3],
+        command=m.JointPath([m.PathNode([0.5, 0.3])]),
+        settings=m.RunSettings(stop_time=1.0, pacing="fast"),
     )
-    return cols, units
 
 
 def make_rows(model: ModelDescription, n: int, dt: float = 0.002, t_start: float = 0.0) -> np.ndarray:
@@ -109,6 +114,7 @@ def layout_for(session: str, run_id: str = "r1", run_index: int = 1, stop_time: 
         live_rate_hz=50.0,
         stop_time=stop_time,
         output_interval=0.002,
+        context=context_of(arm_model()),
     )
 
 
@@ -152,31 +158,16 @@ class FakeRun:
 
 
 class FakeProxy:
-    """Answers the model description and get_session queries for the given sessions."""
+    """Answers the model description query, as the proxy's library does."""
 
-    def __init__(self, z: zenoh.Session, sessions: list[str]) -> None:
+    def __init__(self, z: zenoh.Session, sessions: list[str] | None = None) -> None:
         model = arm_model()
         self.model = model
 
         def on_model(q: zenoh.Query) -> None:
             q.reply(q.key_expr, codec.dumps(m.Ok(data=codec.to_obj(model))))
 
-        def on_cmd(q: zenoh.Query) -> None:
-            sid = keys.session_of(str(q.key_expr))
-            snap = m.SessionSnapshot(
-                session=sid,
-                user="tester",
-                model_id=MODEL_ID,
-                values=model.default_values(),
-                initial=[0.0, 0.3],
-                command=m.JointPath([m.PathNode([0.5, 0.3])]),
-                settings=m.RunSettings(stop_time=1.0, pacing="fast"),
-                state=m.SessionState(sid, "running"),
-            )
-            q.reply(q.key_expr, codec.dumps(m.Ok(data=codec.to_obj(snap))))
-
         self.entities = [z.declare_queryable(keys.model(MODEL_ID), on_model)]
-        self.entities += [z.declare_queryable(keys.cmd(s), on_cmd) for s in sessions]
 
     def close(self) -> None:
         for e in self.entities:

@@ -1,146 +1,214 @@
-"""Replays: a recording republished onto the mesh as a session, frames equal to the recorded ones."""
+"""Replays: a recording played back as a run of a session, owned by the proxy like any run, frames and
+results equal to the recorded ones, with pause, seek, abort and the recorded end."""
 
 from __future__ import annotations
 
+import subprocess
+import sys
 import threading
 import time
 from pathlib import Path
 
 import numpy as np
-from simecs.mesh import codec, frames, keys
+import pytest
+from simecs.mesh import frames, keys
 from simecs.mesh import messages as m
-from simecs.mesh.client import MeshClient, RemoteError
-from simecs.nodes import mcapfmt as fmt
+from simecs.mesh.client import MeshClient, RemoteError, SessionClient
 from simecs.nodes import mcapread
 
-from .conftest import Mesh, wait_until
-from .test_recorder_support import arm_model, layout_for, make_rows
+from .conftest import Mesh, mesh_env, start_service, wait_until
+from .test_recorder_support import wait_file_closed
 
-SID = "Rep1ayS0urceSessi0n-Ab"
-
-
-def write_recording(folder: Path, n_frames: int = 50) -> tuple[Path, list[frames.Frame]]:
-    folder.mkdir(parents=True, exist_ok=True)
-    lay = layout_for(SID, stop_time=1.0)
-    path = folder / f"{keys.recording_name(SID, 'r1')}.mcap"
-    w = fmt.RunWriter(path, lay)
-    w.write_metadata(fmt.META_PARAMS, {k: repr(v) for k, v in arm_model().default_values().items()})
-    rows = make_rows(arm_model(), n_frames * 10)
-    sent = []
-    for k in range(n_frames):
-        n = 10 if k % 7 else 7  # uneven frames: their boundaries must survive the replay
-        a = sum(f.rows.shape[0] for f in sent)
-        flags = frames.FLAG_FINAL if k == n_frames - 1 else 0
-        fr = frames.Frame(1, k, time.time_ns(), rows[a : a + n], flags)
-        w.write_frame(fr)
-        sent.append(fr)
-    w.close({"phase": "finished"})
-    return path, sent
+TARGET = [0.3, -0.2, 0.2, 0.1, -0.1, 0.1, 0.0]
 
 
 class Collector:
-    def __init__(self, client: MeshClient, session: str) -> None:
-        self.frames: list[frames.Frame] = []
+    """What a client watching the session sees."""
+
+    def __init__(self, s: SessionClient) -> None:
+        self.full: list[frames.Frame] = []
+        self.live: list[frames.Frame] = []
         self.states: list[m.SessionState] = []
+        self.layouts: list[m.RunLayout] = []
         self.final = threading.Event()
-        self.watch = client.session(session).watch(on_full=self._on_full, on_state=self.states.append)
+        self.watch = s.watch(
+            on_full=self._on_full,
+            on_live=self.live.append,
+            on_state=self.states.append,
+            on_layout=self.layouts.append,
+        )
 
     def _on_full(self, fr: frames.Frame) -> None:
-        self.frames.append(fr)
+        self.full.append(fr)
         if fr.final:
             self.final.set()
 
-    def phase(self) -> str:
-        return self.states[-1].phase if self.states else ""
+    def rows(self) -> np.ndarray:
+        return np.concatenate([f.rows for f in self.full if f.rows.shape[0]])
+
+    def close(self) -> None:
+        self.watch.close()
 
 
-def test_replay_republishes_the_recorded_frames_with_pause_and_seek(mesh: Mesh) -> None:
-    rec_dir = mesh.folder / "rec"
-    path, sent = write_recording(rec_dir)
-    mesh.start("recorder", "--dir", str(rec_dir))
-    client = mesh.new_client()
-    reply = client.request(keys.recording_replay(path.stem), m.ReplayRequest(speed=4.0, paused=True))
-    sid = reply["session"]
-    assert keys.is_session_id(sid) and sid != SID
-    col = Collector(client, sid)
+def record_a_run(
+    mesh: Mesh, client: MeshClient, stop_time: float = 1.0, abort_at: float = 0.0
+) -> tuple[SessionClient, Path]:
+    s = client.create_session("ann", "spider")
+    s.set_settings(stop_time=stop_time, output_interval=0.005, pacing="realtime" if abort_at else "fast")
+    s.set_joint_path([(TARGET, 100, 100)])
+    run_id = s.run()
+    if abort_at:
+        wait_until(lambda: s.snapshot().state.sim_time > abort_at, timeout=30, what="run under way")
+        s.abort()
+    s.wait_for(list(("finished", "aborted", "failed")), 60, run_id)
+    path = mesh.folder / "rec" / f"{keys.recording_name(s.id, run_id)}.mcap"
+    wait_file_closed(path)
+    return s, path
+
+
+@pytest.fixture
+def recording_service(mesh: Mesh) -> Mesh:
+    start_service(mesh)
+    mesh.start("recorder", "--dir", str(mesh.folder / "rec"))
+    return mesh
+
+
+def test_a_replay_is_a_run_of_the_session_paced_paused_and_sought(recording_service: Mesh) -> None:
+    mesh = recording_service
+    client = mesh.client()
+    s, path = record_a_run(mesh, client)
+    recorded = mcapread.load(path)
+    col = Collector(s)
     try:
-        wait_until(lambda: col.phase() == "paused", 10, what="paused replay state")
-        snap = client.session(sid).snapshot()  # answered by the replay node itself
-        assert snap.model_id == "testarm" and snap.state.phase == "paused"
-        assert snap.runs[0].samples == sum(f.rows.shape[0] for f in sent)
+        run_id = s.replay(path.stem, speed=4.0, paused=True)
+        assert s.wait_for(["paused"], 20, run_id).run_id == run_id == "r2"
         time.sleep(0.3)
-        assert col.frames == []  # paused: nothing published
-        client.session(sid).resume()
+        assert col.full == []  # paused from the start: nothing published
+        s.resume()
         assert col.final.wait(20), "no final frame"
-        got = list(col.frames)
-        assert [f.rows.shape[0] for f in got] == [f.rows.shape[0] for f in sent]
-        assert np.array_equal(np.concatenate([f.rows for f in got]), np.concatenate([f.rows for f in sent]))
-        assert all(f.run_index == 1 for f in got) and got[-1].final and not any(f.final for f in got[:-1])
-        wall = (got[-1].wall_ns - got[0].wall_ns) / 1e9
-        recorded = sent[-1].rows[-1, 0] - sent[0].rows[-1, 0]
-        assert wall >= 0.8 * recorded / 4.0, (wall, recorded)  # paced at 4x, not as fast as possible
-        wait_until(lambda: col.phase() == "finished", 10, what="finished")
-        assert col.states[-1].progress > 0.6
+        assert np.array_equal(col.rows(), recorded.rows)  # every recorded sample, exactly
+        wall = (col.full[-1].wall_ns - col.full[0].wall_ns) / 1e9
+        assert wall >= 0.8 * recorded.duration / 4.0  # paced at 4x, not as fast as possible
+        end = s.wait_for(["finished", "aborted", "failed"], 20, run_id)
+        assert end.phase == "finished" and end.progress == pytest.approx(1.0)
+        layout = col.layouts[-1]
+        assert layout.source == "replay" and layout.context.recording == path.stem
+        assert layout.context.command == recorded.layout.context.command
+        # Results, runs list: like any run.
+        cols, rows = s.results(run_id)
+        assert cols == recorded.columns and np.array_equal(rows, recorded.rows)
+        runs = {r.run_id: r for r in s.runs()}
+        assert runs[run_id].recording == path.stem and runs[run_id].phase == "finished"
 
-        # Seek back (the replay lingers after its end): it plays again from 0.5 s.
-        col.frames.clear()
+        # Seek while it runs: it plays on from there.
+        col.full.clear()
         col.final.clear()
-        control = client.z.declare_publisher(keys.control(sid))
-        control.put(codec.dumps(m.RunControl(op="seek", run_id="r1", time=0.5)))
+        again = s.replay(path.stem, speed=0.5)
+        s.wait_for(["running"], 20, again)
+        s.seek(0.7)
         assert col.final.wait(20)
-        first = col.frames[0].rows[:, 0]
-        assert first[0] <= 0.5 + 1e-9 <= first[-1] + 0.02
-        assert col.frames[-1].rows[-1, 0] == sent[-1].rows[-1, 0]
-        control.undeclare()
-
-        # Only replay commands are accepted on its cmd key.
-        try:
-            client.session(sid).set_params({"link1.length": 0.5})
-            raise AssertionError("set_params accepted by a replay")
-        except RemoteError as exc:
-            assert exc.code in ("unsupported", "not_found")
-        client.session(sid).abort()
-        wait_until(lambda: col.phase() == "aborted", 10, what="aborted")
-        wait_until(lambda: ("replay", f"replay-{sid}") not in client.live_nodes(), 10, what="replay exit")
+        starts = [f.rows[0, 0] for f in col.full if f.rows.shape[0]]
+        jump = next(i for i, t in enumerate(starts) if t >= 0.7 - 1e-9)
+        assert max(starts[:jump], default=0.0) < 0.4  # played from 0 until the seek (within ~0.6 s of wall)
+        assert starts[jump] == pytest.approx(0.7, abs=1e-6) and starts[jump:] == sorted(starts[jump:])
+        assert s.wait_for(["finished"], 20, again).phase == "finished"
+        with pytest.raises(RemoteError) as err:
+            s.seek(0.1)
+        assert err.value.code == "conflict"
     finally:
-        col.watch.close()
-    # The recorder did not record the replay as a new run.
-    assert sorted(p.name for p in rec_dir.glob("*.mcap")) == [path.name]
+        col.close()
+    # The recorder did not record the replays as new runs.
+    assert sorted(p.name for p in (mesh.folder / "rec").glob("*.mcap")) == [path.name]
 
 
-def test_replay_cli_as_fast_as_possible(mesh: Mesh, tmp_path: Path) -> None:
-    path, sent = write_recording(tmp_path / "rec", n_frames=100)
-    mesh.start("hotfeedback")
-    other_dir = tmp_path / "other"
-    mesh.start("recorder", "--dir", str(other_dir))  # it did not start this replay
-    client = mesh.new_client()
-    sid = keys.new_session_id()
-    live: list[frames.Frame] = []
-    layouts: list[m.RunLayout] = []
-    col = Collector(client, sid)
-    watch_live = client.session(sid).watch(on_live=live.append, on_layout=layouts.append)
+def test_a_replay_ends_as_its_recording_did_and_can_be_aborted(recording_service: Mesh) -> None:
+    mesh = recording_service
+    client = mesh.client()
+    s, path = record_a_run(mesh, client, stop_time=4.0, abort_at=0.3)
+    assert mcapread.load(path).metadata["simecs.end"]["phase"] == "aborted"
+    run_id = s.replay(path.stem, speed=0)
+    end = s.wait_for(["finished", "aborted", "failed"], 30, run_id)
+    assert (
+        end.phase == "aborted"
+        and end.reason.startswith("as recorded")
+        and "aborted by the user" in end.reason
+    )
+    live = Collector(s)
     try:
-        mesh.start("replay", str(path), "--speed", "0", f"--session={sid}", "--linger", "0.5")
-        assert col.final.wait(20)
-        rows = np.concatenate([f.rows for f in col.frames])
-        assert np.array_equal(rows, mcapread.load(path).rows)
-        wait_until(lambda: live and live[-1].final, 10, what="final live frame from hot-feedback")
-        assert live[-1].rows[-1, 0] == sent[-1].rows[-1, 0]
-        wait_until(lambda: mesh.procs["replay"].poll() is not None, 15, what="replay exit after linger")
-        assert mesh.procs["replay"].returncode == 0
-        assert layouts and all(lay.source == "replay" for lay in layouts)
+        second = s.replay(path.stem, speed=0.2)
+        s.wait_for(["running"], 20, second)
+        s.abort()
+        end = s.wait_for(["aborted"], 20, second)
+        assert end.reason == "aborted by the user" and end.sim_time < 0.3
+        wait_until(lambda: live.live and live.live[-1].final, what="final live frame")
+        assert live.live[-1].rows.shape[0] == 0  # an aborted run ends with no sample
     finally:
-        col.watch.close()
-        watch_live.close()
-    # The layout says it is a replay: the recorder leaves it alone.
-    assert list(other_dir.glob("*.mcap")) == []
-    assert "is a replay: not recorded" in mesh.log("recorder")
+        live.close()
+
+
+def test_replays_are_refused_before_they_start(recording_service: Mesh) -> None:
+    client = recording_service.client()
+    s, path = record_a_run(recording_service, client)
+    puma = client.create_session("ann", "puma560")
+    for session, name, code in ((puma, path.stem, "conflict"), (s, "no-such-recording", "not_found")):
+        with pytest.raises(RemoteError) as err:
+            session.replay(name)
+        assert err.value.code == code and err.value.field == "recording"
+    s.set_settings(stop_time=2.0, output_interval=0.01, pacing="realtime")
+    run_id = s.run()
+    s.wait_for(["running"], 20, run_id)
+    with pytest.raises(RemoteError) as err:
+        s.seek(0.5)
+    assert err.value.code == "unsupported"
+    with pytest.raises(RemoteError) as err:
+        s.replay(path.stem)
+    assert err.value.code == "conflict"
+    s.abort()
+    assert puma.snapshot().state.phase == "created"
+
+
+def test_replay_cli_uploads_and_plays_as_fast_as_possible(recording_service: Mesh, tmp_path: Path) -> None:
+    mesh = recording_service
+    client = mesh.client()
+    _s, path = record_a_run(mesh, client)
+    copy = tmp_path / "kept run.mcap"
+    copy.write_bytes(path.read_bytes())
+    out = subprocess.run(
+        [sys.executable, "-m", "simecs.nodes.replay", str(copy), "--speed", "0", "--connect", mesh.endpoint],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        env=mesh_env(),
+    )
+    assert out.returncode == 0, out.stdout + out.stderr
+    assert "(recording kept_run)" in out.stdout and "run r1 finished" in out.stdout
+    sid = out.stdout.split(" as session ", 1)[1].split()[0]
+    replayed = client.session(sid)
+    _cols, rows = replayed.results("r1")
+    assert np.array_equal(rows, mcapread.load(path).rows)
+    assert client.recording_info("kept_run").bytes == path.stat().st_size
+    # The library's own file is not uploaded again.
+    again = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "simecs.nodes.replay",
+            str(path),
+            "--speed",
+            "0",
+            "--detach",
+            "--connect",
+            mesh.endpoint,
+        ],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        env=mesh_env(),
+    )
+    assert again.returncode == 0 and f"(recording {path.stem})" in again.stdout, again.stdout + again.stderr
 
 
 def test_replay_cli_refuses_bad_files(tmp_path: Path) -> None:
-    import subprocess
-    import sys
-
     bad = tmp_path / "bad.mcap"
     bad.write_bytes(b"nope")
     proc = subprocess.run(

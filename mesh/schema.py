@@ -1,0 +1,198 @@
+"""The protocol as one machine-readable schema: `docs/protocol.schema.json`, made from the Structs of
+messages.py and model.py, the key table of keys.py, the phase table of phases.py and the frame header
+of frames.py, so it can never say something the nodes do not do.
+
+    python -m simecs.mesh.schema          # rewrite docs/protocol.schema.json and PROTOCOL.md's tables
+    python -m simecs.mesh.schema --check  # exit 1 if either is out of date (the tests do the same)
+
+A client validates a message it sends or receives against `$defs/<Type>`; the key table says which
+type travels on which key (`x-simecs-keys`), and `x-simecs-commands` gives each command's reply.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+from typing import Any
+
+import msgspec
+
+from . import frames, keys, phases
+from . import messages as m
+from . import model as md
+
+#: Named unions: they get a $defs entry of their own, like the Structs.
+UNIONS = {
+    "SessionCommand": m.SessionCommand,
+    "SessionRequest": m.SessionRequest,
+    "RobotCommand": m.RobotCommand,
+}
+#: Named reply types that are not Structs.
+ALIASES = {"RunList": m.RunList}
+#: Payload tokens of the key table that are not JSON.
+BINARY = {
+    "frame": "a binary sample frame (PROTOCOL.md §6): a 40-byte header (x-simecs-frame), then float64 rows",
+    "mcap": "the bytes of an MCAP file (docs/RECORDINGS.md)",
+}
+REF = "#/$defs/{name}"
+
+
+def message_types() -> list[type]:
+    """Every Struct of the protocol, in the order the modules define them."""
+    out: list[type] = []
+    for module in (md, m):
+        for obj in vars(module).values():
+            ours = (
+                isinstance(obj, type)
+                and issubclass(obj, msgspec.Struct)
+                and obj.__module__ == module.__name__
+            )
+            if ours and obj.__name__ not in ("Command", "RobotCommandBase") and obj not in out:
+                out.append(obj)
+    return out
+
+
+def _type_of(token: str) -> Any:
+    if token in UNIONS:
+        return UNIONS[token]
+    if token in ALIASES:
+        return ALIASES[token]
+    found = getattr(m, token, None) or getattr(md, token, None)
+    if found is None:
+        raise KeyError(f"the key table names {token!r}, which is no message type")
+    return found
+
+
+def _with_required_version(defs: dict[str, Any]) -> None:
+    """`v` is required on the wire (the Python classes default it for the code that builds them)."""
+    for schema in defs.values():
+        props = schema.get("properties", {})
+        if "v" in props:
+            props["v"].pop("default", None)
+            schema["required"] = sorted(set(schema.get("required", [])) | {"v"}, key=list(props).index)
+
+
+def _ok(data_schema: dict[str, Any]) -> dict[str, Any]:
+    return {
+        "type": "object",
+        "properties": {"type": {"enum": ["ok"]}, "v": {"enum": [1]}, "data": data_schema},
+        "required": ["type", "v", "data"],
+        "additionalProperties": False,
+    }
+
+
+def _tokens(text: str, as_reply: bool, types: dict[str, Any]) -> list[dict[str, Any]]:
+    out: list[dict[str, Any]] = []
+    for token in (t.strip() for t in text.split("|") if t.strip()):
+        if token in BINARY:
+            out.append({"x-binary": token, "description": BINARY[token]})
+        elif token == "per command":
+            out.append({"x-per-command": True, "description": "see x-simecs-commands"})
+        else:
+            ref = types[token]
+            out.append(_ok(ref) if as_reply else ref)
+    return out
+
+
+def protocol_schema() -> dict[str, Any]:
+    """The whole schema as a JSON value."""
+    structs = message_types()
+    replies = list({repr(t): t for t in m.REPLIES.values()}.values())
+    every = [*structs, *UNIONS.values(), *ALIASES.values(), *replies]
+    schemas, defs = msgspec.json.schema_components(every, ref_template=REF)
+    schema_of = {repr(t): schema for t, schema in zip(every, schemas, strict=True)}
+    for name, t in [*UNIONS.items(), *ALIASES.items()]:
+        defs[name] = schema_of[repr(t)]
+    _with_required_version(defs)
+    types: dict[str, Any] = {name: {"$ref": REF.format(name=name)} for name in defs}
+    key_table = [
+        {
+            "name": k.name,
+            "key": k.pattern,
+            "kind": k.kind,
+            "writer": k.writer,
+            **({"answerer": k.answerer} if k.answerer else {}),
+            **({"payload": _tokens(k.payload, False, types)} if k.payload else {}),
+            **({"reply": _tokens(k.reply, True, types)} if k.reply else {}),
+            "meaning": k.meaning,
+        }
+        for k in keys.KEYS.values()
+    ]
+    commands = {
+        str(cls.__struct_config__.tag): {  # type: ignore[attr-defined]
+            "request": {"$ref": REF.format(name=cls.__name__)},
+            "reply": _ok(schema_of[repr(m.REPLIES[cls])]),
+            **(
+                {"allowed_in": list(phases.ALLOWED[cls.__struct_config__.tag][0])}  # type: ignore[attr-defined]
+                if cls.__struct_config__.tag in phases.ALLOWED  # type: ignore[attr-defined]
+                else {}
+            ),
+        }
+        for cls in m.REPLIES
+    }
+    return {
+        "$schema": "https://json-schema.org/draft/2020-12/schema",
+        "$id": "https://simecs.invalid/protocol/v1/schema.json",
+        "title": "simecs protocol, version 1",
+        "description": (
+            "Every JSON message of the simecs protocol ($defs), which key carries which (x-simecs-keys), "
+            "each command's reply (x-simecs-commands), the session phases (x-simecs-phases) and the binary "
+            "frame header (x-simecs-frame). Refusals are Zenoh error replies carrying $defs/Error. "
+            "Generated from mesh/ by `python -m simecs.mesh.schema`; docs/PROTOCOL.md explains it."
+        ),
+        "x-simecs-version": m.VERSION,
+        "x-simecs-keys": key_table,
+        "x-simecs-commands": commands,
+        "x-simecs-phases": {
+            "phases": list(phases.PHASES),
+            "worker_phases": list(phases.WORKER_PHASES),
+            "transitions": phases.TRANSITIONS,
+        },
+        "x-simecs-frame": {
+            "byte_order": "little-endian",
+            "header_bytes": frames.HEADER.size,
+            "header": [
+                {"field": name, "offset": offset, "size": size, "meaning": meaning}
+                for name, offset, size, meaning in frames.HEADER_FIELDS
+            ],
+            "data": "float64 values, n_rows x n_cols, row after row",
+        },
+        "$defs": dict(sorted(defs.items())),
+    }
+
+
+def schema_text() -> str:
+    return json.dumps(protocol_schema(), indent=1, ensure_ascii=False) + "\n"
+
+
+def _repo() -> Path:
+    return Path(__file__).resolve().parent.parent
+
+
+def main(argv: list[str] | None = None) -> int:
+    from .protocol_doc import update_document
+
+    parser = argparse.ArgumentParser(prog="python -m simecs.mesh.schema", description=__doc__)
+    parser.add_argument("--check", action="store_true", help="only check that the files are up to date")
+    parser.add_argument("--root", default=str(_repo()), help="the repository (default: this checkout)")
+    args = parser.parse_args(argv)
+    docs = Path(args.root) / "docs"
+    targets = {
+        docs / "protocol.schema.json": schema_text(),
+        docs / "PROTOCOL.md": update_document((docs / "PROTOCOL.md").read_text()),
+    }
+    stale = [path for path, text in targets.items() if not path.exists() or path.read_text() != text]
+    if args.check:
+        for path in stale:
+            print(f"{path} is out of date: run python -m simecs.mesh.schema", file=sys.stderr)
+        return 1 if stale else 0
+    for path in stale:
+        path.write_text(targets[path])
+        print(f"wrote {path}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
