@@ -2,10 +2,10 @@
 
 It answers every session command (a table from message type to handler, each command allowed only in
 the phases `mesh.phases` lists), validates it against the model and applies nothing partially, keeps
-named parameter sets, admits runs (`admission.py`) and turns simulator-independent requests into
-`RunRequest`s for simulator hosts, reached only over the mesh. A replay is a run like any other,
-whose source is a recording. Sessions are persisted on every change (`sessions.py`), so a restart of
-any node loses nothing a user did.
+named parameter sets (`paramsets.py`), admits runs (`admission.py`) and follows them to their end
+(`runs.py`), turning simulator-independent requests into `RunRequest`s for simulator hosts, reached
+only over the mesh. A replay is a run like any other, whose source is a recording. Sessions are
+persisted on every change (`sessions.py`), so a restart of any node loses nothing a user did.
 """
 
 from __future__ import annotations
@@ -13,27 +13,21 @@ from __future__ import annotations
 import argparse
 import os
 import threading
-import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import msgspec
-import zenoh
 from simecs.mesh import codec, keys, phases
 from simecs.mesh import messages as m
 from simecs.mesh.client import MeshClient, NoReply, RemoteError
 from simecs.mesh.model import DocPage, ModelDescription, check_joints
 from simecs.mesh.runtime import Node, NotMine, Request, RequestError, main_for, mesh_from_args
 
-from .admission import Admission
 from .library import ModelLibrary
 from .paramsets import ParamSetStore
+from .runs import RunTracker
 from .sessions import SessionRecord, SessionStore
-
-MAX_WARNINGS = 20
-#: How long a lost run token waits for the worker's own last report (it travels another way).
-LAST_REPORT_GRACE_S = 0.3
 
 
 class Proxy(Node):
@@ -59,11 +53,8 @@ class Proxy(Node):
             data / "sessions", lambda key: self.publisher(key, latched=True), self._release
         )
         self.paramsets = ParamSetStore(data / "paramsets")
-        self.admission = Admission(
-            self.store, lambda: self.z, self.lock, self._handed_over, max_running, max_queue
-        )
-        #: Runs of closed sessions that were told to abort: session id -> run id.
-        self._orphan_runs: dict[str, str] = {}
+        self.runs = RunTracker(self.store, lambda: self.z, self.lock, max_running, max_queue)
+        self.admission = self.runs.admission
         self.commands: dict[type, Callable[[SessionRecord, Any], Any]] = {
             m.SetParams: self._set_params,
             m.ResetParams: self._reset_params,
@@ -71,10 +62,10 @@ class Proxy(Node):
             m.SetCommand: self._set_command,
             m.SetSettings: self._set_settings,
             m.Run: self._run,
-            m.Pause: self._pause,
-            m.Resume: self._resume,
-            m.Abort: self._abort,
-            m.Seek: self._seek,
+            m.Pause: self.runs.pause,
+            m.Resume: self.runs.resume,
+            m.Abort: self.runs.abort,
+            m.Seek: self.runs.seek,
             m.SaveParamSet: self._save_param_set,
             m.LoadParamSet: self._load_param_set,
             m.DeleteParamSet: self._delete_param_set,
@@ -120,10 +111,10 @@ class Proxy(Node):
         self.serve(keys.ALL_CMD, self._on_cmd, threaded=True)
         self.serve(keys.ALL_RESULTS_LIST, self._on_results_list, threaded=True)
         self.serve(keys.ALL_RESULTS, self._on_results, threaded=True)
-        self.subscribe_messages(keys.ALL_RUN_STATUS, m.RunStatus, self._on_run_status, maxlen=4096)
-        self.subscribe_messages(keys.ALL_NOTICES, m.Notice, self._on_notice, maxlen=256)
-        self.subscribe(keys.RUN_TOKENS, self._on_run_token, maxlen=4096, liveliness=True)
-        self._recover_runs()
+        self.subscribe_messages(keys.ALL_RUN_STATUS, m.RunStatus, self.runs.on_run_status, maxlen=4096)
+        self.subscribe_messages(keys.ALL_NOTICES, m.Notice, self.runs.on_notice, maxlen=256)
+        self.subscribe(keys.RUN_TOKENS, self.runs.on_run_token, maxlen=4096, liveliness=True)
+        self.runs.recover()
 
     @property
     def models(self) -> ModelLibrary:
@@ -132,42 +123,6 @@ class Proxy(Node):
 
     def _model(self, rec: SessionRecord) -> ModelDescription:
         return self.models.describe(rec.model_id)
-
-    def _recover_runs(self) -> None:
-        """After a restart: runs whose worker still lives go on; the others are settled from their
-        stored results; queued runs take their place in the queue again."""
-        alive = set()
-        for reply in self.z.liveliness().get(keys.RUN_TOKENS, timeout=1.0):
-            if reply.ok is not None:
-                token = keys.parse("run_token", reply.ok.key_expr)
-                alive.add((token["session"], token["run"]))
-        with self.lock:
-            for rec in self.store:
-                mine = (rec.id, rec.state.run_id) in alive
-                if rec.phase in phases.GOING and not mine:
-                    self._settle_ended_run(rec)
-                elif rec.phase == "queued" and mine:  # it was being handed over when the proxy stopped
-                    self._started(rec)
-                elif rec.phase == "queued":
-                    self.admission.requeue(rec, self._request(rec, rec.state.run_id))
-                else:
-                    self.store.publish_state(rec)
-                    self.store.publish_params(rec, [])
-            self.admission.update()
-
-    def _settle_ended_run(self, rec: SessionRecord) -> None:
-        """A run that ended while the proxy was down: its stored results tell how it ended."""
-        run_id = rec.state.run_id
-        try:
-            selector = keys.results(rec.id, run_id) + "?t0=-1;t1=-1"  # no rows: the description only
-            _, att = MeshClient(self.z, timeout=3.0).request_binary(selector, m.ResultsAttachment)
-            info: m.RunInfo = att.run
-        except (RemoteError, NoReply, codec.DecodeError, zenoh.ZError, AttributeError):
-            self._end_run(rec, "failed", "the run was lost while the proxy was down")
-            return
-        rec.state.sim_time = info.sim_time
-        rec.state.progress = min(1.0, info.sim_time / info.stop_time) if info.stop_time else 0.0
-        self._end_run(rec, info.phase if info.phase in phases.ENDED else "failed", info.reason)
 
     # -- library -----------------------------------------------------------------------------------
     def _on_model(self, req: Request) -> ModelDescription:
@@ -285,8 +240,8 @@ class Proxy(Node):
 
     def _close_session(self, rec: SessionRecord, cmd: m.CloseSession) -> str:
         if rec.phase in phases.GOING:
-            self._orphan_runs[rec.id] = rec.state.run_id
-            self._control(rec, "abort")
+            self.runs.orphans[rec.id] = rec.state.run_id
+            self.runs.control(rec, "abort")
         self.admission.withdraw(rec)
         self.store.close(rec)
         self.admission.update()
@@ -296,7 +251,8 @@ class Proxy(Node):
     def _run(self, rec: SessionRecord, cmd: m.Run) -> m.RunStarted:
         if rec.command is None:
             raise RequestError("bad_request", "no command assigned: set a joint path first", "command")
-        return self._begin(rec, self._request(rec, f"r{rec.run_counter + 1}"), rec.settings.stop_time, "")
+        request = self.runs.request(rec, f"r{rec.run_counter + 1}")
+        return self.runs.begin(rec, request, rec.settings.stop_time, "")
 
     def _recording(self, name: str) -> m.RecordingInfo:
         try:
@@ -318,124 +274,8 @@ class Proxy(Node):
             )
         pacing = {"pacing": "fast"} if cmd.speed == 0 else {"pacing": "scaled", "factor": cmd.speed}
         settings = msgspec.structs.replace(rec.settings, **pacing)
-        request = self._request(rec, f"r{rec.run_counter + 1}", settings, cmd.recording, cmd.paused)
-        return self._begin(rec, request, info.stop_time, cmd.recording)
-
-    def _request(
-        self,
-        rec: SessionRecord,
-        run_id: str,
-        settings: m.RunSettings | None = None,
-        recording: str = "",
-        paused: bool = False,
-    ) -> m.RunRequest:
-        info = rec.run_info(run_id)
-        return m.RunRequest(
-            session=rec.id,
-            run_id=run_id,
-            run_index=int(run_id[1:]),
-            user=rec.user,
-            model_id=rec.model_id,
-            values=dict(rec.values),
-            initial=list(rec.initial),
-            command=rec.command,
-            settings=settings or rec.settings,
-            recording=recording or (info.recording if info else ""),
-            paused=paused,
-        )
-
-    def _begin(
-        self, rec: SessionRecord, request: m.RunRequest, stop_time: float, recording: str
-    ) -> m.RunStarted:
-        """A new run of `rec`: queued now, started when admission finds it a slot."""
-        if rec.starting:
-            raise RequestError("conflict", "the previous run is still being handed to a simulator")
-        self.admission.enqueue(rec, request)  # refuses with busy when the server is full
-        rec.run_counter += 1
-        rec.add_run(m.RunInfo(request.run_id, "queued", stop_time, 0.0, recording=recording))
-        queued = phases.after(rec.phase, "queued")
-        rec.state = m.SessionState(session=rec.id, phase=queued, seq=rec.state.seq, run_id=request.run_id)  # type: ignore[arg-type]
-        self.store.publish_state(rec)
-        self.admission.update()
-        return m.RunStarted(request.run_id, rec.phase, rec.state.queue_position)  # type: ignore[arg-type]
-
-    def _handed_over(self, request: m.RunRequest, host: str, hosts: list[str], errors: list[str]) -> None:
-        """Admission's outcome of handing a run to a simulator host (called with the lock held)."""
-        sid, run_id = request.session, request.run_id
-        rec = self.store.records.get(sid)
-        if rec is None or rec.abort_run == run_id:
-            if host:  # aborted or closed while it was being handed over: stop it at once
-                self.log.info(
-                    "session %s run %s started on %s after its abort: aborting it", sid, run_id, host
-                )
-                if rec is None:
-                    self._orphan_runs[sid] = run_id
-                self._send_control(sid, run_id, "abort")
-            return
-        if rec.state.run_id != run_id:
-            return
-        if host:
-            self.log.info("session %s run %s started on simulator %s", sid, run_id, host)
-            if rec.phase == "queued":  # its first status report may have come first
-                self._started(rec)
-        elif rec.phase == "queued":
-            why = (
-                "no simulator accepted the run: " + "; ".join(errors)
-                if hosts
-                else "no simulator node is on the mesh"
-            )
-            self._end_run(rec, "failed", why)
-
-    def _started(self, rec: SessionRecord) -> None:
-        self.store.move(rec, "started", queue_position=0, progress=0.0, sim_time=0.0, rtf=0.0, reason="")
-        self._run_info(rec, rec.state.run_id, phase="running")
-
-    def _run_info(self, rec: SessionRecord, run_id: str, **fields: Any) -> None:
-        info = rec.run_info(run_id)
-        if info is not None:
-            for k, v in fields.items():
-                setattr(info, k, v)
-
-    def _end_run(self, rec: SessionRecord, phase: str, reason: str = "") -> None:
-        self._run_info(rec, rec.state.run_id, phase=phase, reason=reason, sim_time=rec.state.sim_time)
-        self.store.move(rec, phase, reason=reason, queue_position=0)
-        if phase == "failed":
-            self.log.warning("session %s run %s failed: %s", rec.id, rec.state.run_id, reason)
-
-    def _control(self, rec: SessionRecord, op: str, at: float = 0.0) -> None:
-        if op == "abort":
-            rec.abort_run = rec.state.run_id
-        self._send_control(rec.id, rec.state.run_id, op, at)
-
-    def _send_control(self, sid: str, run_id: str, op: str, at: float = 0.0) -> None:
-        self.z.put(keys.control(sid), codec.dumps(m.RunControl(op=op, run_id=run_id, time=at)))  # type: ignore[arg-type]
-
-    def _pause(self, rec: SessionRecord, cmd: m.Pause) -> str:
-        self._control(rec, "pause")
-        return rec.state.run_id
-
-    def _resume(self, rec: SessionRecord, cmd: m.Resume) -> str:
-        self._control(rec, "resume")
-        return rec.state.run_id
-
-    def _seek(self, rec: SessionRecord, cmd: m.Seek) -> str:
-        info = rec.run_info(rec.state.run_id)
-        if info is None or not info.recording:
-            raise RequestError("unsupported", "only replay runs can seek; a simulation runs forward", "op")
-        self._control(rec, "seek", cmd.time)
-        return rec.state.run_id
-
-    def _abort(self, rec: SessionRecord, cmd: m.Abort) -> str:
-        if rec.phase == "queued" and rec.starting:
-            rec.abort_run = rec.state.run_id  # _handed_over() stops it if a simulator took it
-            self._end_run(rec, "aborted", "aborted while being handed to a simulator")
-        elif rec.phase == "queued":
-            self.admission.withdraw(rec)
-            self._end_run(rec, "aborted", "aborted while queued")
-            self.admission.update()
-        else:
-            self._control(rec, "abort")
-        return rec.state.run_id
+        request = self.runs.request(rec, f"r{rec.run_counter + 1}", settings, cmd.recording, cmd.paused)
+        return self.runs.begin(rec, request, info.stop_time, cmd.recording)
 
     # -- results -------------------------------------------------------------------------------------
     def _on_results_list(self, req: Request) -> list[m.RunInfo]:
@@ -453,70 +293,6 @@ class Proxy(Node):
             raise RequestError(
                 "not_found", f"session {rec.id} has no run {where['run']} (runs kept: {kept})", "run_id"
             )
-
-    # -- reports from workers --------------------------------------------------------------------
-    def _on_run_status(self, st: m.RunStatus) -> None:
-        with self.lock:
-            rec = self.store.records.get(st.session)
-            if st.phase not in phases.ENDED and (
-                (rec is not None and rec.abort_run == st.run_id)
-                or (rec is None and self._orphan_runs.get(st.session) == st.run_id)
-            ):
-                self._send_control(st.session, st.run_id, "abort")  # in case the first was missed
-            if st.phase in phases.ENDED and self._orphan_runs.get(st.session) == st.run_id:
-                del self._orphan_runs[st.session]
-            if rec is None or rec.state.run_id != st.run_id or rec.phase not in phases.UNDER_WAY:
-                return
-            progress = min(1.0, st.sim_time / st.stop_time) if st.stop_time > 0 else 0.0
-            self._run_info(rec, st.run_id, sim_time=st.sim_time, samples=st.samples)
-            if st.stop_time > 0:
-                self._run_info(rec, st.run_id, stop_time=st.stop_time)
-            rec.state.sim_time, rec.state.progress, rec.state.rtf = st.sim_time, progress, st.rtf
-            if st.phase in phases.ENDED:
-                self._end_run(rec, st.phase, st.reason)
-                self.admission.update()
-                return
-            changed = False
-            if rec.phase == "queued":
-                self._started(rec)
-                changed = True
-            wanted = phases.of_worker(st.phase)
-            if wanted != rec.phase:
-                self.store.move(rec, "paused" if wanted == "paused" else "resumed")
-                self._run_info(rec, st.run_id, phase=wanted)
-                changed = True
-            if not changed:
-                self.store.publish_state(rec, persist=False)
-
-    def _on_notice(self, notice: m.Notice) -> None:
-        with self.lock:
-            rec = self.store.records.get(notice.session)
-            if rec is None or rec.state.run_id != notice.run_id:
-                return
-            text = f"{notice.source}: {notice.message}"
-            if text not in rec.state.warnings and len(rec.state.warnings) < MAX_WARNINGS:
-                rec.state.warnings.append(text)
-                self.store.publish_state(rec)
-
-    def _on_run_token(self, sample: zenoh.Sample) -> None:
-        if sample.kind != zenoh.SampleKind.DELETE:
-            return
-        try:
-            token = keys.parse("run_token", sample.key_expr)
-        except ValueError:
-            return
-        sid, run_id = token["session"], token["run"]
-        # The worker's last RunStatus may still be on its way (another channel than liveliness):
-        # give it a moment before calling the run lost. Still well within the 1 s promise.
-        time.sleep(LAST_REPORT_GRACE_S)
-        with self.lock:
-            rec = self.store.records.get(sid)
-            if rec is None or rec.state.run_id != run_id or rec.phase not in phases.GOING:
-                return
-            self._end_run(
-                rec, "failed", f"the simulator process of run {run_id} disappeared (crashed or killed)"
-            )
-            self.admission.update()
 
     def stop(self) -> None:
         with self.lock:

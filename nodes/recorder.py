@@ -11,7 +11,8 @@ from typing import Any
 from simecs.mesh import keys
 from simecs.mesh.runtime import Node, Request, main_for, mesh_from_args
 
-from .recording_pipeline import VIZ_RATE_HZ, RecordingPipeline
+from .recording_files import VIZ_RATE_HZ
+from .recording_pipeline import RecordingPipeline
 from .recordings_library import RecordingsLibrary
 
 
@@ -82,7 +83,7 @@ class Recorder(Node):
         return {
             "dir": str(self.library.dir),
             "recording": self.library.writing(),
-            **self.pipeline.stats,
+            **self.pipeline.files.stats,
             "recovered": self.library.recovered,
             "dropped_frames": self.pipeline.ingest.dropped_total,
         }

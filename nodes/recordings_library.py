@@ -19,7 +19,7 @@ from simecs.mesh import files, keys
 from simecs.mesh import messages as m
 from simecs.mesh.runtime import Binary, RequestError
 
-from . import mcapread
+from . import mcapread, mcaprepair
 
 log = logging.getLogger("simecs.recorder")
 
@@ -72,7 +72,7 @@ class RecordingsLibrary:
             if mcapread.has_footer(path) or _locked(path):
                 continue
             try:
-                rec = mcapread.recover(path)
+                rec = mcaprepair.recover(path)
             except (mcapread.RecordingError, OSError) as exc:
                 log.error("cannot recover %s (left as it is): %s", path, exc)
                 continue

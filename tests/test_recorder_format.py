@@ -16,8 +16,9 @@ import numpy as np
 import pytest
 from mcap.writer import Writer
 from simecs.mesh import frames
-from simecs.nodes import export, mcapread
+from simecs.nodes import export, mcapread, mcaprepair
 from simecs.nodes import mcapfmt as fmt
+from simecs.nodes.mcapwriter import RunWriter
 
 from .test_recorder_support import arm_model, check_file, layout_for, make_rows
 
@@ -29,7 +30,7 @@ def write_run(
 ) -> list[frames.Frame]:
     lay = layout_for(SID)
     model = arm_model()
-    w = fmt.RunWriter(path, lay, chunk_size=chunk_size)
+    w = RunWriter(path, lay, chunk_size=chunk_size)
     w.write_log(fmt.LOG_INFO, "started", 0.0)
     w.write_scene(model, model.default_values())
     sent = []
@@ -166,7 +167,8 @@ sys.path.insert(0, {str(Path(__file__).parent.parent)!r})
 from tests.test_recorder_support import layout_for, make_rows, arm_model
 from simecs.mesh import frames
 from simecs.nodes import mcapfmt as fmt
-w = fmt.RunWriter({str(path)!r}, layout_for({SID!r}))
+from simecs.nodes.mcapwriter import RunWriter
+w = RunWriter({str(path)!r}, layout_for({SID!r}))
 rows = make_rows(arm_model(), 400)
 for s in range(40):
     w.write_frame(frames.Frame(1, s, time.time_ns(), rows[s * 10:(s + 1) * 10]))
@@ -179,14 +181,14 @@ os.kill(os.getpid(), signal.SIGKILL)
     assert not mcapread.has_footer(path)
     torn = tmp_path / "copy.mcap"
     shutil.copy(path, torn)
-    result = mcapread.recover(path)
+    result = mcaprepair.recover(path)
     assert result is not None and result.original_bytes == torn.stat().st_size
     v, rec = check_file(path)
     expected = make_rows(arm_model(), 400)
     assert rec.recovered and fmt.META_RECOVERY in v.metadata
     assert len(rec.rows) >= 250 and np.array_equal(rec.rows, expected[: len(rec.rows)])
     assert "recovered" in rec.logs[-1]["message"]
-    assert mcapread.recover(path) is None  # already complete: nothing to do
+    assert mcaprepair.recover(path) is None  # already complete: nothing to do
 
 
 @pytest.mark.parametrize("cut", [0.35, 0.6, 0.97])
@@ -196,7 +198,7 @@ def test_truncated_anywhere_keeps_every_complete_chunk(tmp_path: Path, cut: floa
     data = full.read_bytes()
     path = tmp_path / "cut.mcap"
     path.write_bytes(data[: int(len(data) * cut)])
-    assert mcapread.recover(path) is not None
+    assert mcaprepair.recover(path) is not None
     _v, rec = check_file(path)
     allrows = np.concatenate([f.rows for f in sent])
     assert np.array_equal(rec.rows, allrows[: len(rec.rows)])

@@ -100,18 +100,28 @@ def test_a_replay_is_a_run_of_the_session_paced_paused_and_sought(recording_serv
         runs = {r.run_id: r for r in s.runs()}
         assert runs[run_id].recording == path.stem and runs[run_id].phase == "finished"
 
-        # Seek while it runs: it plays on from there.
+        # Seek while paused: it goes on from there once resumed.
         col.full.clear()
         col.final.clear()
-        again = s.replay(path.stem, speed=0.5)
-        s.wait_for(["running"], 20, again)
+        again = s.replay(path.stem, speed=2.0, paused=True)
+        s.wait_for(["paused"], 20, again)
         s.seek(0.7)
+        s.resume()
         assert col.final.wait(20)
         starts = [f.rows[0, 0] for f in col.full if f.rows.shape[0]]
-        jump = next(i for i, t in enumerate(starts) if t >= 0.7 - 1e-9)
-        assert max(starts[:jump], default=0.0) < 0.4  # played from 0 until the seek (within ~0.6 s of wall)
-        assert starts[jump] == pytest.approx(0.7, abs=1e-6) and starts[jump:] == sorted(starts[jump:])
+        assert starts[0] == pytest.approx(0.7, abs=1e-6) and starts == sorted(starts)
         assert s.wait_for(["finished"], 20, again).phase == "finished"
+        # Seek while it runs: it jumps there and plays on.
+        col.full.clear()
+        col.final.clear()
+        third = s.replay(path.stem, speed=0.5)
+        s.wait_for(["running"], 20, third)
+        s.seek(0.9)
+        assert col.final.wait(30)
+        starts = [f.rows[0, 0] for f in col.full if f.rows.shape[0]]
+        jump = starts.index(next(t for t in starts if abs(t - 0.9) < 1e-6))
+        assert all(t < 0.9 for t in starts[:jump]) and starts[jump:] == sorted(starts[jump:])
+        assert s.wait_for(["finished"], 20, third).phase == "finished"
         with pytest.raises(RemoteError) as err:
             s.seek(0.1)
         assert err.value.code == "conflict"
