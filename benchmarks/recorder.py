@@ -31,8 +31,7 @@ import zenoh.ext
 from simecs.mesh import codec, columns, frames, keys
 from simecs.mesh import messages as m
 from simecs.mesh.client import MeshClient
-from simecs.mesh.config import MeshConfig
-from simecs.mesh.runtime import open_session
+from simecs.mesh.config import MeshConfig, open_session
 from simecs.nodes import mcapread
 from simecs.testing.launch import LocalMesh, clean_env
 

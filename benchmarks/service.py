@@ -28,8 +28,7 @@ import numpy as np
 import zenoh
 from simecs.mesh import affinity, frames, keys
 from simecs.mesh.client import MeshClient, SessionClient
-from simecs.mesh.config import MeshConfig
-from simecs.mesh.runtime import open_session
+from simecs.mesh.config import MeshConfig, open_session
 from simecs.testing.launch import LocalMesh, clean_env
 
 STOP = 5.0

@@ -17,9 +17,9 @@ import zenoh.ext
 
 from . import codec, frames, keys
 from . import messages as m
-from .config import MeshConfig
+from .config import MeshConfig, open_session
 from .model import DocPage, ModelDescription, ModelSummary
-from .runtime import BoundedWorker, open_session
+from .workers import BoundedWorker
 
 
 class RemoteError(Exception):

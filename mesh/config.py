@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import os
+import time
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -128,6 +129,20 @@ def load(path: str | os.PathLike[str] | None = None, env: Mapping[str, str] | No
     if cfg.mode not in ("peer", "client", "router"):
         raise ValueError(f"mesh mode {cfg.mode!r} must be peer, client or router")
     return cfg
+
+
+def open_session(cfg: MeshConfig, deadline_s: float = 20.0) -> Any:
+    """Open a zenoh session, retrying while the hub is not up yet (it may start after us)."""
+    import zenoh
+
+    end = time.monotonic() + deadline_s
+    while True:
+        try:
+            return zenoh.open(cfg.to_zenoh())
+        except zenoh.ZError as exc:
+            if time.monotonic() > end:
+                raise RuntimeError(f"cannot join the mesh at {cfg.connect or cfg.listen}: {exc}") from None
+            time.sleep(0.1)
 
 
 def hub_config(endpoint: str = DEFAULT_HUB, base: MeshConfig | None = None) -> MeshConfig:

@@ -13,8 +13,6 @@ samples to a worker thread through a bounded queue that drops the oldest sample 
 from __future__ import annotations
 
 import argparse
-import collections
-import json
 import logging
 import os
 import signal
@@ -31,9 +29,11 @@ import zenoh
 import zenoh.ext
 
 from . import affinity, codec, keys
-from .config import MeshConfig
+from .config import MeshConfig, open_session
 from .config import load as load_config
+from .logs import setup_logging
 from .messages import Error, NodeStatus, Ok
+from .workers import BoundedWorker
 
 log = logging.getLogger("simecs")
 
@@ -85,90 +85,6 @@ class Binary:
 
     payload: bytes
     attachment: Any = None
-
-
-class JsonFormatter(logging.Formatter):
-    """One JSON object per line, for log collectors (SIMECS_LOG_FORMAT=json)."""
-
-    def __init__(self, node: str) -> None:
-        super().__init__()
-        self.node = node
-
-    def format(self, record: logging.LogRecord) -> str:
-        entry = {
-            "ts": round(record.created, 6),
-            "level": record.levelname,
-            "node": self.node,
-            "pid": record.process,
-            "logger": record.name,
-            "msg": record.getMessage(),
-        }
-        if record.exc_info:
-            entry["exc"] = self.formatException(record.exc_info)
-        return json.dumps(entry)
-
-
-def setup_logging(name: str, level: str | None = None) -> None:
-    """Text lines `time level node message` on stderr, or JSON lines with SIMECS_LOG_FORMAT=json."""
-    level = level or os.environ.get("SIMECS_LOG", "INFO")
-    handler = logging.StreamHandler(sys.stderr)
-    if os.environ.get("SIMECS_LOG_FORMAT", "text") == "json":
-        handler.setFormatter(JsonFormatter(name))
-    else:
-        handler.setFormatter(logging.Formatter(f"%(asctime)s %(levelname)s {name} %(message)s"))
-    logging.basicConfig(level=level.upper(), handlers=[handler], force=True)
-
-
-def open_session(cfg: MeshConfig, deadline_s: float = 20.0) -> zenoh.Session:
-    """Open a zenoh session, retrying while the hub is not up yet (it may start after us)."""
-    end = time.monotonic() + deadline_s
-    while True:
-        try:
-            return zenoh.open(cfg.to_zenoh())
-        except zenoh.ZError as exc:
-            if time.monotonic() > end:
-                raise RuntimeError(f"cannot join the mesh at {cfg.connect or cfg.listen}: {exc}") from None
-            time.sleep(0.1)
-
-
-class BoundedWorker:
-    """A worker thread fed by a bounded queue; when full the oldest item is dropped and counted."""
-
-    def __init__(self, name: str, handle: Callable[[Any], None], maxlen: int = 1024) -> None:
-        self._q: collections.deque[Any] = collections.deque(maxlen=maxlen)
-        self._cv = threading.Condition()
-        self._handle = handle
-        self._stopped = False
-        self.dropped = 0
-        self.name = name
-        self._thread = threading.Thread(target=self._loop, name=name, daemon=True)
-        self._thread.start()
-
-    def push(self, item: Any) -> None:
-        with self._cv:
-            if len(self._q) == self._q.maxlen:
-                self.dropped += 1
-            self._q.append(item)
-            self._cv.notify()
-
-    def _loop(self) -> None:
-        while True:
-            with self._cv:
-                while not self._q and not self._stopped:
-                    self._cv.wait()
-                if self._stopped and not self._q:
-                    return
-                item = self._q.popleft()
-            try:
-                self._handle(item)
-            except Exception:  # a bad sample must not kill the worker
-                log.error("handler %s failed:\n%s", self.name, traceback.format_exc())
-
-    def stop(self, timeout: float = 2.0) -> None:
-        with self._cv:
-            self._stopped = True
-            self._cv.notify()
-        self._thread.join(timeout)
 
 
 class Node:

@@ -85,8 +85,7 @@ def cmd_ls(args: argparse.Namespace) -> int:
     import zenoh.ext
     from simecs.mesh import codec, keys
     from simecs.mesh import messages as m
-    from simecs.mesh.config import load
-    from simecs.mesh.runtime import open_session
+    from simecs.mesh.config import load, open_session
 
     cfg = load(args.mesh_config).with_overrides(connect=[args.connect] if args.connect else None)
     z = open_session(cfg, deadline_s=3.0)

@@ -17,8 +17,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from simecs.mesh import keys
-from simecs.mesh.config import MeshConfig
-from simecs.mesh.runtime import open_session
+from simecs.mesh.config import MeshConfig, open_session
 
 GRACE_S = 3.0
 

@@ -25,7 +25,9 @@ import zenoh
 import zenoh.ext
 from simecs.mesh import affinity, codec, columns, frames, keys
 from simecs.mesh import messages as m
-from simecs.mesh.runtime import mesh_from_args, node_arguments, open_session, setup_logging
+from simecs.mesh.config import open_session
+from simecs.mesh.logs import setup_logging
+from simecs.mesh.runtime import mesh_from_args, node_arguments
 
 from .results_store import ResultsStore, StoredRun
 from .sources import RunSource, open_source

@@ -8,9 +8,8 @@ import threading
 import pytest
 from simecs.mesh import messages as m
 from simecs.mesh.client import MeshClient, NoReply
-from simecs.mesh.config import MeshConfig
+from simecs.mesh.config import MeshConfig, open_session
 from simecs.testing.launch import LocalMesh
-from simecs.mesh.runtime import open_session
 
 VIEWER_ACL = {
     "enabled": True,
