@@ -12,6 +12,7 @@ EXAMPLES = Path(__file__).resolve().parent.parent / "docs" / "examples"
 
 
 def test_plain_client_from_the_protocol_document(service: Service) -> None:
+    service.mesh.start("recorder", "--dir", str(service.mesh.folder / "rec"))
     source = (EXAMPLES / "plain_client.py").read_text()
     assert "simecs." not in source.replace("simecs/", "")  # no simecs code: the document alone
     out = subprocess.run(
@@ -24,3 +25,4 @@ def test_plain_client_from_the_protocol_document(service: Service) -> None:
     assert out.returncode == 0, out.stdout + out.stderr
     assert "run r1: finished" in out.stdout
     assert "101 samples of ['time', 'joint1.q', 'joint2.q']" in out.stdout
+    assert "replay r2: finished" in out.stdout and "r2 finished (replay)" in out.stdout
