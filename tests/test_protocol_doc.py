@@ -51,28 +51,26 @@ def test_every_key_of_the_table_is_built_and_parsed_by_the_table() -> None:
     assert {"cmd", "state", "results", "run_token", "node_status"} <= {f.__name__ for f in builders}
 
 
-def test_keys_are_taken_apart_only_in_mesh_keys() -> None:
-    pattern = re.compile(r"""\.r?split\(\s*["']/["']""")
-    offenders = [
+def lines_matching(pattern: re.Pattern[str], owner: Path) -> list[str]:
+    """`file:line` of every line of the code (outside `owner`) that matches `pattern`."""
+    return [
         f"{path.relative_to(ROOT)}:{n}"
         for folder in CODE
         for path in (ROOT / folder).rglob("*.py")
-        if path != ROOT / "mesh" / "keys.py"
+        if path != owner
         for n, line in enumerate(path.read_text().splitlines(), 1)
         if pattern.search(line)
     ]
+
+
+def test_keys_are_taken_apart_only_in_mesh_keys() -> None:
+    offenders = lines_matching(re.compile(r"""\.r?split\(\s*["']/["']"""), ROOT / "mesh" / "keys.py")
     assert not offenders, f"keys split by hand (use keys.parse): {offenders}"
 
 
 def test_frame_headers_are_read_only_in_mesh_frames() -> None:
-    offenders = [
-        f"{path.relative_to(ROOT)}:{n}"
-        for folder in CODE
-        for path in (ROOT / folder).rglob("*.py")
-        if path != ROOT / "mesh" / "frames.py"
-        for n, line in enumerate(path.read_text().splitlines(), 1)
-        if "HEADER.unpack" in line or re.search(r"unpack_from\([^)]*,\s*(8|16|24|32|36)\)", line)
-    ]
+    by_offset = re.compile(r"HEADER\.unpack|unpack_from\([^)]*,\s*(8|16|24|32|36)\)")
+    offenders = lines_matching(by_offset, ROOT / "mesh" / "frames.py")
     assert not offenders, f"frame header read by byte offset (use frames.peek): {offenders}"
 
 
