@@ -21,9 +21,8 @@ import socket
 import time
 from typing import Any
 
-from simecs.testing.launch import LocalMesh
-
 from simecs.testing import browser
+from simecs.testing.launch import LocalMesh
 
 STANDARD_TARGET = (0.8, 0.6, -0.7, 1.0, 0.9, -0.8, 1.2)  # rad: models/spider.py STANDARD_TARGET
 MODEL_BUTTON = "Load Spider arm (joint-independent control)"
@@ -131,14 +130,14 @@ def run_viewer_bench(json_out: bool) -> dict[str, Any] | None:
         warm_s = warm_up(mesh)
         setup_s = time.monotonic() - t0
         with sync_playwright() as pw:
-            browser = browser.launch(pw)
+            chrome = browser.launch(pw)
             try:
-                page = browser.new_page(viewport=browser.VIEWPORT)
+                page = chrome.new_page(viewport=browser.VIEWPORT)
                 page.add_init_script(browser.PROBE_JS)
                 page.goto(f"http://127.0.0.1:{port}")
                 result = measure(page)
             finally:
-                browser.close()
+                chrome.close()
         result["viewer_click_to_frame_s"] = viewer_latency(mesh.log("viewer"))
     result.update(
         {

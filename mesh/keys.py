@@ -363,6 +363,15 @@ def recording_name(session: str, run_id: str) -> str:
     return f"{_check('session', session)}_{check_name(run_id, 'run id')}"
 
 
+def name_from_file(filename: str) -> str:
+    """The recording name a file is stored under: its stem (without folders and `.mcap`), reduced to
+    one key chunk (the CLI's replay and the viewer's upload both name files this way)."""
+    stem = filename.replace("\\", "/").rpartition("/")[2]
+    stem = stem[: -len(".mcap")] if stem.lower().endswith(".mcap") else stem
+    name = "".join(c if (c.isascii() and c.isalnum()) or c in "_-." else "_" for c in stem)
+    return name.lstrip("._-")[:64] or "upload"
+
+
 def node_token(role: str, node_id: str) -> str:
     return build("node_token", role=role, node=node_id)
 

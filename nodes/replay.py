@@ -13,24 +13,17 @@ import argparse
 import sys
 from pathlib import Path
 
-from simecs.mesh import phases
+from simecs.mesh import keys, phases
 from simecs.mesh.client import MeshClient, NoReply, RemoteError
 from simecs.mesh.config import DEFAULT_HUB, load
 
 from . import mcapread
 
 
-def library_name(path: Path) -> str:
-    """A recording name (one key chunk) made from a file name."""
-    stem = path.name[: -len(".mcap")] if path.name.lower().endswith(".mcap") else path.name
-    name = "".join(c if c.isalnum() or c in "_-." else "_" for c in stem).lstrip("._-")[:60]
-    return name or "upload"
-
-
 def put_in_library(client: MeshClient, path: Path, rec: mcapread.Recording) -> str:
     """The name of `path` in the server's library: the recording already there, or a fresh upload."""
     data = path.read_bytes()
-    base = library_name(path)
+    base = keys.name_from_file(path.name)
     for k in range(1, 100):
         name = base if k == 1 else f"{base}.{k}"[:64]
         try:

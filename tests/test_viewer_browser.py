@@ -1,5 +1,6 @@
 """The viewer in a real browser (Debian chromium + Playwright): the paper's use case step by step
-(§2.2 steps 1-11) through the UI, and one session per browser tab.
+(§2.2 steps 1-11) through the UI, a replay as a run of the same session, and one session per browser
+tab.
 
 Skips with its reason when chromium or Playwright is missing (.ci/run installs chromium).
 """
@@ -11,16 +12,17 @@ import math
 import socket
 import time
 from collections.abc import Iterator
+from contextlib import contextmanager
 from typing import Any
 
 import pytest
+from simecs.mesh import keys
 from simecs.mesh.client import MeshClient
 from simecs.testing import browser as chromium
 
 from .conftest import ARTIFACTS, Mesh, start_service, wait_until
 
 MISSING = chromium.browser_missing()
-pytestmark = pytest.mark.skipif(bool(MISSING), reason=f"browser tests need chromium: {MISSING}")
 
 SPIDER = "Load Spider arm (joint-independent control)"
 USER = "tester"
@@ -51,6 +53,10 @@ def start_viewer(mesh: Mesh) -> str:
 
 @pytest.fixture
 def browser() -> Iterator[Any]:
+    """A headless chromium. Missing, it fails the test with what to install (`make test` installs it):
+    a browser test that skips hides a missing install step."""
+    if MISSING:
+        pytest.fail(f"the browser tests need chromium: {MISSING}", pytrace=False)
     from playwright.sync_api import sync_playwright
 
     with sync_playwright() as pw:
@@ -70,7 +76,7 @@ def new_page(context: Any, url: str) -> Any:
 
 
 def sessions_of(client: MeshClient) -> set[str]:
-    return {s["session"] for s in client.list_sessions(USER) if s["phase"] != "closed"}
+    return {s.session for s in client.list_sessions(USER) if s.phase != "closed"}
 
 
 def text_appears(page: Any, text: str, timeout: float = 30.0) -> None:
@@ -94,8 +100,24 @@ def now_ms(page: Any) -> float:
     return float(page.evaluate("() => performance.now()"))
 
 
+@contextmanager
+def logs_on_failure(mesh: Mesh, *names: str) -> Iterator[None]:
+    """Print the nodes' logs when the test fails (pytest shows them with the failure)."""
+    try:
+        yield
+    except BaseException:
+        for name in names:
+            print(f"----- {name} log -----\n{mesh.log(name)}")
+        raise
+
+
 def test_use_case_in_the_browser(mesh: Mesh, browser: Any) -> None:
     """Steps 1-11 of §2.2 through the UI, with the 3D arm and the plots checked as the page got them."""
+    with logs_on_failure(mesh, "viewer", "proxy", "simulator", "recorder"):
+        use_case(mesh, browser)
+
+
+def use_case(mesh: Mesh, browser: Any) -> None:
     service = start_service(mesh)
     recorder = importlib.util.find_spec("simecs.nodes.recorder") is not None
     if recorder:
@@ -199,6 +221,24 @@ def test_use_case_in_the_browser(mesh: Mesh, browser: Any) -> None:
         assert mcap.read_bytes()[:8] == b"\x89MCAP0\r\n"
     page.screenshot(path=str(ARTIFACTS / "viewer_use_case.png"))
 
+    # 11. replay: the run's recording played back as a new run of the same session (no other session)
+    if recorder:
+        dismiss_notifications(page)
+        t = now_ms(page)
+        page.get_by_role("button", name="Replay", exact=True).click()
+        text_appears(page, "finished replay r2 of", timeout=120)
+        assert poses_since(page, t) >= 10, "the 3D arm did not follow the replay"
+        runs = session.runs()
+        assert [r.run_id for r in runs] == ["r1", "r2"]
+        assert runs[1].recording == keys.recording_name(sid, "r1") and runs[1].phase == "finished"
+        assert sessions_of(client) == {sid}
+        # upload: a recording kept earlier goes back to the server and replays as run r3
+        dismiss_notifications(page)
+        page.locator("input[type=file]").first.set_input_files(str(mcap))
+        text_appears(page, "finished replay r3 of", timeout=120)
+        assert session.runs()[-1].recording == "viewer_use_case"
+        page.screenshot(path=str(ARTIFACTS / "viewer_replay.png"))
+
     # the session and its values come back after a reload
     page.reload()
     text_appears(page, f"session {sid[:8]}")
@@ -210,6 +250,11 @@ def test_use_case_in_the_browser(mesh: Mesh, browser: Any) -> None:
 
 
 def test_two_tabs_get_independent_sessions(mesh: Mesh, browser: Any) -> None:
+    with logs_on_failure(mesh, "viewer", "proxy"):
+        two_tabs(mesh, browser)
+
+
+def two_tabs(mesh: Mesh, browser: Any) -> None:
     service = start_service(mesh)
     url = start_viewer(mesh)
     client = service.client

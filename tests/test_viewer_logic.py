@@ -1,6 +1,8 @@
 """viewer/ logic that needs no browser: trees, shapes and their kinematics, the joint path editor,
-plot windows, documentation links, CSV, settings; and the panels driven on a real viser server with
-no page attached (user events are given to the same callbacks a click would reach).
+plot windows, documentation links, CSV, settings; the session controller driven by injected messages
+and a fake mesh client (no server, no browser: the Drake way of testing GUI logic); and the panels
+and the tab driven on a real viser server with no page attached (user events are given to the same
+callbacks a click would reach).
 """
 
 from __future__ import annotations
@@ -8,24 +10,62 @@ from __future__ import annotations
 import ast
 import math
 import socket
+import time
 from dataclasses import dataclass
 from pathlib import Path
 from types import SimpleNamespace
 from typing import Any
 
+import msgspec
 import numpy as np
 import pytest
 import viser
-from simecs.mesh import messages as m
-from simecs.mesh.codec import DecodeError
-from simecs.mesh.kinematics import link_poses, pose_column_names
-from simecs.mesh.model import DocPage, InitEquation, Link, ModelDescription, Parameter, Shape, Variable
-from simecs.viewer import docs, joints, library, params, pendant, plots, results, run, scene, tree
 from simecs.benchmarks.viewer import viewer_latency
-from simecs.viewer.browser import describe_error
+from simecs.mesh import codec, columns, frames, keys, phases, shapes
+from simecs.mesh import messages as m
+from simecs.mesh.client import NoReply, RemoteError
+from simecs.mesh.codec import DecodeError
+from simecs.mesh.kinematics import link_poses
+from simecs.mesh.model import DocPage, InitEquation, Link, ModelDescription, Parameter, Shape, Variable
+from simecs.viewer import (
+    docs,
+    events,
+    export,
+    joints,
+    library,
+    params,
+    path,
+    pendant,
+    plots,
+    results,
+    run,
+    scene,
+    series,
+    session,
+    tree,
+)
+from simecs.viewer.errors import describe_error
+from simecs.viewer.host import Claims
+from simecs.viewer.tab import Tab
 
 VIEWER = Path(__file__).resolve().parent.parent / "viewer"
 H = math.pi / 2
+#: Modules of the session controller and what it uses: no viser, no GUI.
+HEADLESS = (
+    "session",
+    "edits",
+    "results_io",
+    "runs",
+    "workers",
+    "events",
+    "errors",
+    "host",
+    "stream",
+    "series",
+    "path",
+    "export",
+    "tree",
+)
 
 
 def arm() -> ModelDescription:
@@ -107,20 +147,260 @@ def server():
         srv.stop()
 
 
+# -- a fake mesh client: what the controller asks, answered from memory -------------------------------
+class FakeWatch:
+    def close(self) -> None:
+        pass
+
+
+class FakeSession:
+    """A session as `SessionClient` shows it; every command is kept in `sent`."""
+
+    def __init__(self, mesh: FakeMesh, sid: str, snap: m.SessionSnapshot | None) -> None:
+        self.client = mesh
+        self.id = sid
+        self.created = snap
+        self.snap = snap
+        self.sent: list[Any] = []
+        self.refuse: dict[type, Exception] = {}
+        self.run_list: list[m.RunInfo] = []
+        self.asked: list[tuple[str, Any]] = []
+        self.watched: dict[str, Any] = {}
+        self.counter = 0
+
+    def command(self, cmd: Any) -> Any:
+        self.sent.append(cmd)
+        if type(cmd) in self.refuse:
+            raise self.refuse[type(cmd)]
+        snap = self.snap
+        assert snap is not None
+        if isinstance(cmd, m.SetParams):
+            snap.values.update(cmd.values)
+            return dict(snap.values)
+        if isinstance(cmd, (m.ResetParams, m.LoadParamSet)):
+            return dict(snap.values)
+        if isinstance(cmd, m.SetSettings):
+            snap.settings = cmd.settings
+            return cmd.settings
+        if isinstance(cmd, (m.Run, m.Replay)):
+            self.counter += 1
+            return m.RunStarted(f"r{self.counter}", "queued", 0)
+        if isinstance(cmd, m.ListParamSets):
+            return ["light"]
+        if isinstance(cmd, m.GetSession):
+            return snap
+        return ""
+
+    def snapshot(self) -> m.SessionSnapshot:
+        if self.snap is None:
+            raise RemoteError(m.Error("not_found", f"no session {self.id}"))
+        return self.snap
+
+    def close(self) -> Any:
+        return self.command(m.CloseSession())
+
+    def runs(self) -> list[m.RunInfo]:
+        return list(self.run_list)
+
+    def results(
+        self, run_id: str, variables: Any = None, t0: Any = None, t1: Any = None, every: int = 1
+    ) -> Any:
+        self.asked.append((run_id, variables))
+        names = ["time", *(variables or ["joint1.q", "joint2.q"])]
+        t = np.linspace(0.0, 1.0, 11)
+        return names, np.column_stack([t] + [t * (k + 1) for k in range(len(names) - 1)])
+
+    def watch(self, **callbacks: Any) -> FakeWatch:
+        self.watched = callbacks
+        return FakeWatch()
+
+    def of(self, kind: type) -> list[Any]:
+        return [c for c in self.sent if isinstance(c, kind)]
+
+
+class FakeMesh:
+    """The server-wide requests of `MeshClient`, answered from memory."""
+
+    def __init__(self, *models: ModelDescription) -> None:
+        self.models = {d.id: d for d in models}
+        self.sessions: dict[str, FakeSession] = {}
+        self.uploaded: list[str] = []
+        self.upload_model = ""
+
+    def list_models(self) -> list[Any]:
+        return [d.summary_entry() for d in self.models.values()]
+
+    def describe(self, model_id: str) -> ModelDescription:
+        return self.models[model_id]
+
+    def doc(self, model_id: str, page: str) -> DocPage:
+        raise RemoteError(m.Error("not_found", f"no page {page}", "page"))
+
+    def create_session(self, user: str, model_id: str) -> FakeSession:
+        sid = keys.new_session_id()
+        desc = self.models[model_id]
+        state = m.SessionState(session=sid, phase="created", seq=1)
+        snap = m.SessionSnapshot(
+            session=sid,
+            user=user,
+            model_id=model_id,
+            values=desc.default_values(),
+            initial=[0.0] * len(desc.links),
+            command=None,
+            settings=m.RunSettings(),
+            state=state,
+        )
+        self.sessions[sid] = FakeSession(self, sid, snap)
+        return self.sessions[sid]
+
+    def list_sessions(self, user: str) -> list[m.SessionEntry]:
+        return [
+            m.SessionEntry(s.id, s.snap.model_id, s.snap.state.phase)
+            for s in self.sessions.values()
+            if s.snap
+        ]
+
+    def session(self, sid: str) -> FakeSession:
+        return self.sessions.get(sid) or FakeSession(self, sid, None)
+
+    def download_recording(self, name: str) -> bytes:
+        return b"\x89MCAP0\r\n" + name.encode()
+
+    def upload_recording(self, name: str, data: bytes) -> m.RecordingInfo:
+        self.uploaded.append(name)
+        return m.RecordingInfo(name, "s", "r1", self.upload_model or "arm3", len(data))
+
+
+class FakeHost:
+    """The viewer node as a tab sees it (`host.Host`)."""
+
+    def __init__(self, mc: FakeMesh) -> None:
+        self.mc = mc
+        self.default_user = "tester"
+        self.claims = Claims(lambda claimant: not claimant.closed)
+
+    def describe(self, model_id: str) -> ModelDescription:
+        return self.mc.describe(model_id)
+
+
+class Recorder(list):
+    """A listener that keeps every event."""
+
+    def __call__(self, event: Any) -> None:
+        self.append(event)
+
+    def of(self, kind: type) -> list[Any]:
+        return [e for e in self if isinstance(e, kind)]
+
+
+def controller(*models: ModelDescription) -> tuple[session.SessionController, FakeMesh, Recorder]:
+    mesh = FakeMesh(*(models or (arm(),)))
+    ctl = session.SessionController(FakeHost(mesh), tab_id=3, sync_delay_s=0.05)
+    got = Recorder()
+    ctl.subscribe(got)
+    return ctl, mesh, got
+
+
+def attached(*models: ModelDescription) -> tuple[session.SessionController, FakeSession, Recorder]:
+    """A controller that loaded the first model (as the Load button does), workers drained."""
+    ctl, mesh, got = controller(*models)
+    ctl.start()
+    ctl.load_model((models or (arm(),))[0].id)
+    ctl.drain()
+    assert ctl.session is not None
+    return ctl, mesh.sessions[ctl.session.id], got
+
+
+def state(sc: FakeSession, phase: str, run_id: str = "r1", seq: int = 10, **kw: Any) -> m.SessionState:
+    return m.SessionState(session=sc.id, phase=phase, seq=seq, run_id=run_id, **kw)  # type: ignore[arg-type]
+
+
+def layout(
+    sc: FakeSession, model: ModelDescription, run_id: str = "r1", recording: str = "", **values: float
+) -> m.RunLayout:
+    names, units = columns.run_columns(model)
+    context = m.RunContext("tester", {**model.default_values(), **values}, [0.0] * 3, None, m.RunSettings())
+    context.recording = recording
+    return m.RunLayout(
+        session=sc.id,
+        run_id=run_id,
+        run_index=int(run_id[1:]),
+        model_id=model.id,
+        columns=names,
+        units=units,
+        live_columns=columns.live_columns(names, []),
+        live_rate_hz=50.0,
+        stop_time=1.0,
+        output_interval=0.002,
+        context=context,
+        source="replay" if recording else "simulator",
+    )
+
+
+def live_frame(lay: m.RunLayout, model: ModelDescription, q: list[float], t: float = 0.1) -> frames.Frame:
+    """One live row: time, the joint positions `q`, and the link poses the kinematics give for them."""
+    row = np.zeros(len(lay.live_columns))
+    where = {c: i for i, c in enumerate(lay.live_columns)}
+    row[where[columns.TIME]] = t
+    for name, qi in zip(columns.joint_position_columns(model), q, strict=True):
+        row[where[name]] = qi
+    poses = link_poses(model, lay.context.values, q)
+    for frame, pose in zip(columns.pose_frames(model), poses, strict=True):
+        for field, value in zip(columns.POSE_FIELDS, pose, strict=True):
+            row[where[columns.pose_column(frame, field)]] = value
+    return frames.Frame(lay.run_index, 0, time.time_ns(), row[None, :], frames.FLAG_LIVE)
+
+
 # -- architecture ---------------------------------------------------------------------------------
+def imports_of(path: Path) -> list[tuple[str, int]]:
+    """(module, level) of every import in a file (relative imports keep their level)."""
+    out = []
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.Import):
+            out += [(a.name, 0) for a in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            out += [(node.module or "", node.level)]
+            if node.level and not node.module:
+                out += [(a.name, node.level) for a in node.names]
+    return out
+
+
 def test_viewer_imports_only_mesh_of_simecs() -> None:
     """Of our code the viewer imports only simecs.mesh: models reach it as messages."""
-    for path in VIEWER.glob("*.py"):
-        for node in ast.walk(ast.parse(path.read_text())):
-            names = []
-            if isinstance(node, ast.Import):
-                names = [a.name for a in node.names]
-            elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
-                names = [node.module]
-            for name in names:
-                assert not name.startswith(("simecs.models", "simecs.nodes", "exudyn", "numba")), (path, name)
-                if name.startswith("simecs."):
-                    assert name.startswith(("simecs.mesh", "simecs.viewer")), (path, name)
+    for file in VIEWER.glob("*.py"):
+        for name, level in imports_of(file):
+            if level:
+                continue
+            assert not name.startswith(("simecs.models", "simecs.nodes", "exudyn", "numba")), (file, name)
+            if name.startswith("simecs."):
+                assert name.startswith(("simecs.mesh", "simecs.viewer")), (file, name)
+
+
+def test_the_controller_knows_nothing_of_viser_and_nothing_imports_the_app() -> None:
+    """The session controller and what it uses import no viser and no panel; only the CLI entry
+    point needs app.py (no import loop between the app and the tab)."""
+    for stem in HEADLESS:
+        for name, level in imports_of(VIEWER / f"{stem}.py"):
+            assert "viser" not in name, (stem, name)
+            if level:
+                assert name in HEADLESS or name == "", (stem, name)
+    for file in VIEWER.glob("*.py"):
+        if file.stem != "app":
+            assert all(name not in ("app", "simecs.viewer.app") for name, _ in imports_of(file)), file
+
+
+def test_the_viewer_builds_no_column_names_keys_or_phase_sets_of_its_own() -> None:
+    """Columns come from mesh.columns, keys from mesh.keys, phases from mesh.phases, shape geometry
+    from mesh.shapes; a replay is a run of the session (no parallel replay session)."""
+    source = "\n".join(p.read_text() for p in VIEWER.glob("*.py"))
+    for banned in ('.q"', '"pose.', "pose.{", 'split("/")', "replay_id", "ACTIVE =", "def shape_geometry"):
+        assert banned not in source, banned
+    assert "def effective_shape" not in source and "def pipe_mesh" not in source
+
+
+def test_no_viewer_module_is_a_god_class() -> None:
+    for file in VIEWER.glob("*.py"):
+        assert len(file.read_text().splitlines()) <= 420, file
 
 
 def test_viewer_binds_loopback_by_default_and_hides_sharing() -> None:
@@ -133,6 +413,18 @@ def test_viewer_binds_loopback_by_default_and_hides_sharing() -> None:
     assert app._no_share() is None
     source = (VIEWER / "app.py").read_text()
     assert "show_share_button=False" in source and "request_share_url = _no_share" in source
+
+
+def test_claims_give_a_session_to_one_live_tab() -> None:
+    a = SimpleNamespace(tab_id=1, closed=False)
+    b = SimpleNamespace(tab_id=2, closed=False)
+    claims = Claims(lambda c: not c.closed)
+    assert claims.claim("s", a) and claims.claim("s", a)
+    assert not claims.claim("s", b, wait_s=0.0) and claims.held_by_other("s", b)
+    a.closed = True  # the other tab went away (closed, or reloading)
+    assert claims.claim("s", b, wait_s=0.0) and not claims.held_by_other("s", b)
+    claims.release("s", b)
+    assert claims.claim("s", a, wait_s=0.0)
 
 
 # -- trees ------------------------------------------------------------------------------------------
@@ -178,20 +470,21 @@ def test_real_spider_description_builds_trees_and_shapes() -> None:
     roots = tree.build_tree(desc.parameters)
     assert sum(r.count() for r in roots) == len(desc.parameters)
     assert sum(r.count() for r in tree.build_tree(desc.variables)) == len(desc.variables)
-    values = desc.default_values()
-    for shape in desc.shapes + desc.environment:
-        g = scene.shape_geometry(shape, scene.shape_length(shape, desc, values))
-        assert np.all(np.isfinite(g.position))
-    assert scene.pose_indices(["time", *pose_column_names(desc)], desc) is not None
+    drawn = list(shapes.solids(desc, desc.default_values()))
+    assert len(drawn) == len(desc.shapes) + len(desc.environment)
+    assert all(np.all(np.isfinite(s.geometry.position)) for s in drawn)
+    names, _units = columns.run_columns(desc)
+    assert columns.pose_indices(names, columns.pose_frames(desc)) is not None
+    assert len(columns.joint_position_columns(desc)) == len(desc.links)
 
 
-# -- scene ------------------------------------------------------------------------------------------
+# -- scene: geometry from mesh.shapes, drawn by ArmScene ------------------------------------------------
 def test_shape_geometry_follows_the_shape_convention() -> None:
-    cyl = scene.shape_geometry(Shape("cylinder", 0, [0.0, 0.0, -0.05], "z", length=0.1, radius=0.06), 0.1)
+    cyl = shapes.shape_geometry(Shape("cylinder", 0, [0.0, 0.0, -0.05], "z", length=0.1, radius=0.06))
     assert (
         cyl.kind == "cylinder" and np.allclose(cyl.position, [0, 0, 0]) and cyl.wxyz == (1.0, 0.0, 0.0, 0.0)
     )
-    pipe = scene.shape_geometry(Shape("pipe", 0, [0.1, 0, 0], "x", 0.5, 0.05, 0.04), 0.8)
+    pipe = shapes.shape_geometry(Shape("pipe", 0, [0.1, 0, 0], "x", 0.8, 0.05, 0.04))
     assert (
         pipe.kind == "pipe"
         and np.allclose(pipe.position, [0.5, 0, 0])
@@ -201,47 +494,49 @@ def test_shape_geometry_follows_the_shape_convention() -> None:
     w, x, y, z = pipe.wxyz
     rz = np.array([2 * (x * z + w * y), 2 * (y * z - w * x), 1 - 2 * (x * x + y * y)])
     assert np.allclose(rz, [1, 0, 0])
-    w, x, y, z = scene.AXIS_WXYZ["y"]
+    w, x, y, z = shapes.AXIS_WXYZ["y"]
     assert np.allclose([2 * (x * z + w * y), 2 * (y * z - w * x), 1 - 2 * (x * x + y * y)], [0, 1, 0])
-    box = scene.shape_geometry(
-        Shape("box", -1, [-1.0, 0.0, -0.02], "x", length=2.0, width=3.0, height=0.02), 2.0
-    )
+    box = shapes.shape_geometry(Shape("box", -1, [-1.0, 0.0, -0.02], "x", length=2.0, width=3.0, height=0.02))
     assert box.dimensions == (2.0, 3.0, 0.02) and np.allclose(box.position, [0, 0, -0.02])
-    beam = scene.shape_geometry(Shape("beam", 0, [0, 0, 0], "z", length=1.0, width=0.2, height=0.1), 1.0)
+    beam = shapes.shape_geometry(Shape("beam", 0, [0, 0, 0], "z", length=1.0, width=0.2, height=0.1))
     assert beam.dimensions == (0.2, 0.1, 1.0)
-    solid = scene.shape_geometry(Shape("pipe", 0, [0, 0, 0], "x", 1.0, 0.05, 0.0), 1.0)
+    solid = shapes.shape_geometry(Shape("pipe", 0, [0, 0, 0], "x", 1.0, 0.05, 0.0))
     assert solid.kind == "cylinder"
-    assert scene.shape_geometry(Shape("sphere", 0, [1, 2, 3], radius=0.1), 0).position.tolist() == [1, 2, 3]
+    assert shapes.shape_geometry(Shape("sphere", 0, [1, 2, 3], radius=0.1)).position.tolist() == [1, 2, 3]
+    assert not shapes.shape_geometry(Shape("cylinder", 0, [0, 0, 0], length=0.0, radius=0.1)).visible
 
 
 def test_resizable_shape_takes_the_link_length() -> None:
     model = arm()
-    values = {**model.default_values(), "link2.length": 1.25}
-    pipe2 = model.shapes[2]
-    assert scene.shape_length(pipe2, model, values) == 1.25
-    assert scene.shape_length(model.shapes[0], model, values) == 0.1  # not resizable
+    defaults = model.default_values()
+    values = {**defaults, "link2.length": 1.25}
+    assert shapes.effective_shape(model.shapes[2], model, values, defaults).length == 1.25
+    assert shapes.effective_shape(model.shapes[0], model, values, defaults).length == 0.1  # not resizable
+    link2 = [s for s in shapes.solids(model, values) if s.frame == "link2"]
+    assert len(link2) == 1 and link2[0].geometry.length == 1.25
 
 
 def test_shapes_follow_bound_parameters_when_the_description_carries_them() -> None:
-    """`scales_with` and `anchor` (proposed protocol fields) reshape and move solids proportionally."""
+    """`scales_with` and `anchor` reshape and move solids proportionally."""
     model = arm()
     model.parameters.append(Parameter("link3.radius", 0.05, "m", "tube", 0.01, 0.5, "link3", appearance=True))
     defaults = model.default_values()
     tube = Shape("pipe", 2, [0.0, 0.0, 0.0], "x", 0.3, 0.05, 0.04, resizable=True)
-    tube.scales_with = {"radius": "link3.radius", "inner_radius": "link3.radius"}  # type: ignore[attr-defined]
+    tube.scales_with = {"radius": "link3.radius", "inner_radius": "link3.radius"}
     flange = Shape("cylinder", 2, [0.3, 0.0, 0.0], "x", length=0.02, radius=0.06)
-    flange.anchor = "end"  # type: ignore[attr-defined]
+    flange.anchor = "end"
     values = {**defaults, "link3.radius": 0.1, "link3.length": 0.5}
-    t = scene.effective_shape(tube, model, values, defaults)
+    t = shapes.effective_shape(tube, model, values, defaults)
     assert (t.length, t.radius, t.inner_radius) == pytest.approx((0.5, 0.1, 0.08))
-    f = scene.effective_shape(flange, model, values, defaults)
+    f = shapes.effective_shape(flange, model, values, defaults)
     assert f.origin[0] == pytest.approx(0.5) and flange.origin[0] == 0.3  # the description is untouched
-    plain = scene.effective_shape(model.shapes[0], model, values, defaults)
+    plain = shapes.effective_shape(model.shapes[0], model, values, defaults)
     assert plain == model.shapes[0]
+    assert "link3.radius" in shapes.appearance_parameters(model)
 
 
 def test_pipe_mesh_is_closed_and_outward() -> None:
-    v, f = scene.pipe_mesh(0.8, segments=16)
+    v, f = shapes.pipe_mesh(0.8, segments=16)
     assert v.shape == (8 * 16, 3) and f.shape == (8 * 16, 3) and f.max() < len(v)
     assert np.allclose(np.abs(v[:, 2]), 0.5)
     # outer-wall triangles face away from the axis
@@ -253,10 +548,10 @@ def test_pipe_mesh_is_closed_and_outward() -> None:
 
 def test_pose_indices_map_the_pose_columns() -> None:
     model = arm()
-    columns = ["time", "joint1.q", *pose_column_names(model)]
-    idx = scene.pose_indices(columns, model)
-    assert idx is not None and idx.shape == (3, 7) and columns[idx[1, 0]] == "pose.link2.x"
-    assert scene.pose_indices(["time", "joint1.q"], model) is None
+    names, _units = columns.run_columns(model)
+    idx = columns.pose_indices(names, columns.pose_frames(model))
+    assert idx is not None and idx.shape == (4, 7) and names[idx[1, 0]] == "pose.link2.x"
+    assert columns.pose_indices([columns.TIME, "joint1.q"], columns.pose_frames(model)) is None
 
 
 def test_arm_scene_builds_poses_and_reshapes(server: Any) -> None:
@@ -274,9 +569,9 @@ def test_arm_scene_builds_poses_and_reshapes(server: Any) -> None:
         # a longer upper arm: its pipe stretches and the next link frame moves along
         before = np.array(s.frames[2].position)
         assert s.set_values({**values, "link2.length": 1.0})
-        pipe = s.solids[2][1]
+        pipe = s.solids[2][0]
         assert pipe.scale[2] == pytest.approx(1.0) and np.allclose(pipe.position, [0.5, 0, 0])
-        beam = s.solids[3][1]
+        beam = s.solids[3][0]
         assert s.set_values({**values, "link2.length": 1.0, "link3.length": 0.8})
         assert beam.dimensions[0] == pytest.approx(0.8)
         assert not np.allclose(s.frames[2].position, before)
@@ -287,8 +582,8 @@ def test_arm_scene_builds_poses_and_reshapes(server: Any) -> None:
 
 # -- joint path -----------------------------------------------------------------------------------
 def test_joint_path_editor_add_teach_remove_reorder() -> None:
-    ed = pendant.JointPathEditor(arm().links)
-    with pytest.raises(pendant.PathError, match="empty"):
+    ed = path.JointPathEditor(arm().links)
+    with pytest.raises(path.PathError, match="empty"):
         ed.to_command()
     ed.teach([0.1, 0.2, 0.3])
     ed.duplicate([0.0, 0.0, 0.0])
@@ -300,26 +595,26 @@ def test_joint_path_editor_add_teach_remove_reorder() -> None:
     assert [n.q[0] for n in ed.nodes] == [0.1, 0.5, 1.0] and ed.selected == 1
     ed.move(+1)
     assert [n.q[0] for n in ed.nodes] == [0.1, 1.0, 0.5] and ed.selected == 2
-    with pytest.raises(pendant.PathError, match="already last"):
+    with pytest.raises(path.PathError, match="already last"):
         ed.move(+1)
-    with pytest.raises(pendant.PathError, match="speed"):
+    with pytest.raises(path.PathError, match="speed"):
         ed.set_pct(0, 50)
-    with pytest.raises(pendant.PathError, match="3 joint positions"):
+    with pytest.raises(path.PathError, match="3 joint positions"):
         ed.teach([0.0])
     ed.remove()
     assert len(ed.nodes) == 2 and ed.selected == 1
     cmd = ed.to_command()
     assert isinstance(cmd, m.JointPath) and cmd.nodes[1].speed_pct == 50 and cmd.nodes[1].acc_pct == 25
-    cmd.validate()
+    assert codec.loads(m.SetCommand, codec.dumps(m.SetCommand(cmd))).command == cmd  # valid on the wire
     table = ed.table_markdown()
     assert "**▶2**" in table and "57.3" in table and "| 50 | 25 |" in table
-    again = pendant.JointPathEditor(arm().links)
+    again = path.JointPathEditor(arm().links)
     again.load(cmd)
     assert [n.q for n in again.nodes] == [n.q for n in ed.nodes] and again.selected == 0
 
 
 def test_pendant_panel_buttons_and_sliders(server: Any) -> None:
-    ed = pendant.JointPathEditor(arm().links)
+    ed = path.JointPathEditor(arm().links)
     changes, previews, errors = [], [], []
     current = [0.2, -0.3, 0.4]
     panel = pendant.PendantPanel(
@@ -413,7 +708,7 @@ def test_variable_panel_streams_and_plots(server: Any) -> None:
 
 # -- plots ---------------------------------------------------------------------------------------------
 def test_live_buffer_is_a_bounded_window() -> None:
-    buf = plots.LiveBuffer(capacity=100)
+    buf = series.LiveBuffer(capacity=100)
     buf.reset(["time", "a", "b"])
     for k in range(25):
         t = np.arange(k * 10, k * 10 + 10) * 0.01
@@ -431,15 +726,15 @@ def test_live_buffer_is_a_bounded_window() -> None:
 
 
 def test_full_resolution_requests_stay_bounded() -> None:
-    assert plots.every_for(2501, None, None, 5.0) == 1
-    assert plots.every_for(2_000_001, None, None, 3600.0) == math.ceil(2_000_001 / plots.MAX_POINTS)
-    assert plots.every_for(2_000_001, 0.0, 36.0, 3600.0) == 2  # a 1 % zoom is (nearly) full resolution
+    assert series.every_for(2501, None, None, 5.0) == 1
+    assert series.every_for(2_000_001, None, None, 3600.0) == math.ceil(2_000_001 / series.MAX_POINTS)
+    assert series.every_for(2_000_001, 0.0, 36.0, 3600.0) == 2  # a 1 % zoom is (nearly) full resolution
 
 
 def test_overlay_puts_two_runs_on_one_time_axis() -> None:
     t = np.linspace(0, 1, 11)
     t_prev = np.linspace(0, 2, 5)
-    x, cur, prev = plots.overlay(t, [t * 2], t_prev, [t_prev * 3])
+    x, cur, prev = series.overlay(t, [t * 2], t_prev, [t_prev * 3])
     assert x[0] == 0 and x[-1] == 2 and np.all(np.diff(x) > 0)
     assert np.allclose(np.interp(0.5, x, cur[0]), 1.0) and np.allclose(np.interp(1.5, x, prev[0]), 4.5)
     assert cur[0][-1] == pytest.approx(2.0)  # holds its last value beyond its end
@@ -456,14 +751,14 @@ def test_plot_redraws_live_then_full_resolution(server: Any) -> None:
         batch=server.atomic,
     )
     plot = plots.Plot(server.gui, 1, ["joint1.q"], {"joint1.q": "rad"}, actions)
-    buf = plots.LiveBuffer()
+    buf = series.LiveBuffer()
     buf.reset(["time", "joint1.q"])
     buf.append(np.column_stack([np.linspace(0, 1, 50), np.linspace(0, 2, 50)]))
     plot.redraw(buf)
     assert len(plot.chart.data) == 2 and len(plot.chart.data[0]) == 50
     assert plot.chart.series[1]["label"] == "joint1.q [rad]"
-    plot.full = plots.Transient("r2", np.linspace(0, 1, 500), {"joint1.q": np.ones(500)})
-    plot.prev = plots.Transient("r1", np.linspace(0, 1, 300), {"joint1.q": np.zeros(300)})
+    plot.full = series.Transient("r2", np.linspace(0, 1, 500), {"joint1.q": np.ones(500)})
+    plot.prev = series.Transient("r1", np.linspace(0, 1, 300), {"joint1.q": np.zeros(300)})
     plot.compare.value = True
     plot.redraw(buf)
     assert len(plot.chart.data) == 3 and len(plot.chart.data[0]) >= 500
@@ -472,6 +767,30 @@ def test_plot_redraws_live_then_full_resolution(server: Any) -> None:
     plot._add_variable(Event(plot.add_var))
     assert plot.variables == ["joint1.q", "joint2.q"] and plot.add_var.value == "—"
     plot.remove()
+
+
+def test_plot_dock_opens_and_closes_with_its_plots(server: Any) -> None:
+    closed: list[Any] = []
+    actions = plots.PlotActions(
+        load_full=lambda *a: None,
+        overlay=lambda *a: None,
+        close=closed.append,
+        error=lambda msg: None,
+        added=lambda p, n: None,
+        variable_names=lambda: ["joint1.q"],
+        batch=server.atomic,
+    )
+    dock = plots.PlotDock(server.gui, {}, actions)
+    a = dock.open("joint1.q", ["joint1.q", "joint2.q"])
+    b = dock.open("joint2.q", ["joint1.q", "joint2.q"])
+    assert (a.number, b.number) == (1, 2) and dock.get(2) is b and dock.plotted() == {"joint1.q", "joint2.q"}
+    a.full = series.Transient("r1", np.zeros(2))
+    dock.new_run()
+    assert a.full is None and a.dirty
+    dock.close(a)
+    assert dock.panel is not None and dock.get(1) is None
+    dock.close(b)
+    assert dock.panel is None and not dock.plots
 
 
 # -- documentation ---------------------------------------------------------------------------------
@@ -488,15 +807,17 @@ def test_doc_links_become_buttons_and_history_goes_back(server: Any) -> None:
     h.go("arm.chain")
     assert h.back() and h.current == "arm.joint" and h.back() and h.current == "arm" and not h.back()
 
-    asked = []
-    window = docs.DocsWindow(server.gui, model.docs, "arm", lambda page: asked.append(page))
+    asked: list[str] = []
+    window = docs.DocsWindow(server.gui, model.docs, "arm", asked.append)
     window.open()
     window.follow("arm.joint")
     assert window.history.current == "arm.joint"
     window.back()
     assert window.history.current == "arm"
-    window.follow("arm.motor")  # not carried in the description: asked from the server
-    assert asked == ["arm.motor"]
+    window.follow("arm.motor")  # not carried in the description: asked from the server, off-thread
+    assert asked == ["arm.motor"] and "Loading" in window.widgets[1].content
+    window.receive(DocPage("arm.motor", "Motor", "The motor."))
+    assert "The motor." in window.widgets[1].content and asked == ["arm.motor"]
     window.close()
     assert not window.is_open
 
@@ -504,25 +825,45 @@ def test_doc_links_become_buttons_and_history_goes_back(server: Any) -> None:
 # -- results, run, library --------------------------------------------------------------------------
 def test_csv_has_units_and_full_precision() -> None:
     rows = np.array([[0.0, 1 / 3], [0.002, 2.0]])
-    data = results.to_csv(["time", "joint1.q"], ["s", "rad"], rows, {"run": "r1"}).decode()
+    data = export.to_csv(["time", "joint1.q"], ["s", "rad"], rows, {"run": "r1"}).decode()
     lines = data.splitlines()
     assert lines[0] == "# run: r1" and lines[1] == "time [s],joint1.q [rad]"
     assert float(lines[2].split(",")[1]) == 1 / 3
     back = np.loadtxt(data.splitlines()[2:], delimiter=",")
     assert np.array_equal(back, rows)
-    assert results.csv_name("spider", "abcdefghijkl", "r3") == "simecs_spider_abcdefgh_r3.csv"
+    assert export.csv_name("spider", "abcdefghijkl", "r3") == "simecs_spider_abcdefgh_r3.csv"
+
+
+def test_uploaded_files_get_key_safe_recording_names() -> None:
+    assert export.upload_name("C:\\\\runs\\\\my run (2).MCAP") == "my_run__2_"
+    assert export.upload_name("/tmp/..hidden.mcap") == "hidden"
+    assert export.upload_name("été.mcap") == "t_"
+    assert export.upload_name(".mcap") == "upload"
+    assert keys.check_name(export.upload_name("x" * 200 + ".mcap"), "recording name")
+
+
+def test_results_panel_lists_runs_and_replays(server: Any) -> None:
+    got: list[tuple[str, str]] = []
+    panel = results.ResultsPanel(server.gui, lambda a, r: got.append((a, r)), lambda n, d: None)
+    runs = [m.RunInfo("r1", "finished", 1.0, 1.0), m.RunInfo("r2", "running", 1.0, 0.4, recording="s_r1")]
+    panel.show_runs(runs, "r2")
+    assert panel.runs.options[0].startswith("r2") and "replay of s_r1" in panel.runs.options[0]
+    assert panel.selected() == "r2"
+    panel.runs.value = panel.runs.options[1]
+    assert panel.selected() == "r1"
 
 
 def test_status_line_and_run_buttons() -> None:
     st = m.SessionState("s" * 22, "running", run_id="r2", progress=0.5, sim_time=1.0, rtf=0.98)
     assert run.status_text(st) == "**running** run r2 · t = 1.000 s · 50 % · RTF 0.98"
+    assert "**running** replay r2 of `s_r1`" in run.status_text(st, replay="s_r1")
     failed = m.SessionState("s" * 22, "failed", run_id="r2", reason="diverged")
     assert "diverged" in run.status_text(failed)
     queued = m.SessionState("s" * 22, "queued", run_id="r3", queue_position=2)
     assert "position 2" in run.status_text(queued)
-    assert run.run_action_refusal("Run", "running") and not run.run_action_refusal("Run", "finished")
-    assert run.run_action_refusal("Pause", "paused") and not run.run_action_refusal("Resume", "paused")
-    assert run.run_action_refusal("Abort", "finished") and not run.run_action_refusal("Abort", "queued")
+    assert run.applicable("finished") == ["Run"] and run.applicable("paused") == ["Resume", "Abort"]
+    assert run.applicable("running") == ["Pause", "Abort"] and run.applicable("queued") == ["Abort"]
+    assert set(run.RUN_BUTTONS.values()) == {"run", "pause", "resume", "abort"}
 
 
 def test_settings_form_is_checked_before_sending() -> None:
@@ -531,13 +872,14 @@ def test_settings_form_is_checked_before_sending() -> None:
     with pytest.raises(DecodeError) as err:
         run.settings_from_form(-1.0, 0.002, 0.0, "real time", 1.0, 50.0, [])
     assert err.value.field == "stop_time"
+    with pytest.raises(DecodeError) as err:
+        run.settings_from_form(1.0, 2.0, 0.0, "real time", 1.0, 50.0, [])
+    assert err.value.field == "output_interval"
     with pytest.raises(DecodeError):
         run.settings_from_form(1.0, 0.002, 0.0, "warp", 1.0, 50.0, [])
 
 
 def test_errors_read_as_sentences() -> None:
-    from simecs.mesh.client import NoReply, RemoteError
-
     e = RemoteError(
         m.Error("bad_request", "values.link2.mass: 9999 kg is outside [0, 500] kg", "values.link2.mass")
     )
@@ -545,15 +887,18 @@ def test_errors_read_as_sentences() -> None:
     assert describe_error(RemoteError(m.Error("conflict", "a run is running"))) == "a run is running"
     text = describe_error(NoReply("no node answered simecs/library within 10.0 s"))
     assert text == "no simecs node answered: is the service running? (simecs/library)"
+    assert describe_error(path.PathError("the path is empty")) == "the path is empty"
 
 
 def test_user_names_and_model_summaries() -> None:
-    assert library.valid_user(" ada ") == "ada"
+    assert session.valid_user(" ada ") == "ada"
     with pytest.raises(ValueError):
-        library.valid_user("no spaces")
-    assert library.valid_user(library.new_user_name())
+        session.valid_user("no spaces")
+    assert session.valid_user(session.new_user_name())
     text = library.model_markdown(arm().summary_entry())
     assert "3 joints" in text and "joint path" in text
+    entry = m.SessionEntry("abcdefghijklmnopqrstuv", "arm3", "finished")
+    assert library.session_label(entry) == "arm3 · finished · abcdefgh"
 
 
 def test_bench_reads_the_viewer_latency_from_its_log() -> None:
@@ -573,8 +918,8 @@ def test_spider_appearance_parameters_reshape_its_shapes() -> None:
         {"payload.size": 2 * defaults["payload.size"], "link7.radius": 1.5 * defaults["link7.radius"]}
     )
     changed["link7.length"] = defaults["link7.length"] + 0.1
-    before = [scene.effective_shape(s, desc, defaults, defaults) for s in desc.shapes]
-    after = [scene.effective_shape(s, desc, changed, defaults) for s in desc.shapes]
+    before = [shapes.effective_shape(s, desc, defaults, defaults) for s in desc.shapes]
+    after = [shapes.effective_shape(s, desc, changed, defaults) for s in desc.shapes]
     payload = next(i for i, s in enumerate(desc.shapes) if s.kind == "box" and s.link == 6)
     assert after[payload].width == pytest.approx(2 * before[payload].width)
     assert after[payload].origin[0] == pytest.approx(before[payload].origin[0] + 0.1)
@@ -584,8 +929,375 @@ def test_spider_appearance_parameters_reshape_its_shapes() -> None:
     appearance = {p.name for p in desc.parameters if p.appearance}
     tied = {v for s in desc.shapes for v in s.scales_with.values()} | {lk.length_param for lk in desc.links}
     assert appearance == tied
+    assert shapes.appearance_parameters(desc) == appearance | {lk.length_param for lk in desc.links}
 
 
 def test_status_line_shows_warnings() -> None:
     st = m.SessionState(session="s", phase="finished", run_id="r1", warnings=["recorder: gaps"])
     assert "⚠ recorder: gaps" in run.status_text(st)
+
+
+# -- the session controller, driven by injected messages ------------------------------------------------
+def test_controller_starts_with_the_library_then_attaches_a_new_session() -> None:
+    ctl, mesh, got = controller()
+    ctl.start(remembered_session="", remembered_user="")
+    ctl.drain()
+    assert got.of(events.UserChanged)[0].user == "tester"  # the viewer's --user for a new browser
+    listed = got.of(events.LibraryListed)[-1]
+    assert [s.id for s in listed.models] == ["arm3"] and not listed.can_dismiss and listed.current == ""
+    ctl.load_model("arm3")
+    ctl.drain()
+    sc = mesh.sessions[ctl.session.id]
+    assert got.of(events.SessionRemembered)[-1].session == sc.id
+    assert got.of(events.ModelLoaded)[-1].model.id == "arm3" and got.of(events.LibraryClosed)
+    assert set(sc.watched) == {"on_state", "on_params", "on_layout", "on_live"}
+    assert ctl.values == arm().default_values() and ctl.streamed == {v.name for v in arm().variables}
+    assert got.of(events.ParamSetsChanged)[-1].names == ["light"]
+    assert got.of(events.StateShown)[-1].state.phase == "created"
+
+
+def test_controller_reopens_the_remembered_session_and_forgets_a_vanished_one() -> None:
+    ctl, mesh, got = controller()
+    sc = mesh.create_session("ada", "arm3")
+    sc.snap.values["link2.length"] = 0.9
+    ctl.start(remembered_session=sc.id, remembered_user="ada")
+    ctl.drain()
+    assert ctl.user == "ada" and not got.of(events.UserChanged)
+    assert ctl.session is not None and ctl.session.id == sc.id and ctl.values["link2.length"] == 0.9
+    other, mesh2, got2 = controller()
+    other.start(remembered_session=keys.new_session_id(), remembered_user="ada")
+    other.drain()
+    assert got2.of(events.SessionRemembered)[-1].session == ""
+    assert got2.of(events.Notice)[-1].title == "Previous session ended" and got2.of(events.LibraryListed)
+
+
+def test_one_tab_per_session() -> None:
+    ctl, sc, got = attached()
+    second = session.SessionController(ctl.host, tab_id=4)
+    seen = Recorder()
+    second.subscribe(seen)
+    second.open_session(sc.id)
+    second.drain()
+    assert second.session is None and seen.of(events.Notice)[-1].title == "Session already open"
+    ctl.close()  # the first tab went away: the session is free
+    second.open_session(sc.id)
+    second.drain()
+    assert second.session is not None and second.session.id == sc.id
+
+
+def test_a_state_update_reaches_the_toolbar_listener() -> None:
+    ctl, sc, got = attached()
+    st = state(sc, "running", progress=0.5, sim_time=0.5, rtf=1.0)
+    sc.watched["on_state"](st)
+    shown = got.of(events.StateShown)[-1]
+    assert shown.state is st and shown.replay == "" and ctl.phase == "running"
+    sc.watched["on_state"](state(sc, "running", seq=3))  # an older publication arriving late
+    assert ctl.state is st
+    sc.watched["on_state"](m.SessionState(session=keys.new_session_id(), phase="failed"))  # not ours
+    assert ctl.state is st
+
+
+def test_a_finished_run_is_told_once_and_the_runs_are_listed_from_the_proxy() -> None:
+    ctl, sc, got = attached()
+    sc.run_list = [
+        m.RunInfo("r1", "finished", 1.0, 1.0, samples=501),
+        m.RunInfo("r2", "running", 1.0, 0.2, recording="rec_r1"),
+    ]
+    sc.watched["on_state"](state(sc, "finished", sim_time=1.0, rtf=2.0))
+    sc.watched["on_state"](state(sc, "finished", seq=11, sim_time=1.0, rtf=2.0))
+    ctl.drain()
+    assert [n.title for n in got.of(events.Notice)].count("Run r1 finished") == 1
+    listed = got.of(events.RunsChanged)[-1]
+    assert [r.run_id for r in listed.runs] == ["r1", "r2"] and listed.newest == "r2"
+    assert ctl.replay_of("r2") == "rec_r1" and ctl.replay_of("r1") == ""
+
+
+@pytest.mark.parametrize(
+    ("phase", "op"),
+    [
+        ("finished", "pause"),
+        ("finished", "resume"),
+        ("created", "abort"),
+        ("running", "run"),
+        ("paused", "pause"),
+    ],
+)
+def test_run_buttons_are_refused_locally_with_the_phase_table(phase: str, op: str) -> None:
+    ctl, sc, got = attached()
+    sc.watched["on_state"](state(sc, phase))
+    sent = len(sc.sent)
+    ctl.control.run_action(op)
+    ctl.drain()
+    note = got.of(events.Notice)[-1]
+    assert note.body == phases.refusal(op, phase) and note.kind == "warning"
+    assert len(sc.sent) == sent
+
+
+def test_run_sends_the_pending_path_first_and_pause_resume_abort_go_through() -> None:
+    ctl, sc, got = attached()
+    ctl.control.run_action("run")
+    ctl.drain()
+    assert "joint path is empty" in got.of(events.Notice)[-1].body and not sc.of(m.Run)
+    ctl.path.teach([0.1, 0.2, 0.3])
+    ctl.edits.command_changed()
+    ctl.control.run_action("run")  # before the edit pause: the path goes first anyway
+    ctl.drain()
+    assert [type(c) for c in sc.sent[-2:]] == [m.SetCommand, m.Run]
+    assert sc.of(m.SetCommand)[-1].command.nodes[0].q == [0.1, 0.2, 0.3]
+    assert got.of(events.Notice)[-1].body == "Run **r1** assigned."
+    sc.watched["on_state"](state(sc, "running"))
+    ctl.control.run_action("pause")
+    sc.watched["on_state"](state(sc, "paused", seq=11))
+    ctl.control.run_action("resume")
+    sc.watched["on_state"](state(sc, "running", seq=12))
+    ctl.control.run_action("abort")
+    ctl.drain()
+    assert [type(c) for c in sc.sent[-3:]] == [m.Pause, m.Resume, m.Abort]
+
+
+def test_an_edit_burst_sends_one_request_after_the_pause() -> None:
+    ctl, sc, got = attached()
+    for k in range(20):  # a slider dragged: an event per move
+        ctl.edits.set_initial([0.01 * k, 0.0, 0.0])
+    assert len(got.of(events.PosePreview)) == 20 and ctl.shown_q == [0.19, 0.0, 0.0]
+    ctl.tick()  # the user has not paused yet
+    ctl.drain()
+    assert not sc.of(m.SetInitial)
+    ctl.tick(time.monotonic() + 1.0)
+    ctl.tick(time.monotonic() + 2.0)
+    ctl.drain()
+    assert [c.joints for c in sc.of(m.SetInitial)] == [[0.19, 0.0, 0.0]]
+    ctl.edits.set_streamed({"joint1.qd"}, plotted=set())
+    ctl.tick(time.monotonic() + 1.0)
+    ctl.drain()
+    live = sc.of(m.SetSettings)[-1].settings.live_vars
+    assert live == ["joint1.q", "joint1.qd", "joint2.q", "joint3.q"]  # joint positions always streamed
+
+
+def test_a_refused_parameter_comes_back_to_the_server_value() -> None:
+    ctl, sc, got = attached()
+    sc.refuse[m.SetParams] = RemoteError(
+        m.Error("bad_request", "values.link2.mass: 9999 kg is outside [0, 100] kg", "values.link2.mass")
+    )
+    ctl.edits.set_param("link2.mass", 9999.0)
+    ctl.drain()
+    assert got.of(events.ValuesChanged)[-1].values["link2.mass"] == 4.0
+    note = got.of(events.Notice)[-1]
+    assert note.title == "link2.mass not changed" and "outside [0, 100] kg (values.link2.mass)" in note.body
+    # an appearance parameter reshapes the arm at once, and back when refused
+    ctl.edits.set_param("link2.length", 2.5)
+    ctl.drain()
+    assert [e.values["link2.length"] for e in got.of(events.ShapesChanged)][-2:] == [2.5, 0.5]
+    # accepted: the server's values are shown
+    del sc.refuse[m.SetParams]
+    ctl.edits.set_param("link2.length", 0.75)
+    ctl.drain()
+    assert (
+        ctl.values["link2.length"] == 0.75 and got.of(events.ShapesChanged)[-1].values["link2.length"] == 0.75
+    )
+    # while a run is under way the edit is refused here, with the phase table's reason
+    sc.watched["on_state"](state(sc, "running"))
+    sent = len(sc.sent)
+    ctl.edits.set_param("link2.mass", 5.0)
+    ctl.drain()
+    assert len(sc.sent) == sent and got.of(events.Notice)[-1].body == phases.refusal("set_params", "running")
+    sc.watched["on_params"](m.ParamValues(sc.id, "arm3", {**ctl.values, "link2.mass": 7.0}))
+    assert got.of(events.ValuesChanged)[-1].values["link2.mass"] == 7.0
+
+
+def test_live_frames_pose_the_arm_and_teach_knows_the_pose() -> None:
+    model = arm()
+    ctl, sc, got = attached(model)
+    lay = layout(sc, model, "r1")
+    sc.watched["on_layout"](lay)
+    assert got.of(events.LayoutChanged)[-1].layout is lay
+    sc.watched["on_live"](live_frame(lay, model, [0.3, -0.2, 0.1]))
+    sample = got.of(events.LiveSamples)[-1]
+    assert sample.poses is not None and sample.poses.shape == (3, 7)
+    assert np.allclose(sample.poses, link_poses(model, model.default_values(), [0.3, -0.2, 0.1])[:3])
+    assert ctl.shown_q == pytest.approx([0.3, -0.2, 0.1]) and ctl.stream.live.has("joint1.q")
+    old = frames.Frame(7, 0, 0, live_frame(lay, model, [0.0] * 3).rows)  # another run: dropped
+    sc.watched["on_live"](old)
+    assert len(got.of(events.LiveSamples)) == 1
+    ctl.path.teach(ctl.shown_q)
+    assert ctl.path.nodes[0].q == pytest.approx([0.3, -0.2, 0.1])
+
+
+def test_a_replay_is_a_run_of_the_session_shaped_by_the_recorded_values() -> None:
+    model = arm()
+    ctl, sc, got = attached(model)
+    sc.run_list = [m.RunInfo("r1", "finished", 1.0, 1.0, samples=501)]
+    ctl.refresh_runs()
+    ctl.control.replay_run("r1")
+    ctl.drain()
+    recording = keys.recording_name(sc.id, "r1")
+    assert sc.of(m.Replay)[-1].recording == recording and ctl.session.id == sc.id  # no other session
+    sc.watched["on_state"](state(sc, "queued", "r2"))
+    lay = layout(sc, model, "r2", recording, **{"link2.length": 1.0})
+    sc.watched["on_layout"](lay)
+    assert ctl.replaying is lay
+    assert got.of(events.ShapesChanged)[-1].values["link2.length"] == 1.0
+    assert ctl.values["link2.length"] == 0.5  # the session's own values are untouched
+    sc.watched["on_state"](state(sc, "running", "r2", seq=11))
+    shown = got.of(events.StateShown)[-1]
+    assert shown.replay == recording and f"replay r2 of `{recording}`" in run.status_text(
+        shown.state, shown.replay
+    )
+    sc.watched["on_live"](live_frame(lay, model, [0.2, 0.2, 0.2]))
+    assert np.allclose(  # the poses of the recorded arm
+        got.of(events.LiveSamples)[-1].poses, link_poses(model, lay.context.values, [0.2] * 3)[:3]
+    )
+    ctl.control.run_action("pause")  # the buttons act on the replay as on any run
+    ctl.drain()
+    assert isinstance(sc.sent[-1], m.Pause)
+    sc.watched["on_state"](state(sc, "finished", "r2", seq=12, sim_time=1.0))
+    ctl.drain()
+    assert got.of(events.Notice)[-1].title == f"Replay r2 of {recording} finished"
+    # replaying a replay run replays its recording (replays are not recorded again)
+    ctl.control.replay_run("r2")
+    ctl.drain()
+    assert sc.of(m.Replay)[-1].recording == recording
+    # the user's own configuration again: the session's values shape the arm
+    ctl.preview([0.0, 0.0, 0.0])
+    assert ctl.replaying is None and got.of(events.ShapesChanged)[-1].values["link2.length"] == 0.5
+
+
+def test_a_replay_already_over_when_the_tab_attaches_does_not_reshape_the_arm() -> None:
+    model = arm()
+    ctl, sc, got = attached(model)
+    sc.watched["on_state"](state(sc, "finished", "r2"))
+    sc.watched["on_layout"](layout(sc, model, "r2", "rec_r1", **{"link2.length": 1.0}))
+    assert ctl.replaying is None and got.of(events.StateShown)[-1].replay == "rec_r1"
+
+
+def test_an_upload_replays_here_or_in_a_new_session_on_its_model() -> None:
+    model = arm()
+    other = msgspec.structs.replace(arm(), id="arm3b", name="Other arm")
+    ctl, sc, got = attached(model, other)
+    mesh = ctl.host.mc
+    ctl.results.upload("/home/ada/kept run.mcap", b"MCAP")
+    ctl.drain()
+    assert mesh.uploaded == ["kept_run"] and sc.of(m.Replay)[-1].recording == "kept_run"
+    mesh.upload_model = "arm3b"
+    ctl.results.upload("other.mcap", b"MCAP")
+    ctl.drain()
+    assert ctl.session.id != sc.id and ctl.model.id == "arm3b"
+    assert mesh.sessions[ctl.session.id].of(m.Replay)[-1].recording == "other"
+    assert len(sc.of(m.Replay)) == 1
+
+
+def test_full_resolution_overlay_and_downloads() -> None:
+    ctl, sc, got = attached()
+    sc.run_list = [m.RunInfo("r1", "finished", 1.0, 1.0, 11), m.RunInfo("r2", "finished", 1.0, 1.0, 11)]
+    ctl.refresh_runs()
+    ctl.results.load_full(5, ["joint1.q"], None, None, run_id="", with_prev=True)
+    ctl.drain()
+    loaded = got.of(events.TransientLoaded)[-1]
+    assert loaded.plot == 5 and loaded.full.run_id == "r2" and loaded.prev.run_id == "r1"
+    assert np.allclose(loaded.full.ys["joint1.q"], np.linspace(0, 1, 11))
+    ctl.results.load_previous(5, ["joint1.q"], "r1")
+    ctl.drain()
+    assert got.of(events.PreviousLoaded)[-1].prev is None
+    assert "no previous run" in got.of(events.Notice)[-1].body
+    sc.watched["on_state"](state(sc, "running", "r3"))
+    sc.run_list.append(m.RunInfo("r3", "running", 1.0, 0.3))
+    ctl.refresh_runs()
+    ctl.results.load_full(5, ["joint1.q"])
+    ctl.drain()
+    assert "still going on" in got.of(events.Notice)[-1].body
+    ctl.results.download_csv("r1", ["joint1.q"])
+    ctl.results.download_mcap("r1")
+    ctl.drain()
+    csv, mcap = got.of(events.Download)[-2:]
+    assert csv.filename.endswith("_r1.csv") and b"joint1.q [rad]" in csv.data and b"# run: r1" in csv.data
+    assert mcap.filename == f"{keys.recording_name(sc.id, 'r1')}.mcap" and mcap.data.startswith(b"\x89MCAP")
+
+
+def test_documentation_pages_not_carried_are_fetched_off_thread() -> None:
+    ctl, sc, got = attached()
+    ctl.fetch_doc("arm.motor")
+    ctl.drain()
+    page = got.of(events.DocFetched)[-1].page
+    assert page.id == "arm.motor" and page.title == "Missing page"
+    assert got.of(events.Notice)[-1].title == "Documentation"
+
+
+# -- the tab: controller events on real panels --------------------------------------------------------
+class FakeClient:
+    """A viser client without a browser: the server's gui and scene, notifications and downloads kept."""
+
+    def __init__(self, server: Any) -> None:
+        self.client_id = 7
+        self.server = server
+        self.gui = server.gui
+        self.scene = server.scene
+        self.camera = SimpleNamespace(position=None, look_at=None)
+        self.notes: list[tuple[str, str]] = []
+        self.downloads: list[str] = []
+        self.stored: dict[str, str] = {}
+        self.local_storage = SimpleNamespace(set_item=self.stored.__setitem__)
+        self._websock_connection = SimpleNamespace(queue_message=lambda message: None)
+
+    def atomic(self) -> Any:
+        return self.server.atomic()
+
+    def add_notification(self, title: str, body: str, **_kw: Any) -> None:
+        self.notes.append((title, body))
+
+    def send_file_download(self, name: str, data: bytes, save_immediately: bool = True) -> None:
+        self.downloads.append(name)
+
+
+def test_the_tab_applies_controller_events_to_its_panels(server: Any) -> None:
+    model = arm()
+    mesh = FakeMesh(model)
+    client = FakeClient(server)
+    tab = Tab(FakeHost(mesh), client)
+    tab.build_frame()
+    ctl = tab.controller
+    ctl.start()
+    ctl.drain()
+    assert tab.library is not None and client.stored["simecs.user"] == "tester"
+    ctl.load_model("arm3")
+    ctl.drain()
+    page = tab.page
+    assert page is not None and tab.library is None
+    sc = mesh.sessions[ctl.session.id]
+    try:
+        # the toolbar follows the state; the pendant locks while a run goes on
+        sc.watched["on_state"](state(sc, "running", progress=0.5, sim_time=0.5, rtf=1.0))
+        assert tab.toolbar.status.content.startswith("**running** run r1")
+        assert tab.toolbar.runs.hint == "now: Pause, Abort" and page.pendant.locked
+        # a replay run: the status names the recording, the arm takes the recorded link length
+        sc.watched["on_state"](state(sc, "queued", "r2", seq=11))
+        lay = layout(sc, model, "r2", "rec_r1", **{"link2.length": 1.0})
+        sc.watched["on_layout"](lay)
+        sc.watched["on_state"](state(sc, "running", "r2", seq=12))
+        assert "replay r2 of `rec_r1`" in tab.toolbar.status.content
+        assert page.scene.solids[2][0].scale[2] == pytest.approx(1.0)
+        sc.watched["on_live"](live_frame(lay, model, [0.4, 0.1, -0.2]))
+        expected = link_poses(model, lay.context.values, [0.4, 0.1, -0.2])
+        assert np.allclose(page.scene.frames[2].position, expected[2, :3])
+        sc.watched["on_state"](state(sc, "finished", "r2", seq=13, sim_time=1.0))
+        assert not page.pendant.locked
+        # the user's own pose: the session's shapes come back
+        ctl.preview([0.0, 0.0, 0.0])
+        assert page.scene.solids[2][0].scale[2] == pytest.approx(0.5)
+        # a plot of a streamed variable shows the live window; Full resolution loads the run
+        sc.run_list = [m.RunInfo("r2", "finished", 1.0, 1.0, 11, recording="rec_r1")]
+        ctl.refresh_runs()
+        page.open_plot("joint1.q")
+        ctl.drain()
+        plot = page.plots.get(1)
+        assert plot is not None and plot.full is None
+        plot._transient(Event(SimpleNamespace(value="Full resolution")))
+        ctl.drain()
+        assert plot.full is not None and plot.full.run_id == "r2" and "r2 full res" in plot.folder.label
+        page._results_action("CSV", "r2")
+        ctl.drain()
+        assert client.downloads[-1].endswith("_r2.csv")
+        assert any(title == "Replay r2 of rec_r1 finished" for title, _ in client.notes)
+        tab.tick()
+    finally:
+        tab.close()
+        page.remove()

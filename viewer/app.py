@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import argparse
 import threading
-import time
 from typing import Any
 
 import viser
@@ -20,6 +19,7 @@ from simecs.mesh.client import MeshClient
 from simecs.mesh.model import ModelDescription
 from simecs.mesh.runtime import Node, main_for, mesh_from_args
 
+from .host import Claimant, Claims
 from .tab import Tab
 
 DEFAULT_HOST = "127.0.0.1"
@@ -27,7 +27,8 @@ DEFAULT_PORT = 8080
 
 
 class Viewer(Node):
-    """The web client of simecs (paper §3.2): one viser server, one `Tab` per browser tab."""
+    """The web client of simecs (paper §3.2): one viser server, one `Tab` per browser tab. It is the
+    tabs' `Host` (host.py): the mesh client, cached model descriptions, one tab per session."""
 
     role = "viewer"
     live_path = True
@@ -48,8 +49,7 @@ class Viewer(Node):
         self.server: viser.ViserServer | None = None
         self.mc: MeshClient = None  # type: ignore[assignment]  # set in start()
         self.tabs: dict[int, Tab] = {}
-        self.claims: dict[str, Tab] = {}
-        self.claims_lock = threading.Lock()
+        self.claims = Claims(self._live)
         self._models: dict[str, ModelDescription] = {}
         self._models_lock = threading.Lock()
 
@@ -127,40 +127,10 @@ class Viewer(Node):
         return desc
 
     # -- one tab per session ------------------------------------------------------------------------
-    def _connected_ids(self) -> set[int]:
-        return set(self.server.get_clients()) if self.server is not None else set()
-
-    def claim(self, session: str, tab: Tab, wait_s: float = 2.0) -> bool:
-        """Give `session` to `tab` unless another live tab shows it.
-
-        A reloading tab's old connection may close a moment after the new one asks, so a claim held
-        by a still-connected tab is waited for up to `wait_s`.
-        """
-        end = time.monotonic() + wait_s
-        while True:
-            with self.claims_lock:
-                owner = self.claims.get(session)
-                if (
-                    owner is None
-                    or owner is tab
-                    or owner.closed
-                    or owner.client.client_id not in self._connected_ids()
-                ):
-                    self.claims[session] = tab
-                    return True
-            if time.monotonic() > end:
-                return False
-            time.sleep(0.1)
-
-    def claimed_by_other(self, session: str, tab: Tab) -> bool:
-        with self.claims_lock:
-            owner = self.claims.get(session)
-            return owner is not None and owner is not tab and not owner.closed
-
-    def release(self, session: str, tab: Tab) -> None:
-        with self.claims_lock:
-            if self.claims.get(session) is tab:
-                del self.claims[session]
+    def _live(self, claimant: Claimant) -> bool:
+        """A holder of a session counts while its tab is open and its browser still connected."""
+        connected = set(self.server.get_clients()) if self.server is not None else set()
+        return not claimant.closed and claimant.tab_id in connected
 
 
 def _no_share(*_args: Any, **_kwargs: Any) -> None:

@@ -1,5 +1,5 @@
 """What the viewer needs from the browser tab itself: which session it had before a reload, the user
-name kept on this browser, readable notifications, and the page title.
+name kept on this browser, notifications, and the page title.
 
 viser keeps no per-tab state across a reload (a reloaded page is a new client), so the tab keeps it:
 the session id goes into the tab's `sessionStorage` (one value per tab, kept by a reload, not shared
@@ -12,13 +12,11 @@ from __future__ import annotations
 
 import json
 import logging
-import re
 import secrets
 import time
 from dataclasses import dataclass
 from typing import Any
 
-from simecs.mesh.client import NoReply, RemoteError
 from viser import _messages as viser_messages
 
 log = logging.getLogger("simecs.viewer")
@@ -107,19 +105,3 @@ def notify(client: Any, title: str, body: str, kind: str = "info", seconds: floa
         client.add_notification(title, body, auto_close_seconds=seconds, color=color, with_close_button=True)
     except Exception as exc:  # the tab may be gone
         log.debug("notification to a closed tab dropped: %s", exc)
-
-
-def describe_error(exc: BaseException) -> str:
-    """A sentence a user can act on, from whatever a remote call raised."""
-    if isinstance(exc, RemoteError):
-        message, field = exc.error.message, exc.field
-        if field and message.startswith(field + ": "):
-            message = message[len(field) + 2 :]
-        return f"{message} ({field})" if field else message
-    if isinstance(exc, NoReply):
-        found = re.search(r"answered (\S+)", str(exc))
-        where = f" ({found.group(1)})" if found else ""
-        return f"no simecs node answered: is the service running?{where}"
-    if isinstance(exc, TimeoutError):
-        return f"the server took too long to answer: {exc}"
-    return f"{type(exc).__name__}: {exc}"

@@ -79,11 +79,11 @@ class DocHistory:
 class DocsWindow:
     """A floating panel with the current page, its links as buttons, Back / Contents / Up."""
 
-    def __init__(self, gui: Any, pages: Sequence[DocPage], root: str, fetch: Callable[[str], DocPage | None]):
+    def __init__(self, gui: Any, pages: Sequence[DocPage], root: str, fetch: Callable[[str], None]):
         self.gui = gui
         self.pages = {p.id: p for p in pages}
         self.titles = {p.id: p.title for p in pages}
-        self.fetch = fetch  # for a page not carried in the description (asks the server)
+        self.fetch = fetch  # asks the server for a page not carried in the description
         self.history = DocHistory(root if root in self.pages or not pages else pages[0].id)
         self.panel: Any = None
         self.tab: Any = None
@@ -114,11 +114,18 @@ class DocsWindow:
         if self.history.back():
             self.show()
 
-    def show(self) -> None:
-        page = self.pages.get(self.history.current) or self.fetch(self.history.current)
-        if page is None:
-            page = DocPage(self.history.current, "Missing page", f"No page `{self.history.current}`.")
+    def receive(self, page: DocPage) -> None:
+        """A page the server sent: keep it, and show it if the reader is on it."""
         self.pages[page.id] = page
+        if self.is_open and self.history.current == page.id:
+            self.show()
+
+    def show(self) -> None:
+        current = self.history.current
+        page = self.pages.get(current)
+        if page is None:
+            self.fetch(current)
+            page = DocPage(current, "Loading…", f"_Asking the server for page `{current}`…_")
         rendered = render(page, self.titles)
         for w in self.widgets:
             w.remove()

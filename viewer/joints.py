@@ -11,7 +11,7 @@ from typing import Any
 
 from simecs.mesh.model import InitEquation, Link
 
-DEG = 180.0 / math.pi
+from .path import DEG, clamp_to_limits
 
 
 def to_deg(q: Sequence[float]) -> list[float]:
@@ -20,11 +20,6 @@ def to_deg(q: Sequence[float]) -> list[float]:
 
 def to_rad(deg: Sequence[float]) -> list[float]:
     return [float(x) / DEG for x in deg]
-
-
-def clamp_to_limits(q: Sequence[float], links: Sequence[Link]) -> list[float]:
-    """Joint positions inside every joint's range (a saved pose may predate a narrower model)."""
-    return [min(max(float(x), link.joint_min), link.joint_max) for x, link in zip(q, links, strict=True)]
 
 
 class JointSliders:

@@ -4,11 +4,10 @@ summaries, and your sessions, to load a model or go back to earlier work.
 
 from __future__ import annotations
 
-import secrets
 from collections.abc import Callable, Sequence
 from typing import Any
 
-from simecs.mesh import keys
+from simecs.mesh import messages as m
 from simecs.mesh.model import ModelSummary
 
 LEVEL_NAMES = {
@@ -21,22 +20,13 @@ LEVEL_NAMES = {
 }
 
 
-def new_user_name() -> str:
-    return f"user-{secrets.token_hex(3)}"
-
-
-def valid_user(name: str) -> str:
-    """The name if it can be a user name on the mesh; ValueError with the rule otherwise."""
-    return keys.check_name(name.strip(), "user name")
-
-
 def model_markdown(s: ModelSummary) -> str:
     levels = ", ".join(LEVEL_NAMES.get(c, c) for c in s.command_levels) or "none"
     return f"**{s.name}**  \n{s.summary}\n\n{s.joints} joints · commands: {levels} · id `{s.id}`"
 
 
-def session_label(entry: dict[str, Any]) -> str:
-    return f"{entry.get('model_id', '?')} · {entry.get('phase', '?')} · {str(entry.get('session', ''))[:8]}"
+def session_label(entry: m.SessionEntry) -> str:
+    return f"{entry.model_id} · {entry.phase} · {entry.session[:8]}"
 
 
 class LibraryWindow:
@@ -47,7 +37,7 @@ class LibraryWindow:
         gui: Any,
         user: str,
         models: Sequence[ModelSummary],
-        sessions: Sequence[dict[str, Any]],
+        sessions: Sequence[m.SessionEntry],
         current: str,
         on_load: Callable[[str], None],
         on_open: Callable[[str], None],
@@ -60,7 +50,8 @@ class LibraryWindow:
             self.user = gui.add_text(
                 "User", user, hint="your name on this server; your sessions are kept under it"
             )
-            self.user.on_update(lambda e: e.client is not None and on_user(self.user.value))
+            self.on_user = on_user
+            self.user.on_update(self._user_edited)
             gui.add_markdown("**Library**: load a model to start a new session with its default values.")
             if not models:
                 gui.add_markdown("_The server offers no model (is the proxy node running?)._")
@@ -68,15 +59,15 @@ class LibraryWindow:
                 gui.add_markdown(model_markdown(s))
                 b = gui.add_button(f"Load {s.name}", color="green", hint=f"new session on {s.id}")
                 b.on_click(lambda _e, mid=s.id: on_load(mid))
-            others = [e for e in sessions if e.get("session") != current]
-            mine = next((e for e in sessions if e.get("session") == current), None)
+            others = [e for e in sessions if e.session != current]
+            mine = next((e for e in sessions if e.session == current), None)
             gui.add_markdown(
                 "**Your sessions**: "
                 + ("open one to continue it in this tab." if others else "_no other session._")
                 + (f"  \nThis tab: {session_label(mine)}" if mine else "")
             )
             for entry in others:
-                sid = str(entry.get("session", ""))
+                sid = entry.session
                 gui.add_markdown(session_label(entry))
                 o = gui.add_button(f"Open {sid[:8]}", hint="continue this session in this tab")
                 o.on_click(lambda _e, sid=sid: on_open(sid))
@@ -85,6 +76,10 @@ class LibraryWindow:
             if can_dismiss:
                 done = gui.add_button("Back to the model", color="gray")
                 done.on_click(lambda _e: self.close())
+
+    def _user_edited(self, event: Any) -> None:
+        if event.client is not None:
+            self.on_user(str(self.user.value))
 
     def close(self) -> None:
         if not self.modal.closed:

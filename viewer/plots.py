@@ -1,124 +1,22 @@
-"""Trend presentation (paper §3.2, footnote 3: several plots at once): live uPlot charts fed by the
-decimated stream, then the full-resolution transient on request, zoom, and the previous run overlaid.
-
-Every window is bounded: the live buffer keeps the last `LIVE_CAPACITY` samples and a plot shows at
-most `window_s` seconds of them; a full-resolution load asks the server for at most
-`MAX_POINTS` rows (decimating with `every` when a run is longer), so neither memory nor the data
-resent to the browser on every redraw (uPlot gets whole arrays) can grow with the run.
+"""Trend presentation (paper §3.2, footnote 3: several plots at once): uPlot charts of the live
+window, or of a run's full-resolution transient on request, with zoom and the previous run overlaid;
+the dock on the right that holds them. The data they draw are `series.py`'s, bounded there.
 """
 
 from __future__ import annotations
 
-import math
-import threading
+import logging
 from collections.abc import Callable, Sequence
 from contextlib import AbstractContextManager
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
-LIVE_CAPACITY = 3000  # samples per live column kept for plots (60 s at 50 Hz)
-MAX_POINTS = 20_000  # rows per full-resolution load
+from .series import LiveBuffer, Transient, overlay
+
+log = logging.getLogger("simecs.viewer")
 COLORS = ["#1f77b4", "#d62728", "#2ca02c", "#ff7f0e", "#9467bd", "#8c564b", "#e377c2", "#17becf"]
-
-
-class LiveBuffer:
-    """The last `capacity` rows of a run's live columns (a ring; oldest rows fall out)."""
-
-    def __init__(self, capacity: int = LIVE_CAPACITY) -> None:
-        self.capacity = capacity
-        self.columns: list[str] = []
-        self.index: dict[str, int] = {}
-        self._data = np.empty((0, 0))
-        self._n = 0  # rows ever appended
-        self.lock = threading.Lock()
-
-    def reset(self, columns: Sequence[str]) -> None:
-        with self.lock:
-            self.columns = list(columns)
-            self.index = {c: i for i, c in enumerate(self.columns)}
-            self._data = np.empty((self.capacity, len(self.columns)))
-            self._n = 0
-
-    def append(self, rows: np.ndarray) -> None:
-        with self.lock:
-            if rows.ndim != 2 or rows.shape[1] != len(self.columns) or not rows.shape[0]:
-                return
-            rows = rows[-self.capacity :]
-            k = rows.shape[0]
-            start = self._n % self.capacity
-            first = min(k, self.capacity - start)
-            self._data[start : start + first] = rows[:first]
-            if first < k:
-                self._data[: k - first] = rows[first:]
-            self._n += k
-
-    def __len__(self) -> int:
-        return min(self._n, self.capacity)
-
-    def has(self, name: str) -> bool:
-        return name in self.index
-
-    def window(
-        self, names: Sequence[str], seconds: float | None = None
-    ) -> tuple[np.ndarray, list[np.ndarray]]:
-        """Time and the columns `names` (zeros for a column not streamed), oldest first, last `seconds`."""
-        with self.lock:
-            n = len(self)
-            if n == 0 or "time" not in self.index:
-                return np.empty(0), [np.empty(0) for _ in names]
-            start = self._n % self.capacity if self._n > self.capacity else 0
-            order = (np.arange(n) + start) % self.capacity
-            rows = self._data[order]
-        t = rows[:, self.index["time"]]
-        if seconds is not None and seconds > 0:
-            keep = t >= t[-1] - seconds
-            rows, t = rows[keep], t[keep]
-        ys = [rows[:, self.index[c]] if c in self.index else np.zeros(len(t)) for c in names]
-        return t.copy(), [y.copy() for y in ys]
-
-
-def every_for(
-    samples: int, t0: float | None, t1: float | None, stop_time: float, max_points: int = MAX_POINTS
-) -> int:
-    """The decimation step that keeps a full-resolution request under `max_points` rows."""
-    if samples <= 0:
-        return 1
-    span = stop_time if stop_time > 0 else 1.0
-    lo = 0.0 if t0 is None else max(0.0, t0)
-    hi = span if t1 is None else min(span, t1)
-    fraction = max(0.0, min(1.0, (hi - lo) / span)) if hi > lo else 1.0
-    return max(1, math.ceil(samples * fraction / max_points))
-
-
-def overlay(t: np.ndarray, ys: Sequence[np.ndarray], t_prev: np.ndarray, ys_prev: Sequence[np.ndarray]):
-    """Current and previous run on one time axis (uPlot needs one x array for all series).
-
-    The axis is the union of both runs' times; each run is interpolated onto it and holds its last
-    value beyond its own end (runs of different lengths compare from t = 0).
-    """
-    if len(t_prev) == 0:
-        return t, list(ys), [np.zeros(len(t)) for _ in ys_prev]
-    if len(t) == 0:
-        return t_prev, [np.zeros(len(t_prev)) for _ in ys], list(ys_prev)
-    x = np.union1d(t, t_prev)
-    if len(x) > 2 * MAX_POINTS:
-        x = np.linspace(x[0], x[-1], 2 * MAX_POINTS)
-    cur = [np.interp(x, t, y) for y in ys]
-    prev = [np.interp(x, t_prev, y) for y in ys_prev]
-    return x, cur, prev
-
-
-@dataclass
-class Transient:
-    """Full-resolution data of some variables of one run."""
-
-    run_id: str
-    t: np.ndarray
-    ys: dict[str, np.ndarray] = field(default_factory=dict)
-    t0: float | None = None  # the time window asked for (None: from the start / to the end)
-    t1: float | None = None
 
 
 class Plot:
@@ -156,9 +54,7 @@ class Plot:
             zoom = gui.add_button_group("Transient", ("Full resolution", "Zoom", "Live"))
             zoom.on_click(self._transient)
             self.compare = gui.add_checkbox("Overlay previous run", False)
-            self.compare.on_update(
-                lambda e: e.client is not None and self.actions.overlay(self, self.compare.value)
-            )
+            self.compare.on_update(self._compare)
             self.add_var = gui.add_dropdown(
                 "Add variable", ("—",), hint="variables with the same unit fit best"
             )
@@ -191,6 +87,10 @@ class Plot:
             )
             return
         self.actions.load_full(self, *window)
+
+    def _compare(self, event: Any) -> None:
+        if event.client is not None:
+            self.actions.overlay(self, bool(self.compare.value))
 
     def _add_variable(self, event: Any) -> None:
         if event.client is None:
@@ -260,7 +160,7 @@ class Plot:
 
 @dataclass
 class PlotActions:
-    """What a plot asks its tab to do (all may block on the server: the tab runs them off-thread)."""
+    """What a plot asks its tab to do (the session controller does the requests off-thread)."""
 
     load_full: Callable[[Plot, float | None, float | None], None]
     overlay: Callable[[Plot, bool], None]
@@ -269,3 +169,71 @@ class PlotActions:
     added: Callable[[Plot, str], None]
     variable_names: Callable[[], Sequence[str]]
     batch: Callable[[], AbstractContextManager[None]]
+
+
+class PlotDock:
+    """The open plots of a tab, docked right: the dock appears with the first plot and goes with the
+    last; plots are known by their number (what the session controller's events name)."""
+
+    def __init__(self, gui: Any, units: dict[str, str], actions: PlotActions) -> None:
+        self.gui = gui
+        self.units = units
+        self.actions = actions
+        self.plots: dict[int, Plot] = {}
+        self.counter = 0
+        self.panel: Any = None
+        self.tab: Any = None
+
+    def open(self, name: str, choices: Sequence[str]) -> Plot:
+        if self.panel is None:
+            self.panel = self.gui.add_panel()
+            self.tab = self.panel.add_tab("Plots")
+            self.panel.dock_right()
+            self.panel.set_width(440)
+        self.counter += 1
+        with self.tab:
+            plot = Plot(self.gui, self.counter, [name], self.units, self.actions)
+        self.plots[plot.number] = plot
+        self.set_choices(choices)
+        return plot
+
+    def close(self, plot: Plot) -> None:
+        plot.remove()
+        self.plots.pop(plot.number, None)
+        if not self.plots and self.panel is not None:
+            self.panel.remove()
+            self.panel, self.tab = None, None
+
+    def get(self, number: int) -> Plot | None:
+        return self.plots.get(number)
+
+    def plotted(self) -> set[str]:
+        return {v for p in self.plots.values() for v in p.variables}
+
+    def set_choices(self, names: Sequence[str]) -> None:
+        for plot in self.plots.values():
+            plot.set_choices(names)
+
+    def new_run(self) -> None:
+        """A new run is shown: every plot back to its live window."""
+        for plot in self.plots.values():
+            plot.full = None
+            plot.folder.label = plot.title()
+            plot.mark()
+
+    def mark_all(self) -> None:
+        for plot in self.plots.values():
+            plot.dirty = True
+
+    def redraw(self, live: LiveBuffer) -> None:
+        """Redraw the plots that have new data (about 10 times a second)."""
+        for plot in list(self.plots.values()):
+            if plot.dirty:
+                try:
+                    plot.redraw(live)
+                except Exception as exc:  # a plot removed meanwhile, a closed tab
+                    log.debug("plot redraw skipped: %s", exc)
+
+    def remove(self) -> None:
+        for plot in list(self.plots.values()):
+            self.close(plot)

@@ -8,24 +8,28 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any
 
+from simecs.mesh import codec, phases
 from simecs.mesh import messages as m
 from simecs.mesh.codec import DecodeError
 
-ACTIVE = ("queued", "running", "paused")
 PACING = {"real time": "realtime", "N x real time": "scaled", "as fast as possible": "fast"}
 PACING_LABEL = {v: k for k, v in PACING.items()}
 TOOLBAR = ("Models", "Initialise", "Settings", "Documentation")
-RUN_BUTTONS = ("Run", "Pause", "Resume", "Abort")
+#: Run buttons and the session command each sends (the phase table says when it applies).
+RUN_BUTTONS = {"Run": "run", "Pause": "pause", "Resume": "resume", "Abort": "abort"}
 
 
-def status_text(st: m.SessionState | None, replay: bool = False) -> str:
-    """One line a user can read at a glance: phase, time, speed."""
+def status_text(st: m.SessionState | None, replay: str = "") -> str:
+    """One line a user can read at a glance: phase, which run (a replay names its recording), time,
+    speed."""
     if st is None:
         return "_No session._"
-    what = "replay" if replay else (f"run {st.run_id}" if st.run_id else "")
+    what = f"run {st.run_id}" if st.run_id else ""
+    if replay:
+        what = f"replay {st.run_id} of `{replay}`"
     if st.phase == "queued":
         return f"**queued** {what}: position {st.queue_position} (the server is busy with other runs)"
-    if st.phase in ("running", "paused", "finished", "aborted", "failed"):
+    if st.phase in (*phases.GOING, *phases.ENDED):
         line = (
             f"**{st.phase}** {what} · t = {st.sim_time:.3f} s · {st.progress * 100:.0f} % · RTF {st.rtf:.2f}"
         )
@@ -37,21 +41,14 @@ def status_text(st: m.SessionState | None, replay: bool = False) -> str:
     return f"**{st.phase}**: ready to run"
 
 
-def run_action_refusal(action: str, phase: str) -> str:
-    """Why a run button does nothing in this phase ('' when it applies)."""
-    if action == "Run" and phase in ACTIVE:
-        return f"a run is already {phase}: pause, resume or abort it first"
-    if action == "Pause" and phase != "running":
-        return f"nothing to pause: the session is {phase}"
-    if action == "Resume" and phase != "paused":
-        return f"nothing to resume: the session is {phase}"
-    if action == "Abort" and phase not in ACTIVE:
-        return f"nothing to abort: the session is {phase}"
-    return ""
+def applicable(phase: str) -> list[str]:
+    """The run buttons that act in `phase` (the others say why not when clicked)."""
+    return [label for label, op in RUN_BUTTONS.items() if not phases.refusal(op, phase)]
 
 
 class Toolbar:
-    """Top of the window: the toolbar, the progress bar and the run buttons."""
+    """Top of the window: the toolbar, the progress bar and the run buttons; `on_run(op)` gets the
+    session command of the clicked button."""
 
     def __init__(self, gui: Any, on_window: Callable[[str], None], on_run: Callable[[str], None]) -> None:
         self.panel = gui.add_panel()
@@ -59,18 +56,22 @@ class Toolbar:
         with tab:
             self.windows = gui.add_button_group("Windows", TOOLBAR)
             self.windows.on_click(lambda e: on_window(e.target.value))
-            self.runs = gui.add_button_group("Simulation", RUN_BUTTONS)
-            self.runs.on_click(lambda e: on_run(e.target.value))
+            self.runs = gui.add_button_group("Simulation", tuple(RUN_BUTTONS))
+            self.runs.on_click(lambda e: on_run(RUN_BUTTONS[e.target.value]))
             self.progress = gui.add_progress_bar(0.0, animated=False)
             self.status = gui.add_markdown("_Choose a model to start._")
         self.panel.float(x=-12, y=12, width=540)
 
-    def show(self, st: m.SessionState | None, replay: bool = False) -> None:
+    def show(self, st: m.SessionState | None, replay: str = "") -> None:
         self.status.content = status_text(st, replay)
+        now = ", ".join(applicable(st.phase)) if st is not None else ""
+        hint = f"now: {now}" if now else "load a model first"
+        if self.runs.hint != hint:
+            self.runs.hint = hint
         progress = 0.0 if st is None else max(0.0, min(100.0, st.progress * 100.0))
         if abs(self.progress.value - progress) > 1e-6:
             self.progress.value = progress
-        running = st is not None and st.phase in ("running", "queued")
+        running = st is not None and st.phase in phases.UNDER_WAY and st.phase != "paused"
         self.progress.animated = running
         color = None
         if st is not None:
@@ -91,17 +92,16 @@ def settings_from_form(
     pacing = PACING.get(pacing_label)
     if pacing is None:
         raise DecodeError("pacing", f"unknown pacing {pacing_label!r}")
-    settings = m.RunSettings(
-        stop_time=float(stop_time),
-        output_interval=float(output_interval),
-        step=float(step),
-        pacing=pacing,  # type: ignore[arg-type]
-        factor=float(factor),
-        live_rate_hz=float(live_rate),
-        live_vars=list(live_vars),
-    )
-    settings.validate()
-    return settings
+    form = {
+        "stop_time": float(stop_time),
+        "output_interval": float(output_interval),
+        "step": float(step),
+        "pacing": pacing,
+        "factor": float(factor),
+        "live_rate_hz": float(live_rate),
+        "live_vars": list(live_vars),
+    }
+    return codec.from_obj(m.RunSettings, form)  # the bounds of the protocol, checked as the server will
 
 
 class SettingsWindow:

@@ -1,0 +1,204 @@
+"""The user's edits of their session, on their way to the server (paper §2.2 steps 2-6): parameter
+values (each checked by the server, undone when refused), named parameter sets, the streamed
+variables, the initial pose, the joint path and the settings.
+
+Sliders and the pendant fire on every move, so the pose, the path and the settings are sent once
+the user paused for `sync_delay_s` (`tick`), and all at once before a run starts (`flush`). An edit
+the session's phase forbids is refused here with the phase table's reason. Part of the session
+controller: the values themselves live on it, where the panels read them.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from functools import partial
+from typing import TYPE_CHECKING, Any
+
+import msgspec
+from simecs.mesh import columns
+from simecs.mesh import messages as m
+from simecs.mesh.client import NoReply, RemoteError
+from simecs.mesh.shapes import appearance_parameters
+
+from . import events as ev
+
+if TYPE_CHECKING:
+    from .session import SessionController
+
+SYNC_DELAY_S = 0.25  # an edit is sent once the user paused this long (sliders fire on every move)
+DEBOUNCED = ("initial", "command", "settings")
+
+
+class Edits:
+    """Sending one controller's edits."""
+
+    def __init__(self, controller: SessionController, sync_delay_s: float = SYNC_DELAY_S) -> None:
+        self.c = controller
+        self.sync_delay_s = sync_delay_s
+        self._due: dict[str, float] = {}
+        self._lock = threading.Lock()
+
+    def command(self, cmd: Any) -> Any:
+        """Send a session command after the local phase check (the server checks again)."""
+        sc = self.c.session
+        if sc is None:
+            raise ValueError("load a model first (Models)")
+        why = self.c.refusal(cmd.op)
+        if why:
+            raise ValueError(why)
+        return sc.command(cmd)
+
+    # -- parameters --------------------------------------------------------------------------------
+    def set_param(self, name: str, value: float) -> None:
+        """One value: the 3D arm reshapes at once, the server checks it (undone if refused)."""
+        c = self.c
+        sc, model = c.session, c.model
+        if sc is None or model is None:
+            return
+        why = c.refusal("set_params")
+        if why:
+            c.notify(f"{name} not changed", why, "warning")
+            c.emit(ev.ValuesChanged(dict(c.values)))
+            return
+        if name in appearance_parameters(model):
+            c.replaying = None
+            c.emit(ev.ShapesChanged({**c.values, name: float(value)}))
+
+        def job() -> None:
+            try:
+                values = sc.command(m.SetParams({name: float(value)}))
+            except (RemoteError, NoReply) as exc:
+                self.show_values(c.values)
+                c.fail(f"{name} not changed", exc)
+                return
+            self.show_values(values)
+
+        c.submit(f"{name} not changed", job)
+
+    def reset_params(self, names: list[str]) -> None:
+        def job() -> None:
+            self.show_values(self.command(m.ResetParams(list(names))))
+            self.c.notify("Parameters", f"{len(names) or 'All'} parameter(s) back to their defaults.", "ok")
+
+        self.c.submit("Reset refused", job)
+
+    def param_set(self, op: str, name: str) -> None:
+        """save / load / delete a named parameter set (kept by the server per user and model)."""
+        c = self.c
+
+        def job() -> None:
+            if op in ("load", "delete") and name in ("", "(none)"):
+                raise ValueError("no saved set chosen")
+            if op == "save":
+                self.command(m.SaveParamSet(name))
+                c.notify("Parameter set saved", f"Saved **{name}**.", "ok")
+            elif op == "load":
+                self.show_values(self.command(m.LoadParamSet(name)))
+                c.notify("Parameter set loaded", f"Loaded **{name}**.", "ok")
+            elif op == "delete":
+                self.command(m.DeleteParamSet(name))
+                c.notify("Parameter set deleted", f"Deleted **{name}**.", "ok")
+            self.refresh_sets()
+
+        c.submit(f"Parameter set {op}", job)
+
+    def refresh_sets(self) -> None:
+        if self.c.session is not None:
+            self.c.emit(ev.ParamSetsChanged(list(self.command(m.ListParamSets()))))
+
+    def show_values(self, values: dict[str, float]) -> None:
+        """The server's values: to the parameter panel, and to the arm unless a replay shapes it."""
+        c = self.c
+        c.values = dict(values)
+        c.emit(ev.ValuesChanged(dict(c.values)))
+        if c.replaying is None:
+            c.emit(ev.ShapesChanged(dict(c.values)))
+
+    # -- variables, pose, path, settings -------------------------------------------------------------
+    def set_streamed(self, wanted: set[str], plotted: set[str]) -> None:
+        """Variables streamed live: the chosen ones (the plotted ones when none), and the joint
+        positions always (Teach needs the pose after a run)."""
+        c = self.c
+        if c.model is None:
+            return
+        required = set(columns.joint_position_columns(c.model))
+        c.streamed = set(wanted) | required | (set(plotted) if not wanted else set())
+        c.emit(ev.StreamedChanged(set(c.streamed)))
+        self.later("settings")
+
+    def ensure_streamed(self, name: str) -> None:
+        c = self.c
+        if name not in c.streamed:
+            c.streamed.add(name)
+            c.emit(ev.StreamedChanged(set(c.streamed)))
+            self.later("settings")
+
+    def set_initial(self, q: list[float]) -> None:
+        self.c.initial = list(q)
+        self.c.preview(q)
+        self.later("initial")
+
+    def command_changed(self) -> None:
+        """The joint path (the controller's `path`) was edited in place."""
+        self.later("command")
+
+    def apply_settings(self, settings: m.RunSettings) -> None:
+        """Settings from the settings window (the streamed variables go with them)."""
+        c = self.c
+        settings = msgspec.structs.replace(settings, live_vars=self.live_vars())
+
+        def job() -> None:
+            self.command(m.SetSettings(settings))
+            c.settings = settings
+            c.emit(ev.SettingsChanged(settings))
+            c.notify("Settings", f"Stop time {settings.stop_time:g} s, pacing {settings.pacing}.", "ok")
+
+        c.submit("Settings refused", job)
+
+    def live_vars(self) -> list[str]:
+        """`RunSettings.live_vars` for the streamed variables ([] = every variable)."""
+        model = self.c.model
+        every = {v.name for v in model.variables} if model is not None else set()
+        return [] if self.c.streamed >= every else sorted(self.c.streamed)
+
+    # -- sending once the edits pause ------------------------------------------------------------------
+    def later(self, what: str) -> None:
+        with self._lock:
+            self._due[what] = time.monotonic() + self.sync_delay_s
+
+    def forget(self) -> None:
+        with self._lock:
+            self._due.clear()
+
+    def tick(self, now: float | None = None) -> None:
+        """Send the edits whose pause has come."""
+        now = time.monotonic() if now is None else now
+        with self._lock:
+            due = [what for what, at in self._due.items() if at <= now]
+            for what in due:
+                del self._due[what]
+        for what in due:
+            self.c.submit(f"{what.capitalize()} not sent", partial(self.send, what))
+
+    def flush(self, also: tuple[str, ...] = ()) -> None:
+        """Send every pending edit now (and `also`, pending or not), on the calling worker."""
+        with self._lock:
+            pending = [w for w in DEBOUNCED if self._due.pop(w, None) is not None or w in also]
+        for what in pending:
+            self.send(what)
+
+    def send(self, what: str) -> None:
+        """Send one edit (on the command worker)."""
+        c = self.c
+        if c.session is None or c.model is None:
+            return
+        if what == "initial":
+            self.command(m.SetInitial(list(c.initial)))
+        elif what == "command":
+            if c.path is not None and c.path.nodes:
+                self.command(m.SetCommand(c.path.to_command()))
+        elif what == "settings":
+            settings = msgspec.structs.replace(c.settings, live_vars=self.live_vars())
+            self.command(m.SetSettings(settings))
+            c.settings = settings

@@ -1,0 +1,192 @@
+"""What the session controller tells its listeners: one small dataclass per kind of change.
+
+The controller (`session.py`) knows nothing of viser; the tab subscribes to it and applies each
+event to its panels. Tests subscribe a list and look at what arrived. Events carry the data a panel
+needs; anything else a panel may read from the controller's attributes after `ModelLoaded`.
+Listeners are called on the controller's worker threads and on zenoh's: they must return at once.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+from simecs.mesh import messages as m
+from simecs.mesh.model import DocPage, ModelDescription, ModelSummary
+
+from .series import Transient
+
+
+@dataclass
+class Notice:
+    """Something to tell the user (a notification): kind is info, ok, warning or error."""
+
+    title: str
+    body: str
+    kind: str = "info"
+
+
+@dataclass
+class UserChanged:
+    """The tab's user name changed (remember it on this browser)."""
+
+    user: str
+
+
+@dataclass
+class LibraryListed:
+    """The models window's content: the library, the user's sessions, the tab's own session."""
+
+    user: str
+    models: list[ModelSummary]
+    sessions: list[m.SessionEntry]
+    current: str
+    can_dismiss: bool
+
+
+@dataclass
+class LibraryClosed:
+    """A session is open: the models window may go."""
+
+
+@dataclass
+class SessionRemembered:
+    """The session this tab keeps across reloads ('' forgets it)."""
+
+    session: str
+
+
+@dataclass
+class ModelLoaded:
+    """A session was attached: build every panel from the model and the controller's fields (values,
+    initial pose, joint path, settings, streamed variables, runs)."""
+
+    model: ModelDescription
+    session: str
+
+
+@dataclass
+class StateShown:
+    """The session's state for the toolbar; `replay` names the recording when its run replays one."""
+
+    state: m.SessionState | None
+    replay: str = ""
+
+
+@dataclass
+class ValuesChanged:
+    """The session's parameter values (the server's truth, after a change or a refusal)."""
+
+    values: dict[str, float]
+
+
+@dataclass
+class ShapesChanged:
+    """The values the 3D arm's shapes follow: the session's, an edit not yet confirmed, or the
+    recorded values of a replay being shown."""
+
+    values: dict[str, float]
+
+
+@dataclass
+class StreamedChanged:
+    streamed: set[str]
+
+
+@dataclass
+class SettingsChanged:
+    settings: m.RunSettings
+
+
+@dataclass
+class RunsChanged:
+    """The session's runs, oldest first (queued and running ones too); `newest` to select."""
+
+    runs: list[m.RunInfo]
+    newest: str = ""
+
+
+@dataclass
+class ParamSetsChanged:
+    names: list[str]
+
+
+@dataclass
+class LayoutChanged:
+    """A run announced its columns: live plots start over, loaded transients are stale."""
+
+    layout: m.RunLayout
+
+
+@dataclass
+class LiveSamples:
+    """Decimated samples of the shown run; `poses` (links, 7) of the newest row, when streamed."""
+
+    rows: np.ndarray
+    poses: np.ndarray | None
+
+
+@dataclass
+class PosePreview:
+    """Show the arm at joint positions `q` (kinematic simulation of a slider or a path node)."""
+
+    q: list[float]
+
+
+@dataclass
+class TransientLoaded:
+    """Full-resolution data for plot `plot`; `prev` is the previous run when an overlay was asked."""
+
+    plot: int
+    full: Transient
+    prev: Transient | None = None
+    with_prev: bool = False
+
+
+@dataclass
+class PreviousLoaded:
+    """The previous run for plot `plot`'s overlay (None: there is none, the overlay is off)."""
+
+    plot: int
+    prev: Transient | None
+
+
+@dataclass
+class DocFetched:
+    """A documentation page the description did not carry, as the server sent it."""
+
+    page: DocPage
+
+
+@dataclass
+class Download:
+    """A file for the browser to save."""
+
+    filename: str
+    data: bytes = field(repr=False)
+
+
+Event = (
+    Notice
+    | UserChanged
+    | LibraryListed
+    | LibraryClosed
+    | SessionRemembered
+    | ModelLoaded
+    | StateShown
+    | ValuesChanged
+    | ShapesChanged
+    | StreamedChanged
+    | SettingsChanged
+    | RunsChanged
+    | ParamSetsChanged
+    | LayoutChanged
+    | LiveSamples
+    | PosePreview
+    | TransientLoaded
+    | PreviousLoaded
+    | DocFetched
+    | Download
+)
+Listener = Callable[[Event], None]

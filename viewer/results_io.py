@@ -1,0 +1,179 @@
+"""A session's results as the tab fetches and saves them (paper §2.2 steps 9-11): full-resolution
+transients for the plots (zoom windows, the previous run for an overlay), CSV and MCAP downloads,
+and uploading a recording to replay it.
+
+Part of the session controller: every method returns at once and does its requests on the
+controller's data worker; what it gets reaches the listeners as events.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+from simecs.mesh import keys, phases
+from simecs.mesh import messages as m
+from simecs.mesh.client import NoReply
+
+from . import events as ev
+from .export import csv_name, to_csv, upload_name
+from .series import Transient, every_for, transient
+
+if TYPE_CHECKING:
+    from .session import SessionController
+
+
+class ResultsIO:
+    """Fetches and transfers of one controller's session."""
+
+    def __init__(self, controller: SessionController) -> None:
+        self.c = controller
+
+    def run(self, run_id: str = "") -> m.RunInfo | None:
+        """Run `run_id` of the session, or the newest when it names none."""
+        runs = self.c.runs
+        return next((r for r in runs if r.run_id == run_id), runs[-1] if runs else None)
+
+    def recording_of(self, run_id: str) -> str:
+        """The recording that holds run `run_id`: the recorder's for a simulation, the replayed one
+        for a replay (replays are not recorded again)."""
+        sc = self.c.session
+        assert sc is not None
+        return self.c.replay_of(run_id) or keys.recording_name(sc.id, run_id)
+
+    def wants_full(self, name: str) -> bool:
+        """A plot opened on `name` shows the last run at full resolution (nothing live to show)."""
+        stream = self.c.stream
+        live = stream is not None and stream.live.has(name)
+        return bool(self.c.runs) and self.c.phase not in phases.UNDER_WAY and not live
+
+    # -- transients --------------------------------------------------------------------------------
+    def load_full(
+        self,
+        plot: int,
+        names: list[str],
+        t0: float | None = None,
+        t1: float | None = None,
+        run_id: str = "",
+        with_prev: bool = False,
+    ) -> None:
+        """Load `names` of run `run_id` (the newest if '') over [t0, t1] for plot `plot`."""
+
+        def job() -> None:
+            run = self.run(run_id)
+            if run is None:
+                raise ValueError("no run yet: run a simulation first")
+            st = self.c.state
+            if st is not None and st.run_id == run.run_id and st.phase in phases.UNDER_WAY:
+                raise ValueError("the run is still going on: full resolution is available once it ends")
+            full = self._fetch(run, names, t0, t1)
+            prev = self._previous(run.run_id, names, t0, t1) if with_prev else None
+            self.c.emit(ev.TransientLoaded(plot, full, prev, with_prev))
+
+        self.c.submit("Full resolution", job, "io")
+
+    def load_previous(
+        self, plot: int, names: list[str], current: str, t0: float | None = None, t1: float | None = None
+    ) -> None:
+        """The run before `current` (the shown run if ''), for plot `plot`'s overlay."""
+
+        def job() -> None:
+            layout = self.c.stream.layout if self.c.stream is not None else None
+            prev = self._previous(current or (layout.run_id if layout else ""), names, t0, t1)
+            self.c.emit(ev.PreviousLoaded(plot, prev))
+            if prev is None:
+                raise ValueError("there is no previous run to compare with")
+
+        self.c.submit("Overlay", job, "io")
+
+    def _previous(
+        self, current: str, names: list[str], t0: float | None, t1: float | None
+    ) -> Transient | None:
+        runs = self.c.runs
+        ids = [r.run_id for r in runs]
+        before = runs[: ids.index(current)] if current in ids else runs[:-1]
+        before = [r for r in before if r.phase in phases.ENDED]
+        return self._fetch(before[-1], names, t0, t1) if before else None
+
+    def _fetch(self, run: m.RunInfo, names: list[str], t0: float | None, t1: float | None) -> Transient:
+        sc = self.c.session
+        assert sc is not None
+        every = every_for(run.samples, t0, t1, run.stop_time)
+        cols, rows = sc.results(run.run_id, names, t0, t1, every)
+        if every > 1:
+            self.c.notify(
+                "Long run", f"Showing every {every}th sample of {run.run_id}; zoom in for full resolution."
+            )
+        return transient(run.run_id, cols, rows, t0, t1, every)
+
+    # -- files -------------------------------------------------------------------------------------
+    def download_csv(self, run_id: str, names: list[str] | None) -> None:
+        """The run's `names` (every variable when None) at full resolution, as a CSV download."""
+
+        def job() -> None:
+            sc, model, stream = self.c.session, self.c.model, self.c.stream
+            assert sc is not None and model is not None and stream is not None
+            cols, rows = sc.results(run_id, names)
+            units = [stream.units.get(c, "") for c in cols]
+            meta = {"model": model.id, "session": sc.id, "run": run_id, "samples": str(rows.shape[0])}
+            recording = self.c.replay_of(run_id)
+            if recording:
+                meta["replay of"] = recording
+            self.c.emit(ev.Download(csv_name(model.id, sc.id, run_id), to_csv(cols, units, rows, meta)))
+            self.c.notify("CSV", f"{rows.shape[0]} samples × {len(cols)} columns of {run_id}.", "ok")
+
+        self.c.submit("CSV download", job, "io")
+
+    def download_mcap(self, run_id: str) -> None:
+        """The run's recording (from the recorder node; it opens in Foxglove)."""
+
+        def job() -> None:
+            name = self.recording_of(run_id)
+            try:
+                payload = self.c.host.mc.download_recording(name)
+            except NoReply:
+                self.c.notify(
+                    "No recording",
+                    "No recorder answered: the server runs without the recorder node, so this run was not "
+                    "recorded. CSV is available.",
+                    "warning",
+                )
+                return
+            self.c.emit(ev.Download(f"{name}.mcap", payload))
+            self.c.notify("Recording", f"{name}.mcap ({len(payload) / 1e6:.2f} MB): opens in Foxglove.", "ok")
+
+        self.c.submit("Recording download", job, "io")
+
+    def upload(self, filename: str, content: bytes) -> None:
+        """Store a recording the user kept, then replay it: in this session when it is of this
+        session's model, else in a new session on its model (as loading that model would)."""
+
+        def job() -> None:
+            name = upload_name(filename)
+            try:
+                info = self.c.host.mc.upload_recording(name, content)
+            except NoReply:
+                self.c.notify(
+                    "Upload unavailable",
+                    "No recorder answered: the server cannot take recordings.",
+                    "warning",
+                )
+                return
+            model = self.c.model
+            if model is not None and info.model_id == model.id:
+                self.c.notify("Recording uploaded", f"Stored as **{name}**; replaying it.", "ok")
+                self.c.control.replay(name)
+                return
+            self.c.notify(
+                "Recording uploaded",
+                f"Stored as **{name}**, a recording of model **{info.model_id}**: a new session on that "
+                "model replays it.",
+                "ok",
+            )
+
+            def elsewhere() -> None:
+                if self.c.open_new_now(info.model_id):
+                    self.c.control.replay_now(name)
+
+            self.c.submit("Replay refused", elsewhere)
+
+        self.c.submit("Upload", job, "io")

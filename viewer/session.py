@@ -1,0 +1,392 @@
+"""The session of one browser tab, without the browser: what the tab shows and every request it makes.
+
+`SessionController` owns the tab's session on the server (attach, create, close), the model
+description, the parameter values, the initial pose, the joint path, the settings, the streamed
+variables, the state, the shown run and its live samples, and the list of runs. It makes every
+request on its two worker threads (commands in order on one, data fetches on the other), so viser's
+and zenoh's callbacks never wait on the server; it sends slider-rate edits once they pause; and it
+tells its listeners what changed with the events of `events.py`. It imports nothing of viser: the
+tests drive it with a fake client and injected messages.
+
+A replay is a run of the session whose source is a recording of the same model: it is started,
+paused, aborted and listed like any run; while its layout is the one shown, the 3D arm takes the
+recorded parameter values.
+"""
+
+from __future__ import annotations
+
+import logging
+import secrets
+import threading
+from functools import partial
+
+from simecs.mesh import frames, keys, phases
+from simecs.mesh import messages as m
+from simecs.mesh.client import NoReply, RemoteError, SessionClient, Watch
+from simecs.mesh.model import DocPage, ModelDescription
+
+from . import events as ev
+from .edits import SYNC_DELAY_S, Edits
+from .errors import describe_error
+from .host import Host
+from .path import JointPathEditor, clamp_to_limits
+from .results_io import ResultsIO
+from .runs import RunControl
+from .stream import RunStream
+from .workers import Dispatcher
+
+log = logging.getLogger("simecs.viewer")
+
+
+def new_user_name() -> str:
+    return f"user-{secrets.token_hex(3)}"
+
+
+def valid_user(name: str) -> str:
+    """The name if it can be a user name on the mesh; ValueError with the rule otherwise."""
+    return keys.check_name(name.strip(), "user name")
+
+
+class SessionController(Dispatcher):
+    """One tab's session and what the tab shows of it; see the module docstring. Its parts:
+    `edits` sends the user's edits, `control` starts and steers runs, `results` fetches and saves
+    them."""
+
+    def __init__(self, host: Host, tab_id: int = 0, sync_delay_s: float = SYNC_DELAY_S) -> None:
+        super().__init__(tab_id)
+        self.host = host
+        self.user = ""
+        self.session: SessionClient | None = None
+        self.model: ModelDescription | None = None
+        self.values: dict[str, float] = {}
+        self.initial: list[float] = []
+        self.shown_q: list[float] = []  # the pose the arm shows: what Teach records
+        self.path: JointPathEditor | None = None
+        self.settings = m.RunSettings()
+        self.streamed: set[str] = set()
+        self.state: m.SessionState | None = None
+        self.runs: list[m.RunInfo] = []
+        self.stream: RunStream | None = None
+        self.replaying: m.RunLayout | None = None  # the replay whose recorded values shape the arm
+        self.edits = Edits(self, sync_delay_s)
+        self.results = ResultsIO(self)
+        self.control = RunControl(self)
+        self.live_frames = 0  # frames shown (diagnostics)
+        self._recordings: dict[str, str] = {}  # run id -> the recording it replays
+        self._notified_end: set[str] = set()
+        self._watch: Watch | None = None
+        self._lock = threading.RLock()
+
+    @property
+    def phase(self) -> str:
+        return self.state.phase if self.state is not None else "created"
+
+    def refusal(self, op: str) -> str:
+        """Why command `op` would be refused now ('' when it applies): `phases.refusal`."""
+        return phases.refusal(op, self.phase)
+
+    def replay_of(self, run_id: str) -> str:
+        """The recording run `run_id` replays ('' for a simulation)."""
+        return self._recordings.get(run_id, "")
+
+    def replays(self, run_id: str, recording: str) -> None:
+        """Run `run_id` replays `recording` (a RunStarted reply said so before any list or layout)."""
+        with self._lock:
+            self._recordings[run_id] = recording
+
+    # == lifecycle ================================================================================
+    def start(self, remembered_session: str = "", remembered_user: str = "") -> None:
+        """Find out who this is and reopen the session the tab had, or offer the models window."""
+        try:
+            self.user = valid_user(remembered_user or self.host.default_user or new_user_name())
+        except ValueError:
+            self.user = new_user_name()
+        if self.user != remembered_user:
+            self.emit(ev.UserChanged(self.user))
+
+        def job() -> None:
+            sid = remembered_session
+            if not (sid and keys.is_session_id(sid) and self._attach(sid, quiet_missing=True)):
+                self._list_library(can_dismiss=False)
+
+        self.submit("Open your session", job)
+
+    def close(self) -> None:
+        """The tab went away (closed or reloading): keep the session, drop the subscriptions."""
+        with self._lock:
+            self.closed = True
+            if self.session is not None:
+                self.host.claims.release(self.session.id, self)
+        self._stop_watch()
+        self.shutdown()
+
+    def _stop_watch(self) -> None:
+        """Never under the lock: a watch worker may wait for it while its watch is being closed."""
+        with self._lock:
+            watch, self._watch = self._watch, None
+        if watch is not None:
+            try:
+                watch.close()
+            except Exception as exc:
+                log.debug("watch close: %s", exc)
+
+    # == the models window and sessions ==========================================================
+    def open_library(self, can_dismiss: bool = True) -> None:
+        self.submit("Models", lambda: self._list_library(can_dismiss))
+
+    def _list_library(self, can_dismiss: bool) -> None:
+        mc = self.host.mc
+        try:
+            models = mc.list_models()
+        except (RemoteError, NoReply) as exc:
+            self.fail("Cannot list the models", exc)
+            models = []
+        try:
+            sessions = mc.list_sessions(self.user)
+        except (RemoteError, NoReply):
+            sessions = []
+        current = self.session.id if self.session is not None else ""
+        self.emit(ev.LibraryListed(self.user, models, sessions, current, can_dismiss and bool(current)))
+
+    def set_user(self, name: str) -> None:
+        try:
+            self.user = valid_user(name)
+        except ValueError as exc:
+            self.notify("User name refused", str(exc), "error")
+            return
+        self.emit(ev.UserChanged(self.user))
+        self.notify("User", f"You are now **{self.user}**; reopen Models to see this user's sessions.", "ok")
+
+    def load_model(self, model_id: str) -> None:
+        """A new session on `model_id` with its defaults, shown in this tab."""
+        self.submit(f"Load {model_id}", lambda: self.open_new_now(model_id))
+
+    def open_new_now(self, model_id: str) -> bool:
+        """Create a session on `model_id` and show it (on a worker: it waits for the server)."""
+        sc = self.host.mc.create_session(self.user, model_id)
+        return self._open(sc.id, sc.created)
+
+    def open_session(self, sid: str) -> None:
+        self.submit("Open session", lambda: self._open(sid))
+
+    def _open(self, sid: str, snapshot: m.SessionSnapshot | None = None) -> bool:
+        if (self.session is not None and self.session.id == sid) or self._attach(sid, snapshot):
+            self.emit(ev.LibraryClosed())
+            return True
+        return False
+
+    def close_session(self, sid: str) -> None:
+        """End another of the user's sessions for good (from the models window)."""
+
+        def job() -> None:
+            if self.host.claims.held_by_other(sid, self):
+                raise ValueError("that session is open in another tab: close it there")
+            self.host.mc.session(sid).close()
+            self.notify("Session closed", f"Session {sid[:8]}… is closed.", "ok")
+            self._list_library(can_dismiss=True)
+
+        self.submit("Close session", job)
+
+    def _attach(
+        self, sid: str, snapshot: m.SessionSnapshot | None = None, quiet_missing: bool = False
+    ) -> bool:
+        """Make `sid` this tab's session: restore its values, pose, command, settings and runs."""
+        claims = self.host.claims
+        if not claims.claim(sid, self):
+            self.notify(
+                "Session already open",
+                "That session is shown in another tab; each tab works on its own session. "
+                "Choose a model to start a new one, or close the other tab.",
+                "warning",
+            )
+            return False
+        sc = self.host.mc.session(sid)
+        try:
+            snap = snapshot or sc.snapshot()
+            model = self.host.describe(snap.model_id)
+        except (RemoteError, NoReply) as exc:
+            claims.release(sid, self)
+            if quiet_missing and isinstance(exc, RemoteError) and exc.code == "not_found":
+                self.notify("Previous session ended", "Your previous session is no longer on the server.")
+                self.emit(ev.SessionRemembered(""))
+            else:
+                self.fail("Cannot open the session", exc)
+            return False
+        self._stop_watch()
+        with self._lock:
+            if self.closed:
+                claims.release(sid, self)
+                return False
+            if self.session is not None and self.session.id != sid:
+                claims.release(self.session.id, self)
+            self.session = sc
+            self._take(model, snap)
+        self.emit(ev.SessionRemembered(sid))
+        self.emit(ev.ModelLoaded(model, sid))
+        self.show_state()
+        watch = sc.watch(
+            on_state=self.on_state,
+            on_params=self.on_params,
+            on_layout=self.on_layout,
+            on_live=partial(self._on_live_of, sid),
+        )
+        with self._lock:
+            self._watch = watch
+        self.submit("Results", self.refresh_runs, "io")
+        self.submit("Parameter sets", self.edits.refresh_sets, "io")
+        return True
+
+    def _take(self, model: ModelDescription, snap: m.SessionSnapshot) -> None:
+        self.model = model
+        self.values = dict(snap.values)
+        self.settings = snap.settings
+        self.state = snap.state
+        self.runs = list(snap.runs)
+        self._recordings = {r.run_id: r.recording for r in snap.runs if r.recording}
+        self._notified_end = {r.run_id for r in snap.runs if r.phase in phases.ENDED}
+        if snap.state.phase in phases.ENDED:
+            self._notified_end.add(snap.state.run_id)
+        self.initial = clamp_to_limits(snap.initial or [0.0] * len(model.links), model.links)
+        self.shown_q = list(self.initial)
+        every = {v.name for v in model.variables}
+        self.streamed = set(snap.settings.live_vars) & every if snap.settings.live_vars else set(every)
+        self.path = JointPathEditor(model.links)
+        if isinstance(snap.command, m.JointPath):
+            self.path.load(snap.command)
+        self.stream = RunStream(model)
+        self.replaying = None
+        self.edits.forget()
+
+    # == what the arm shows ========================================================================
+    def preview(self, q: list[float]) -> None:
+        """Show the arm at `q` (the user's own configuration: a replay's shapes give way)."""
+        self.shown_q = list(q)
+        if self.replaying is not None:
+            self.replaying = None
+            self.emit(ev.ShapesChanged(dict(self.values)))
+        self.emit(ev.PosePreview(list(q)))
+
+    def _shape_values(self) -> dict[str, float]:
+        if self.replaying is None:
+            return dict(self.values)
+        recorded = self.replaying.context.values
+        return {k: float(recorded.get(k, v)) for k, v in self.values.items()}
+
+    def tick(self, now: float | None = None) -> None:
+        """Send the edits whose pause has come (called about 10 times a second)."""
+        self.edits.tick(now)
+
+    def fetch_doc(self, page: str) -> None:
+        """A documentation page the description does not carry, asked from the server."""
+        model = self.model
+        if model is None:
+            return
+
+        def job() -> None:
+            try:
+                found = self.host.mc.doc(model.id, page)
+            except (RemoteError, NoReply, ValueError) as exc:
+                self.fail("Documentation", exc)
+                found = DocPage(page, "Missing page", f"No page `{page}`: {describe_error(exc)}")
+            self.emit(ev.DocFetched(found))
+
+        self.submit("Documentation", job, "io")
+
+    # == runs =====================================================================================
+    def refresh_runs(self) -> None:
+        sc = self.session
+        if sc is None:
+            return
+        try:
+            runs = sc.runs()
+        except (RemoteError, NoReply):
+            runs = list(sc.snapshot().runs)
+        with self._lock:
+            if sc is not self.session:
+                return
+            self.runs = list(runs)
+            self._recordings.update({r.run_id: r.recording for r in runs if r.recording})
+        self.emit(ev.RunsChanged(list(runs), runs[-1].run_id if runs else ""))
+
+    # == streams from the server (zenoh worker threads) ==========================================
+    def _mine(self, session: str) -> bool:
+        return not self.closed and self.session is not None and session == self.session.id
+
+    def on_state(self, st: m.SessionState) -> None:
+        with self._lock:
+            if not self._mine(st.session):
+                return
+            prev = self.state
+            if prev is not None and prev.run_id == st.run_id and prev.seq > st.seq:
+                return  # an older publication arriving late
+            self.state = st
+            moved = prev is None or (prev.phase, prev.run_id) != (st.phase, st.run_id)
+            ended = st.phase in phases.ENDED and st.run_id and st.run_id not in self._notified_end
+            if ended:
+                self._notified_end.add(st.run_id)
+        self.show_state()
+        if ended:
+            self._run_ended(st)
+        if moved:
+            self.submit("Results", self.refresh_runs, "io")
+
+    def show_state(self) -> None:
+        st = self.state
+        self.emit(ev.StateShown(st, self.replay_of(st.run_id) if st is not None else ""))
+
+    def _run_ended(self, st: m.SessionState) -> None:
+        recording = self.replay_of(st.run_id)
+        what = f"Replay {st.run_id} of {recording}" if recording else f"Run {st.run_id}"
+        if st.phase == "finished":
+            done = (
+                f"{st.sim_time:.3f} s replayed."
+                if recording
+                else f"{st.sim_time:.3f} s simulated (RTF {st.rtf:.2f}). Results: full resolution, CSV, MCAP."
+            )
+            self.notify(f"{what} finished", done, "ok")
+        elif st.phase == "aborted":
+            self.notify(f"{what} aborted", st.reason or "aborted", "warning")
+        else:
+            self.notify(f"{what} failed", st.reason or "the run failed", "error")
+
+    def on_params(self, pv: m.ParamValues) -> None:
+        if self._mine(pv.session) and pv.values != self.values:
+            self.edits.show_values(pv.values)
+
+    def on_layout(self, layout: m.RunLayout) -> None:
+        """A run announced its columns: it is the run shown from now on (a replay's shapes with it)."""
+        with self._lock:
+            stream, st = self.stream, self.state
+            if not self._mine(layout.session) or stream is None:
+                return
+            stream.take_layout(layout)
+            replay = layout.source == "replay"
+            if replay and layout.context.recording:
+                self._recordings[layout.run_id] = layout.context.recording
+            # A replay that already ended (a latched layout seen on attach) is not shown again.
+            over = st is not None and st.run_id == layout.run_id and st.phase in phases.ENDED
+            was = self.replaying
+            self.replaying = layout if replay and not over else None
+        self.emit(ev.LayoutChanged(layout))
+        if self.replaying is not None or was is not None:
+            self.emit(ev.ShapesChanged(self._shape_values()))
+        self.show_state()
+
+    def _on_live_of(self, session: str, frame: frames.Frame) -> None:
+        if self._mine(session):
+            self.on_live(frame)
+
+    def on_live(self, frame: frames.Frame) -> None:
+        """A decimated sample of the shown run: pose the arm, feed the plots."""
+        stream = self.stream
+        if self.closed or stream is None:
+            return
+        sample = stream.take_frame(frame)
+        if sample is None:
+            return
+        if sample.q is not None:
+            self.shown_q = sample.q
+        self.emit(ev.LiveSamples(sample.rows, sample.poses))
+        self.live_frames += 1
+        if stream.layout is not None:
+            self.control.shown(stream.layout.run_id)

@@ -1,0 +1,68 @@
+"""The run a tab shows, as its frames arrive: what the columns are (from the run's layout), where the
+link poses and joint positions sit in them, and the bounded live window the plots draw.
+
+Column names come from `simecs.mesh.columns` only; frames of another run (an older run index) or of
+another width are dropped here.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from simecs.mesh import columns, frames
+from simecs.mesh import messages as m
+from simecs.mesh.model import ModelDescription
+
+from .series import LiveBuffer
+
+
+@dataclass
+class Sample:
+    """What one live frame gives the tab: its rows, the links' poses and the joint positions of the
+    newest row (None when the run does not stream them)."""
+
+    rows: np.ndarray
+    poses: np.ndarray | None
+    q: list[float] | None
+
+
+class RunStream:
+    """Layout and live window of the run being shown."""
+
+    def __init__(self, model: ModelDescription) -> None:
+        self.model = model
+        self.layout: m.RunLayout | None = None
+        self.live = LiveBuffer()
+        self.units: dict[str, str] = {v.name: v.unit for v in model.variables}
+        self.units.setdefault(columns.TIME, "s")
+        self._poses: np.ndarray | None = None
+        self._q: list[int] | None = None
+        # The scene draws the link frames: the poses of pose_frames() up to the tool.
+        self._frames = columns.pose_frames(model)[: len(model.links)]
+        self._joints = columns.joint_position_columns(model)
+
+    def take_layout(self, layout: m.RunLayout) -> None:
+        """A run announced its columns: start its live window, find its poses and joint positions."""
+        self.layout = layout
+        self.live.reset(layout.live_columns)
+        self._poses = columns.pose_indices(layout.live_columns, self._frames)
+        where = {c: i for i, c in enumerate(layout.live_columns)}
+        complete = len(self._joints) == len(self.model.links) and all(c in where for c in self._joints)
+        self._q = [where[c] for c in self._joints] if complete else None
+        for name, unit in zip(layout.columns, layout.units, strict=False):
+            self.units.setdefault(name, unit)
+
+    def take_frame(self, frame: frames.Frame) -> Sample | None:
+        """Add a live frame of the shown run to the window; None if it belongs to no run shown."""
+        layout = self.layout
+        if layout is None or frame.run_index != layout.run_index:
+            return None
+        rows = frame.rows
+        if rows.ndim != 2 or rows.shape[0] == 0 or rows.shape[1] != len(layout.live_columns):
+            return None
+        self.live.append(rows)
+        last = rows[-1]
+        poses = last[self._poses] if self._poses is not None else None
+        q = [float(last[i]) for i in self._q] if self._q is not None else None
+        return Sample(rows, poses, q)
