@@ -1301,3 +1301,49 @@ def test_the_tab_applies_controller_events_to_its_panels(server: Any) -> None:
     finally:
         tab.close()
         page.remove()
+
+
+@pytest.mark.parametrize(
+    "changes",
+    [{"link2.length": 0.9, "link4.length": 0.2}, {"link3.radius": 0.09}, {"payload.size": 0.5}],
+    ids=["lengths", "radii", "payload"],
+)
+def test_the_browser_and_the_recordings_scene_draw_every_solid_alike(
+    server: Any, changes: dict[str, float]
+) -> None:
+    """The 3D arm and Foxglove's /scene come from one rule: after a change of link lengths, radii or
+    the payload's size, every solid sits and measures the same in both."""
+    from simecs.models import get_model
+    from simecs.nodes import mcapfmt
+
+    desc = get_model("spider").describe()
+    values = {**desc.default_values(), **changes}
+    arm_scene = scene.ArmScene(server.scene, desc, desc.default_values(), root="/t_alike")
+    arm_scene.build()
+    try:
+        assert arm_scene.set_values(values)
+        entities = {e["id"]: e for e in mcapfmt.scene_update(desc, values, 1)["entities"]}
+        taken: dict[tuple[str, str], int] = {}
+        for solid in shapes.solids(desc, values):
+            if solid.frame == shapes.WORLD or not solid.geometry.visible:
+                continue
+            kind = {"cylinder": "cylinders", "pipe": "cylinders", "box": "cubes", "sphere": "spheres"}
+            listed = kind[solid.geometry.kind]
+            k = taken.get((solid.frame, listed), 0)
+            taken[(solid.frame, listed)] = k + 1
+            prim = entities[solid.frame][listed][k]
+            handle, drawn = arm_scene.solids[solid.index]
+            pos, rot, size = prim["pose"]["position"], prim["pose"]["orientation"], prim["size"]
+            assert np.allclose(handle.position, [pos["x"], pos["y"], pos["z"]])
+            if drawn in ("cylinder", "pipe"):
+                assert np.allclose(handle.wxyz, [rot["w"], rot["x"], rot["y"], rot["z"]])
+            if drawn == "pipe":
+                assert np.allclose(handle.scale, [size["x"] / 2, size["y"] / 2, size["z"]])
+            elif drawn == "cylinder":
+                assert (2 * handle.radius, handle.height) == pytest.approx((size["x"], size["z"]))
+            elif drawn == "box":
+                assert np.allclose(handle.dimensions, [size["x"], size["y"], size["z"]])
+            else:
+                assert 2 * handle.radius == pytest.approx(size["x"])
+    finally:
+        arm_scene.remove()
