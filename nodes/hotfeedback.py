@@ -14,6 +14,7 @@ the end-to-end latency from the simulator.
 
 from __future__ import annotations
 
+import collections
 import threading
 import time
 from dataclasses import dataclass, field
@@ -29,6 +30,8 @@ from simecs.mesh.runtime import Node, main_for
 #: so the limit holds in every window, the start of a run included. (The simulator's 40 frames per
 #: wall second at real-time pacing stay below the default R = 50: they pass at once.)
 BURST = 1.0
+#: Sessions whose newest frame waits for its layout (a bounded few: a frame for no session ages out).
+EARLY_SESSIONS = 64
 #: How long an ended stream keeps its publisher, in case the session runs again.
 STREAM_LINGER_NS = 60 * 10**9
 
@@ -59,6 +62,9 @@ class HotFeedback(Node):
         self.lock = threading.Lock()
         self.wakeup = threading.Condition(self.lock)
         self.streams: dict[str, Stream] = {}
+        #: The newest frame of a session whose layout has not been handled yet (frames are taken in
+        #: zenoh's callback, layouts on a worker thread: a short run's frames can come first).
+        self.early: collections.OrderedDict[str, frames.Frame] = collections.OrderedDict()
         self.forwarded = 0
 
     def status_detail(self) -> dict[str, Any]:
@@ -80,7 +86,32 @@ class HotFeedback(Node):
         with self.lock:
             old = self.streams.get(layout.session)
             pub = old.publisher if old else self.publisher(keys.vars_live(layout.session), express=True)
-            self.streams[layout.session] = Stream(layout, idx, int(1e9 / layout.live_rate_hz), publisher=pub)
+            stream = Stream(layout, idx, int(1e9 / layout.live_rate_hz), publisher=pub)
+            self.streams[layout.session] = stream
+            early = self.early.pop(layout.session, None)
+            if early is not None and early.run_index == layout.run_index:
+                self._take(stream, early)
+
+    def _take(self, stream: Stream, frame: frames.Frame) -> None:
+        """A frame of the stream's run: its newest sample waits for its turn; the final one goes now."""
+        if frame.final and not frame.rows.shape[0]:
+            stream.pending = frame  # aborted or failed: the run ends with no sample, not a stale one
+        elif frame.rows.shape[0]:
+            if frame.rows.shape[1] != len(stream.layout.columns):
+                self.log.warning(
+                    "frame of %s has %d columns, layout %d",
+                    stream.layout.session,
+                    frame.rows.shape[1],
+                    len(stream.layout.columns),
+                )
+                return
+            frame.rows = frame.rows[-1:, stream.live_idx]
+            stream.pending = frame
+        if frame.final and stream.pending is not None:
+            stream.pending.flags |= frames.FLAG_FINAL
+        self._maybe_send(stream, time.time_ns(), force=frame.final)
+        if stream.pending is not None:
+            self.wakeup.notify()  # held back: the releaser sends it when its token is due
 
     def _on_full(self, sample: zenoh.Sample) -> None:
         try:
@@ -92,25 +123,15 @@ class HotFeedback(Node):
         with self.lock:
             stream = self.streams.get(session)
             if stream is None or stream.layout.run_index != frame.run_index:
-                return  # layout not seen yet: nothing to decimate against
-            if frame.final and not frame.rows.shape[0]:
-                stream.pending = frame  # aborted or failed: the run ends with no sample, not a stale one
-            elif frame.rows.shape[0]:
-                if frame.rows.shape[1] != len(stream.layout.columns):
-                    self.log.warning(
-                        "frame of %s has %d columns, layout %d",
-                        session,
-                        frame.rows.shape[1],
-                        len(stream.layout.columns),
-                    )
-                    return
-                frame.rows = frame.rows[-1:, stream.live_idx]
-                stream.pending = frame
-            if frame.final and stream.pending is not None:
-                stream.pending.flags |= frames.FLAG_FINAL
-            self._maybe_send(stream, time.time_ns(), force=frame.final)
-            if stream.pending is not None:
-                self.wakeup.notify()  # held back: the releaser sends it when its token is due
+                # Its layout is not handled yet: keep the newest frame (a final one stays final).
+                before = self.early.pop(session, None)
+                if before is not None and before.run_index == frame.run_index and before.final:
+                    frame.flags |= frames.FLAG_FINAL
+                self.early[session] = frame
+                while len(self.early) > EARLY_SESSIONS:
+                    self.early.popitem(last=False)
+                return
+            self._take(stream, frame)
 
     def _maybe_send(self, stream: Stream, now: int, force: bool = False) -> None:
         """Token bucket: one token per period, at most BURST saved; the final frame always goes."""

@@ -20,6 +20,7 @@ from simecs.mesh import keys
 from simecs.mesh.config import MeshConfig, open_session
 
 GRACE_S = 3.0
+READY_TIMEOUT_S = 600.0  # the banner waits this long for every node (a cold compile included)
 
 
 @dataclass
@@ -139,10 +140,17 @@ class Supervisor:
         signal.signal(signal.SIGTERM, on_signal)
         self.start_all()
         try:
-            if self.wait_ready(roles):
+            ready = self.wait_ready(roles)
+            if not ready and not self.stopping.is_set():
+                self.say(
+                    "simecs: some nodes are not ready after 60 s (a first start compiles the simulator's "
+                    "drives); still waiting"
+                )
+                ready = self.wait_ready(roles, timeout=READY_TIMEOUT_S)
+            if ready:
                 self.say(banner)
             elif not self.stopping.is_set():
-                self.say("simecs: some nodes did not come up within 60 s; still trying")
+                self.say(f"simecs: some nodes did not come up within {READY_TIMEOUT_S:.0f} s: see their logs")
             while not self.stopping.wait(0.2):
                 self.check()
         finally:

@@ -1,0 +1,97 @@
+"""The hot-feedback node's decimation, by injecting samples (no mesh): the rate limit from a run's
+first frame, the final frame always forwarded, zero rows for an aborted run, frames before layouts."""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import pytest
+from simecs.mesh import codec, columns, frames, keys
+from simecs.mesh import messages as m
+from simecs.mesh.config import MeshConfig
+from simecs.nodes.hotfeedback import HotFeedback
+
+SID = keys.new_session_id()
+COLS = ["time", "joint1.q", "joint1.qd"]
+
+
+@dataclass
+class Sample:
+    key_expr: str
+    data: bytes
+
+    @property
+    def payload(self) -> Any:
+        data = self.data
+
+        class Payload:
+            def to_bytes(self) -> bytes:
+                return data
+
+        return Payload()
+
+
+class Publisher:
+    def __init__(self) -> None:
+        self.sent: list[tuple[float, frames.Frame]] = []
+
+    def put(self, payload: bytes) -> None:
+        self.sent.append((time.monotonic(), frames.decode(payload)))
+
+
+def node(rate_hz: float = 10.0) -> tuple[HotFeedback, Publisher, m.RunLayout]:
+    hf = HotFeedback(MeshConfig())
+    pub = Publisher()
+    hf.publisher = lambda key, **kw: pub  # type: ignore[method-assign]
+    settings = m.RunSettings(stop_time=1.0, output_interval=0.01)
+    context = m.RunContext("ann", {}, [0.0], None, settings)
+    layout = m.RunLayout(
+        SID, "r1", 1, "spider", COLS, ["s", "rad", "rad/s"], COLS, rate_hz, 1.0, 0.01, context
+    )
+    return hf, pub, layout
+
+
+def layout_sample(layout: m.RunLayout) -> Sample:
+    return Sample(keys.layout(SID), codec.dumps(layout))
+
+
+def frame_sample(seq: int, t: float, final: bool = False, rows: int = 1) -> Sample:
+    data = np.array([[t - (rows - 1 - k) * 0.01, 0.1 * t, 1.0] for k in range(rows)]).reshape(rows, 3)
+    fr = frames.Frame(1, seq, time.time_ns(), data, frames.FLAG_FINAL if final else 0)
+    return Sample(keys.vars_full(SID), frames.encode(fr))
+
+
+def test_frames_that_come_before_their_layout_are_not_lost() -> None:
+    hf, pub, layout = node()
+    for seq in range(4):  # a short run, all of it before the layout was handled
+        hf._on_full(frame_sample(seq, 0.1 * seq, final=seq == 3))  # type: ignore[arg-type]
+    assert pub.sent == []
+    hf._on_layout(layout_sample(layout))  # type: ignore[arg-type]
+    assert len(pub.sent) == 1 and pub.sent[0][1].final
+    assert pub.sent[0][1].rows[0, 0] == pytest.approx(0.3) and pub.sent[0][1].flags & frames.FLAG_LIVE
+
+
+def test_the_limit_holds_from_the_first_frame_and_the_final_frame_always_goes() -> None:
+    hf, pub, layout = node(rate_hz=10.0)
+    hf._on_layout(layout_sample(layout))  # type: ignore[arg-type]
+    for seq in range(5):  # a burst, 2 ms apart: only the first goes at once
+        hf._on_full(frame_sample(seq, 0.01 * seq))  # type: ignore[arg-type]
+        time.sleep(0.002)
+    assert len(pub.sent) == 1
+    hf._on_full(frame_sample(5, 0.05, final=True))  # type: ignore[arg-type]
+    assert len(pub.sent) == 2 and pub.sent[-1][1].final and pub.sent[-1][1].rows[0, 0] == pytest.approx(0.05)
+
+
+def test_an_aborted_run_ends_with_an_empty_final_frame_not_a_stale_sample() -> None:
+    hf, pub, layout = node(rate_hz=1.0)
+    hf._on_layout(layout_sample(layout))  # type: ignore[arg-type]
+    hf._on_full(frame_sample(0, 0.0))  # type: ignore[arg-type]
+    hf._on_full(frame_sample(1, 0.02))  # held back by the 1 Hz limit
+    empty = frames.Frame(1, 2, time.time_ns(), np.empty((0, len(COLS))), frames.FLAG_FINAL)
+    hf._on_full(Sample(keys.vars_full(SID), frames.encode(empty)))  # type: ignore[arg-type]
+    last = pub.sent[-1][1]
+    assert last.final and last.rows.shape[0] == 0
+    assert COLS[0] == columns.TIME
