@@ -1,1 +1,2 @@
-"""The zenoh protocol of simecs: keys, messages, codecs and the node runtime, in one place."""
+"""The protocol of simecs, and every rule more than one process needs: keys, messages, phases, frames,
+columns, shape geometry, codec, schema, mesh configuration and the node runtime, in one place."""

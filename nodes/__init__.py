@@ -1,1 +1,2 @@
-"""The processes of simecs: proxy, simulator, hot-feedback, recorder, replay, and the CLI that starts them."""
+"""The processes of simecs: hub, proxy, simulator (and its workers), hot-feedback, recorder; the
+`simecs` CLI with its `up`, `replay` and `export` commands."""

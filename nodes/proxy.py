@@ -252,7 +252,7 @@ class Proxy(Node):
         if rec.command is None:
             raise RequestError("bad_request", "no command assigned: set a joint path first", "command")
         request = self.runs.request(rec, f"r{rec.run_counter + 1}")
-        return self.runs.begin(rec, request, rec.settings.stop_time, "")
+        return self.runs.begin(rec, request, rec.settings.stop_time)
 
     def _recording(self, name: str) -> m.RecordingInfo:
         try:
@@ -275,7 +275,7 @@ class Proxy(Node):
         pacing = {"pacing": "fast"} if cmd.speed == 0 else {"pacing": "scaled", "factor": cmd.speed}
         settings = msgspec.structs.replace(rec.settings, **pacing)
         request = self.runs.request(rec, f"r{rec.run_counter + 1}", settings, cmd.recording, cmd.paused)
-        return self.runs.begin(rec, request, info.stop_time, cmd.recording)
+        return self.runs.begin(rec, request, info.stop_time)
 
     # -- results -------------------------------------------------------------------------------------
     def _on_results_list(self, req: Request) -> list[m.RunInfo]:

@@ -55,7 +55,7 @@ class RunTracker:
         recording: str = "",
         paused: bool = False,
     ) -> m.RunRequest:
-        info = rec.run_info(run_id)
+        """The request of run `run_id` of `rec` as the session stands (a replay: of `recording`)."""
         return m.RunRequest(
             session=rec.id,
             run_id=run_id,
@@ -66,19 +66,17 @@ class RunTracker:
             initial=list(rec.initial),
             command=rec.command,
             settings=settings or rec.settings,
-            recording=recording or (info.recording if info else ""),
+            recording=recording,
             paused=paused,
         )
 
-    def begin(
-        self, rec: SessionRecord, request: m.RunRequest, stop_time: float, recording: str
-    ) -> m.RunStarted:
+    def begin(self, rec: SessionRecord, request: m.RunRequest, stop_time: float) -> m.RunStarted:
         """A new run of `rec`: queued now, started when admission finds it a slot."""
         if rec.starting:
             raise RequestError("conflict", "the previous run is still being handed to a simulator")
         self.admission.enqueue(rec, request)  # refuses with busy when the server is full
         rec.run_counter += 1
-        rec.add_run(m.RunInfo(request.run_id, "queued", stop_time, 0.0, recording=recording))
+        rec.add_run(m.RunInfo(request.run_id, "queued", stop_time, 0.0, recording=request.recording))
         queued = phases.after(rec.phase, "queued")
         rec.state = m.SessionState(session=rec.id, phase=queued, seq=rec.state.seq, run_id=request.run_id)  # type: ignore[arg-type]
         self.store.publish_state(rec)
@@ -179,7 +177,9 @@ class RunTracker:
                 elif rec.phase == "queued" and mine:  # it was being handed over when the proxy stopped
                     self.started(rec)
                 elif rec.phase == "queued":
-                    self.admission.requeue(rec, self.request(rec, rec.state.run_id))
+                    info = rec.run_info(rec.state.run_id)
+                    recording = info.recording if info is not None else ""
+                    self.admission.requeue(rec, self.request(rec, rec.state.run_id, recording=recording))
                 else:
                     self.store.publish_state(rec)
                     self.store.publish_params(rec, [])
