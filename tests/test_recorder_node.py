@@ -140,6 +140,8 @@ def test_real_run_leaves_a_valid_recording(mesh: Mesh) -> None:
     assert rec.columns == columns
     assert np.array_equal(rec.rows, results)
     assert v.per_topic[fmt.TOPIC_VARS] == len(results) == 251
+    # /tf and /joint_states at the documented default of 50 per simulated second: 0.5 s -> 26 samples
+    assert v.per_topic[fmt.TOPIC_TF] == v.per_topic[fmt.TOPIC_JOINTS] == 26
     assert rec.metadata[fmt.META_END]["phase"] == "finished"
     assert rec.metadata[fmt.META_RUN]["model_id"] == "spider"
     assert json.loads(rec.metadata[fmt.META_SESSION]["command"])["kind"] == "joint_path"
