@@ -42,9 +42,14 @@ warm: $(STAMP)
 up: $(STAMP) warm
 	$(BIN)/simecs up
 
+# mypy sees the folders as the simecs.* packages they install as (see [tool.mypy] in pyproject.toml).
+TYPES := .simecs/types/simecs
+PACKAGES := mesh models nodes viewer testing benchmarks
+
 lint: $(TEST_STAMP)
 	$(BIN)/ruff check $(CODE)
 	$(BIN)/ruff format --check $(CODE)
+	@mkdir -p $(TYPES) && for p in $(PACKAGES); do ln -sfn ../../../$$p $(TYPES)/$$p; done
 	$(BIN)/mypy
 	$(BIN)/python -m simecs.mesh.schema --check
 

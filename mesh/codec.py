@@ -79,7 +79,14 @@ def _decoder(tp: Any) -> msgspec.json.Decoder[Any]:  # tp: a class or a union, b
     return msgspec.json.Decoder(tp)
 
 
-def loads(tp: type[T] | Any, payload: bytes | bytearray | memoryview | str) -> T:
+Payload = bytes | bytearray | memoryview | str
+
+
+@typing.overload
+def loads(tp: type[T], payload: Payload) -> T: ...
+@typing.overload
+def loads(tp: Any, payload: Payload) -> Any: ...
+def loads(tp: Any, payload: Payload) -> Any:
     """Parse and decode one JSON message into `tp` (a Struct or a union of them), strictly; every
     failure is a DecodeError."""
     if isinstance(payload, str):
@@ -99,10 +106,14 @@ def loads(tp: type[T] | Any, payload: bytes | bytearray | memoryview | str) -> T
     except RecursionError:
         raise DecodeError("", "the message is nested too deeply") from None
     _require_envelope(tp, msgspec.json.decode(payload, type=dict[str, msgspec.Raw]))
-    return typing.cast(T, obj)
+    return obj
 
 
-def from_obj(tp: type[T] | Any, value: Any) -> T:
+@typing.overload
+def from_obj(tp: type[T], value: Any) -> T: ...
+@typing.overload
+def from_obj(tp: Any, value: Any) -> Any: ...
+def from_obj(tp: Any, value: Any) -> Any:
     """Decode an already-parsed JSON value into `tp`, as strictly as `loads`."""
     try:
         obj = msgspec.convert(value, tp)
@@ -112,7 +123,7 @@ def from_obj(tp: type[T] | Any, value: Any) -> T:
         raise DecodeError("", "the message is nested too deeply") from None
     if isinstance(value, dict):
         _require_envelope(tp, value)
-    return typing.cast(T, obj)
+    return obj
 
 
 def _require_envelope(tp: Any, top: dict[str, Any]) -> None:

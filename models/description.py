@@ -8,6 +8,7 @@ a client (the viewer) never imports models/, it receives `describe()` over the m
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
+from typing import Literal
 
 import msgspec
 import numpy as np
@@ -52,10 +53,13 @@ def _vec(a: Sequence[float]) -> np.ndarray:
     return np.asarray(a, dtype=float)
 
 
-def _axis_of(v: np.ndarray) -> tuple[str, float]:
+AXES: tuple[Literal["x", "y", "z"], ...] = ("x", "y", "z")
+
+
+def _axis_of(v: np.ndarray) -> tuple[Literal["x", "y", "z"], float]:
     """Nearest coordinate axis letter of a direction and its sign."""
     k = int(np.argmax(np.abs(v)))
-    return "xyz"[k], float(np.sign(v[k]) or 1.0)
+    return AXES[k], float(np.sign(v[k]) or 1.0)
 
 
 class ArmDescription:

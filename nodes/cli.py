@@ -122,12 +122,12 @@ def cmd_ls(args: argparse.Namespace) -> int:
             return 0
         print(f"{'NODE':40} {'PID':>7}  DETAIL")
         for name in sorted(live):
-            st = statuses.get(name)
-            detail = " ".join(f"{k}={v}" for k, v in (st.detail if st else {}).items())
-            print(f"{name:40} {st.pid if st else '?':>7}  {detail}")
+            node = statuses.get(name)
+            detail = " ".join(f"{k}={v}" for k, v in (node.detail if node else {}).items())
+            print(f"{name:40} {node.pid if node else '?':>7}  {detail}")
         print(f"\n{'SESSION':24} {'PHASE':10} {'RUN':5} PROGRESS")
-        for sid, st in sorted(live_states.items()):
-            print(f"{sid:24} {st.phase:10} {st.run_id:5} {st.progress * 100:5.1f} %")
+        for sid, state in sorted(live_states.items()):
+            print(f"{sid:24} {state.phase:10} {state.run_id:5} {state.progress * 100:5.1f} %")
         return 0
     finally:
         z.close()

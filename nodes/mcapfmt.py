@@ -24,7 +24,7 @@ from __future__ import annotations
 import functools
 import json
 import re
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -290,7 +290,7 @@ def _color(rgb: Sequence[int]) -> dict[str, float]:
     return {"r": r / 255.0, "g": g / 255.0, "b": b / 255.0, "a": 1.0}
 
 
-def _pose(center: Sequence[float], wxyz: Sequence[float]) -> dict[str, Any]:
+def _pose(center: Iterable[float], wxyz: Iterable[float]) -> dict[str, Any]:
     x, y, z = (float(v) for v in center)
     qw, qx, qy, qz = (float(v) for v in wxyz)
     return {"position": {"x": x, "y": y, "z": z}, "orientation": {"x": qx, "y": qy, "z": qz, "w": qw}}
