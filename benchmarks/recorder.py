@@ -50,15 +50,16 @@ def absorb(mesh: LocalMesh, rec_dir: Path) -> dict[str, Any]:
     desc = models.get_model("spider").describe()
     cols, units = columns.run_columns(desc)
     sid = keys.new_session_id()
+    user = "bench"
     z = mesh.new_client().z
     stop = BURST_FRAMES * ROWS_PER_FRAME * OUTPUT
     settings = m.RunSettings(stop_time=stop, output_interval=OUTPUT, pacing="fast")
     context = m.RunContext("bench", desc.default_values(), [0.0] * len(desc.links), None, settings)
     layout = m.RunLayout(sid, "r1", 1, desc.id, cols, units, cols[:1], 50.0, stop, OUTPUT, context)
     lay_pub = zenoh.ext.declare_advanced_publisher(
-        z, keys.layout(sid), cache=zenoh.ext.CacheConfig(1), publisher_detection=True
+        z, keys.layout(user, sid), cache=zenoh.ext.CacheConfig(1), publisher_detection=True
     )
-    full = z.declare_publisher(keys.vars_full(sid), congestion_control=zenoh.CongestionControl.BLOCK)
+    full = z.declare_publisher(keys.vars_full(user, sid), congestion_control=zenoh.CongestionControl.BLOCK)
     n = BURST_FRAMES * ROWS_PER_FRAME
     t = np.arange(n) * OUTPUT
     rows = np.sin(np.outer(t, np.linspace(0.5, 3.0, len(cols))) + np.linspace(0, 1, len(cols)))
@@ -85,9 +86,10 @@ def absorb(mesh: LocalMesh, rec_dir: Path) -> dict[str, Any]:
             full.put(p)
         sent_s = time.perf_counter() - t0
         z.put(
-            keys.state(sid), codec.dumps(m.SessionState(sid, "finished", run_id="r1", sim_time=float(t[-1])))
+            keys.state(user, sid),
+            codec.dumps(m.SessionState(sid, "finished", run_id="r1", sim_time=float(t[-1]))),
         )
-        path = rec_dir / f"{keys.recording_name(sid, 'r1')}.mcap"
+        path = rec_dir / user / f"{keys.recording_name(sid, 'r1')}.mcap"
         end = time.monotonic() + 300
         while not mcapread.has_footer(path):
             if time.monotonic() > end:

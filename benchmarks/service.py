@@ -131,8 +131,8 @@ def live_run(client: MeshClient, stop: float) -> tuple[list[float], list[float]]
         full.append((time.time_ns() - frames.decode(sample.payload.to_bytes()).wall_ns) / 1e6)
 
     subs = [
-        client.z.declare_subscriber(keys.vars_live(s.id), on_live),
-        client.z.declare_subscriber(keys.vars_full(s.id), on_full),
+        client.z.declare_subscriber(keys.vars_live(s.user, s.id), on_live),
+        client.z.declare_subscriber(keys.vars_full(s.user, s.id), on_full),
     ]
     try:
         time.sleep(0.3)

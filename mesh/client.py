@@ -115,28 +115,28 @@ class MeshClient:
 
     # -- sessions -------------------------------------------------------------------------------
     def create_session(self, user: str, model_id: str) -> SessionClient:
-        request = m.CreateSession(user, model_id)
-        snap = self.request(keys.SESSIONS, request, reply=m.REPLIES[m.CreateSession])
-        return SessionClient(self, snap.session, snap)
+        """A new session of `user` on a model (the user is part of every key of the session)."""
+        snap = self.request(keys.sessions(user), m.CreateSession(model_id), reply=m.REPLIES[m.CreateSession])
+        return SessionClient(self, user, snap.session, snap)
 
     def list_sessions(self, user: str) -> list[m.SessionEntry]:
-        return self.request(keys.SESSIONS, m.ListSessions(user), reply=m.REPLIES[m.ListSessions])
+        return self.request(keys.sessions(user), m.ListSessions(), reply=m.REPLIES[m.ListSessions])
 
-    def session(self, session_id: str) -> SessionClient:
-        return SessionClient(self, session_id)
+    def session(self, user: str, session_id: str) -> SessionClient:
+        return SessionClient(self, user, session_id)
 
-    def recordings(self) -> list[m.RecordingInfo]:
-        return self.request(keys.RECORDINGS, reply=m.RecordingList).recordings
+    def recordings(self, user: str) -> list[m.RecordingInfo]:
+        return self.request(keys.recordings(user), reply=m.RecordingList).recordings
 
-    def recording_info(self, name: str) -> m.RecordingInfo:
-        return self.request(keys.recording_info(name), reply=m.RecordingInfo)
+    def recording_info(self, user: str, name: str) -> m.RecordingInfo:
+        return self.request(keys.recording_info(user, name), reply=m.RecordingInfo)
 
-    def download_recording(self, name: str, timeout: float = 30.0) -> bytes:
-        """The MCAP bytes of a recording (`keys.recording_name(session, run_id)` for a run)."""
-        return self.request_binary(keys.recording(name), m.RecordingInfo, timeout=timeout)[0]
+    def download_recording(self, user: str, name: str, timeout: float = 30.0) -> bytes:
+        """The MCAP bytes of one of `user`'s recordings (`keys.recording_name(session, run)` for a run)."""
+        return self.request_binary(keys.recording(user, name), m.RecordingInfo, timeout=timeout)[0]
 
-    def upload_recording(self, name: str, data: bytes, timeout: float = 60.0) -> m.RecordingInfo:
-        return self.request(keys.recording(name), data, timeout, reply=m.RecordingInfo)
+    def upload_recording(self, user: str, name: str, data: bytes, timeout: float = 60.0) -> m.RecordingInfo:
+        return self.request(keys.recording(user, name), data, timeout, reply=m.RecordingInfo)
 
     def live_nodes(self, timeout: float = 1.0) -> list[tuple[str, str]]:
         """(role, node id) of every node whose liveliness token is up."""
@@ -176,17 +176,18 @@ class SessionClient:
     """Commands, state and results of one session."""
 
     def __init__(
-        self, client: MeshClient, session_id: str, snapshot: m.SessionSnapshot | None = None
+        self, client: MeshClient, user: str, session_id: str, snapshot: m.SessionSnapshot | None = None
     ) -> None:
         if not keys.is_session_id(session_id):
             raise ValueError(f"{session_id!r} is not a session id")
         self.client = client
+        self.user = keys.check_name(user, "user name")
         self.id = session_id
         self.created = snapshot
 
     def command(self, cmd: Any, timeout: float | None = None) -> Any:
         """Send a session command; its reply `data`, typed as messages.REPLIES says."""
-        return self.client.request(keys.cmd(self.id), cmd, timeout, reply=m.REPLIES[type(cmd)])
+        return self.client.request(keys.cmd(self.user, self.id), cmd, timeout, reply=m.REPLIES[type(cmd)])
 
     def snapshot(self) -> m.SessionSnapshot:
         return self.command(m.GetSession())
@@ -243,7 +244,7 @@ class SessionClient:
         return self.command(m.ListParamSets())
 
     def runs(self) -> list[m.RunInfo]:
-        return self.client.request(keys.results(self.id), reply=list[m.RunInfo])
+        return self.client.request(keys.results(self.user, self.id), reply=list[m.RunInfo])
 
     def results(
         self,
@@ -263,7 +264,7 @@ class SessionClient:
             params.append(f"t1={t1!r}")
         if every != 1:
             params.append(f"every={int(every)}")
-        key = keys.results(self.id, run_id) + ("?" + ";".join(params) if params else "")
+        key = keys.results(self.user, self.id, run_id) + ("?" + ";".join(params) if params else "")
         payload, att = self.client.request_binary(key, m.ResultsAttachment)
         frame = frames.decode(payload)
         return list(att.columns), frame.rows
@@ -291,15 +292,15 @@ class SessionClient:
                 watch._entities.append(z.declare_subscriber(key, worker.push))
 
         if on_state:
-            add(keys.state(self.id), on_state, lambda b: codec.loads(m.SessionState, b), True)
+            add(keys.state(self.user, self.id), on_state, lambda b: codec.loads(m.SessionState, b), True)
         if on_params:
-            add(keys.params(self.id), on_params, lambda b: codec.loads(m.ParamValues, b), True)
+            add(keys.params(self.user, self.id), on_params, lambda b: codec.loads(m.ParamValues, b), True)
         if on_layout:
-            add(keys.layout(self.id), on_layout, lambda b: codec.loads(m.RunLayout, b), True)
+            add(keys.layout(self.user, self.id), on_layout, lambda b: codec.loads(m.RunLayout, b), True)
         if on_live:
-            add(keys.vars_live(self.id), on_live, frames.decode, False)
+            add(keys.vars_live(self.user, self.id), on_live, frames.decode, False)
         if on_full:
-            add(keys.vars_full(self.id), on_full, frames.decode, False)
+            add(keys.vars_full(self.user, self.id), on_full, frames.decode, False)
         return watch
 
     def wait_for(

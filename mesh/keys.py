@@ -85,26 +85,26 @@ _TABLE = (
     ),
     KeySpec(
         name="sessions",
-        pattern="simecs/sessions",
+        pattern="simecs/u/<user>/sessions",
         kind="query",
         writer="client",
         answerer="proxy",
         payload="SessionRequest",
         reply="per command",
-        meaning="create a session, or list a user's sessions",
+        meaning="create a session of <user>, or list <user>'s sessions",
     ),
     KeySpec(
         name="recordings",
-        pattern="simecs/recordings",
+        pattern="simecs/u/<user>/recordings",
         kind="query",
         writer="client",
         answerer="recorder",
         reply="RecordingList",
-        meaning="the recordings kept on the server, newest first",
+        meaning="<user>'s recordings kept on the server, newest first",
     ),
     KeySpec(
         name="recording",
-        pattern="simecs/recordings/<name>",
+        pattern="simecs/u/<user>/recordings/<name>",
         kind="query",
         writer="client",
         answerer="recorder",
@@ -115,7 +115,7 @@ _TABLE = (
     ),
     KeySpec(
         name="recording_info",
-        pattern="simecs/recordings/<name>/info",
+        pattern="simecs/u/<user>/recordings/<name>/info",
         kind="query",
         writer="client",
         answerer="recorder",
@@ -143,7 +143,7 @@ _TABLE = (
     # -- per session ----------------------------------------------------------------------------------
     KeySpec(
         name="cmd",
-        pattern="simecs/<session>/cmd",
+        pattern="simecs/u/<user>/sessions/<session>/cmd",
         kind="query",
         writer="client",
         answerer="proxy",
@@ -153,7 +153,7 @@ _TABLE = (
     ),
     KeySpec(
         name="params",
-        pattern="simecs/<session>/params",
+        pattern="simecs/u/<user>/sessions/<session>/params",
         kind="cached put",
         writer="proxy",
         payload="ParamValues",
@@ -161,7 +161,7 @@ _TABLE = (
     ),
     KeySpec(
         name="state",
-        pattern="simecs/<session>/state",
+        pattern="simecs/u/<user>/sessions/<session>/state",
         kind="cached put",
         writer="proxy",
         payload="SessionState",
@@ -169,7 +169,7 @@ _TABLE = (
     ),
     KeySpec(
         name="control",
-        pattern="simecs/<session>/control",
+        pattern="simecs/u/<user>/sessions/<session>/control",
         kind="put",
         writer="proxy",
         payload="RunControl",
@@ -177,7 +177,7 @@ _TABLE = (
     ),
     KeySpec(
         name="run_status",
-        pattern="simecs/<session>/run",
+        pattern="simecs/u/<user>/sessions/<session>/run",
         kind="put",
         writer="worker",
         payload="RunStatus",
@@ -185,7 +185,7 @@ _TABLE = (
     ),
     KeySpec(
         name="layout",
-        pattern="simecs/<session>/vars/layout",
+        pattern="simecs/u/<user>/sessions/<session>/vars/layout",
         kind="cached put",
         writer="worker",
         payload="RunLayout",
@@ -193,7 +193,7 @@ _TABLE = (
     ),
     KeySpec(
         name="vars_full",
-        pattern="simecs/<session>/vars/full",
+        pattern="simecs/u/<user>/sessions/<session>/vars/full",
         kind="put",
         writer="worker",
         payload="frame",
@@ -201,7 +201,7 @@ _TABLE = (
     ),
     KeySpec(
         name="vars_live",
-        pattern="simecs/<session>/vars/live",
+        pattern="simecs/u/<user>/sessions/<session>/vars/live",
         kind="put",
         writer="hotfeedback",
         payload="frame",
@@ -209,7 +209,7 @@ _TABLE = (
     ),
     KeySpec(
         name="results_list",
-        pattern="simecs/<session>/results",
+        pattern="simecs/u/<user>/sessions/<session>/results",
         kind="query",
         writer="client",
         answerer="proxy",
@@ -218,7 +218,7 @@ _TABLE = (
     ),
     KeySpec(
         name="results",
-        pattern="simecs/<session>/results/<run>",
+        pattern="simecs/u/<user>/sessions/<session>/results/<run>",
         kind="query",
         writer="client",
         answerer="simulator",
@@ -228,7 +228,7 @@ _TABLE = (
     ),
     KeySpec(
         name="notices",
-        pattern="simecs/<session>/notices",
+        pattern="simecs/u/<user>/sessions/<session>/notices",
         kind="put",
         writer="recorder",
         payload="Notice",
@@ -236,7 +236,7 @@ _TABLE = (
     ),
     KeySpec(
         name="jog",
-        pattern="simecs/<session>/jog",
+        pattern="simecs/u/<user>/sessions/<session>/jog",
         kind="put",
         writer="client",
         payload="JogInput",
@@ -252,7 +252,7 @@ _TABLE = (
     ),
     KeySpec(
         name="run_token",
-        pattern="simecs/@run/<session>/<run>",
+        pattern="simecs/@run/<user>/<session>/<run>",
         kind="token",
         writer="worker",
         meaning="the worker of a run is alive; its loss fails the run within 1 s",
@@ -260,10 +260,9 @@ _TABLE = (
 )
 KEYS: dict[str, KeySpec] = {k.name: k for k in _TABLE}
 
-# Wildcards used by nodes that serve or watch every session (and in PROTOCOL.md §3.4).
+# Wildcards used by nodes that serve or watch every user's sessions (and in PROTOCOL.md §3.4).
 LIBRARY = "simecs/library"
-SESSIONS = "simecs/sessions"
-RECORDINGS = "simecs/recordings"
+USERS = "simecs/u"
 
 
 def wildcard(name: str) -> str:
@@ -274,6 +273,7 @@ def wildcard(name: str) -> str:
 NODES_STATUS = wildcard("node_status")
 NODE_TOKENS = f"{ROOT}/@node/**"
 RUN_TOKENS = f"{ROOT}/@run/**"
+ALL_SESSION_REQUESTS = wildcard("sessions")
 ALL_CMD = wildcard("cmd")
 ALL_RUN_STATUS = wildcard("run_status")
 ALL_LAYOUT = wildcard("layout")
@@ -286,8 +286,14 @@ ALL_RESULTS = wildcard("results")
 ALL_RESULTS_LIST = wildcard("results_list")
 ALL_DOCS = wildcard("doc")
 ALL_MODELS = wildcard("model")
+ALL_RECORDING_LISTS = wildcard("recordings")
 ALL_RECORDINGS = wildcard("recording")
 ALL_RECORDING_INFOS = wildcard("recording_info")
+
+
+def user_space(user: str) -> str:
+    """Every key of one user (`simecs/u/<user>/**`): what the router's access rules give that user."""
+    return f"{USERS}/{check_name(user, 'user name')}/**"
 
 
 # -- checking chunks ------------------------------------------------------------------------------------
@@ -309,6 +315,7 @@ def check_name(text: str, what: str) -> str:
 
 
 _CHUNK_WHAT = {
+    "user": "user name",
     "session": "session id",
     "model": "model id",
     "page": "doc page",
@@ -350,16 +357,24 @@ def doc(model_id: str, page: str) -> str:
     return build("doc", model=model_id, page=page)
 
 
-def recording(name: str) -> str:
-    return build("recording", name=name)
+def sessions(user: str) -> str:
+    return build("sessions", user=user)
 
 
-def recording_info(name: str) -> str:
-    return build("recording_info", name=name)
+def recordings(user: str) -> str:
+    return build("recordings", user=user)
+
+
+def recording(user: str, name: str) -> str:
+    return build("recording", user=user, name=name)
+
+
+def recording_info(user: str, name: str) -> str:
+    return build("recording_info", user=user, name=name)
 
 
 def recording_name(session: str, run_id: str) -> str:
-    """The name under which the recorder stores the run `run_id` of `session`."""
+    """The name under which the recorder stores the run `run_id` of `session` (in its user's space)."""
     return f"{_check('session', session)}_{check_name(run_id, 'run id')}"
 
 
@@ -384,55 +399,55 @@ def simulator_run(host_id: str) -> str:
     return build("simulator_run", node=host_id)
 
 
-def run_token(session: str, run_id: str) -> str:
-    return build("run_token", session=session, run=run_id)
+def run_token(user: str, session: str, run_id: str) -> str:
+    return build("run_token", user=user, session=session, run=run_id)
 
 
-def cmd(session: str) -> str:
-    return build("cmd", session=session)
+def cmd(user: str, session: str) -> str:
+    return build("cmd", user=user, session=session)
 
 
-def params(session: str) -> str:
-    return build("params", session=session)
+def params(user: str, session: str) -> str:
+    return build("params", user=user, session=session)
 
 
-def state(session: str) -> str:
-    return build("state", session=session)
+def state(user: str, session: str) -> str:
+    return build("state", user=user, session=session)
 
 
-def control(session: str) -> str:
-    return build("control", session=session)
+def control(user: str, session: str) -> str:
+    return build("control", user=user, session=session)
 
 
-def run_status(session: str) -> str:
-    return build("run_status", session=session)
+def run_status(user: str, session: str) -> str:
+    return build("run_status", user=user, session=session)
 
 
-def layout(session: str) -> str:
-    return build("layout", session=session)
+def layout(user: str, session: str) -> str:
+    return build("layout", user=user, session=session)
 
 
-def vars_full(session: str) -> str:
-    return build("vars_full", session=session)
+def vars_full(user: str, session: str) -> str:
+    return build("vars_full", user=user, session=session)
 
 
-def vars_live(session: str) -> str:
-    return build("vars_live", session=session)
+def vars_live(user: str, session: str) -> str:
+    return build("vars_live", user=user, session=session)
 
 
-def results(session: str, run_id: str | None = None) -> str:
+def results(user: str, session: str, run_id: str | None = None) -> str:
     """The list of a session's runs, or (with `run_id`) one run's full-resolution results."""
     if run_id is None:
-        return build("results_list", session=session)
-    return build("results", session=session, run=run_id)
+        return build("results_list", user=user, session=session)
+    return build("results", user=user, session=session, run=run_id)
 
 
-def notices(session: str) -> str:
-    return build("notices", session=session)
+def notices(user: str, session: str) -> str:
+    return build("notices", user=user, session=session)
 
 
-def jog(session: str) -> str:
-    return build("jog", session=session)
+def jog(user: str, session: str) -> str:
+    return build("jog", user=user, session=session)
 
 
 # -- parsing ----------------------------------------------------------------------------------------
@@ -450,9 +465,10 @@ def parse(name: str, key: object) -> dict[str, str]:
     return {chunk: _check(chunk, value) for chunk, value in found.groupdict().items()}
 
 
-def session_of(key: object) -> str:
-    """The session id of any per-session key; KeyProblem if it is not one."""
-    parts = str(key).split("/", 2)
-    if len(parts) < 3 or parts[0] != ROOT or not is_session_id(parts[1]):
+def owner_of(key: object) -> tuple[str, str]:
+    """(user, session) of any per-session key (`simecs/u/<user>/sessions/<session>/...`), each checked;
+    KeyProblem if it is not one."""
+    parts = str(key).split("/", 5)
+    if len(parts) < 6 or parts[:2] != [ROOT, "u"] or parts[3] != "sessions":
         raise KeyProblem("session", f"key {str(key)!r:.80} is not a per-session key")
-    return parts[1]
+    return _check("user", parts[2]), _check("session", parts[4])

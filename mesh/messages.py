@@ -24,7 +24,7 @@ VERSION: Literal[1] = 1
 
 
 class Command(Record, kw_only=True, tag_field="op"):
-    """A request on `simecs/<session>/cmd` (or `simecs/sessions`): told apart by `op`."""
+    """A request on `<session>/cmd` (or `simecs/u/<user>/sessions`): told apart by `op`."""
 
     v: Literal[1] = VERSION
 
@@ -44,7 +44,7 @@ class RobotCommandBase(Record, tag_field="kind"):
 Percent = Annotated[float, Meta(gt=0.0, le=100.0, description="percent of the joints' maxima, (0, 100]")]
 Seconds = Annotated[float, Meta(ge=0.0, le=1e9)]
 
-# -- replies --------------------------------------------------------------------------------------
+# -- replies -------------------------------------------------------------------------------------------
 ErrorCode = Literal["bad_request", "not_found", "forbidden", "conflict", "busy", "internal", "unsupported"]
 
 
@@ -63,7 +63,7 @@ class Ok(Message, tag="ok"):
     data: Any = None
 
 
-# -- robot commands, one per level of the paper (§2.1) ----------------------------------------------
+# -- robot commands, one per level of the paper (§2.1) -------------------------------------------------
 class PathNode(Record):
     """A via point of a joint path (PDL2 MOVE-like): destination, speed and acceleration reductions."""
 
@@ -124,7 +124,7 @@ RobotCommand = JointPath | CartesianPath | DirectInput | Action | Task | Mission
 COMMAND_LEVELS = ("direct_input", "joint_path", "cartesian_path", "action", "task", "mission")
 
 
-# -- simulation settings ------------------------------------------------------------------------------
+# -- simulation settings -------------------------------------------------------------------------------
 class RunSettings(Record):
     """Paper §2.2 step 6. `set_settings` replaces the whole object: omitted fields take these defaults."""
 
@@ -155,7 +155,7 @@ class RunSettings(Record):
         return {"realtime": 1.0, "scaled": self.factor, "fast": float("inf")}[self.pacing]
 
 
-# -- commands on simecs/<session>/cmd ---------------------------------------------------------------
+# -- commands on <session>/cmd -------------------------------------------------------------------------
 class SetParams(Command, tag="set_params"):
     values: Annotated[dict[Name, float], Meta(max_length=100_000)]
 
@@ -257,14 +257,15 @@ SessionCommand = (
 )
 
 
-# -- requests on simecs/sessions -----------------------------------------------------------------------
+# -- requests on simecs/u/<user>/sessions --------------------------------------------------------------
 class CreateSession(Command, tag="create"):
-    user: Name
+    """A new session of the key's user on a model, with its default values."""
+
     model_id: Name
 
 
 class ListSessions(Command, tag="list"):
-    user: Name
+    """The key's user's open sessions."""
 
 
 SessionRequest = CreateSession | ListSessions
@@ -272,7 +273,7 @@ SessionRequest = CreateSession | ListSessions
 
 # -- published state -----------------------------------------------------------------------------------
 class SessionState(Message, tag="state"):
-    """Lifecycle of a session on simecs/<session>/state (paper §3.2 Time Presentation)."""
+    """Lifecycle of a session on <session>/state (paper §3.2 Time Presentation)."""
 
     session: SessionId
     phase: Phase
@@ -287,7 +288,7 @@ class SessionState(Message, tag="state"):
 
 
 class ParamValues(Message, tag="params"):
-    """Every parameter value of a session, published on simecs/<session>/params after each change."""
+    """Every parameter value of a session, published on <session>/params after each change."""
 
     session: SessionId
     model_id: Name
@@ -344,7 +345,7 @@ class ModelList(Message, tag="models"):
     models: list[ModelSummary]
 
 
-# -- proxy <-> simulator -----------------------------------------------------------------------------
+# -- proxy <-> simulator -------------------------------------------------------------------------------
 class RunRequest(Message, tag="run_request"):
     """Everything a producer needs for one run; sent by the proxy to simecs/simulators/<node>/run.
 
@@ -378,7 +379,7 @@ class RunControl(Message, tag="run_control"):
 
 
 class RunStatus(Message, tag="run_status"):
-    """A worker's report on simecs/<session>/run; the proxy turns it into SessionState."""
+    """A worker's report on <session>/run; the proxy turns it into SessionState."""
 
     session: SessionId
     run_id: Name
@@ -402,7 +403,7 @@ class RunContext(Record):
 
 
 class RunLayout(Message, tag="layout"):
-    """Announced once per run on simecs/<session>/vars/layout, before the first frame."""
+    """Announced once per run on <session>/vars/layout, before the first frame."""
 
     session: SessionId
     run_id: Name
@@ -425,7 +426,7 @@ class RunLayout(Message, tag="layout"):
 
 class Notice(Message, tag="notice"):
     """Something the user must know about a run that is not a failure of it, e.g. the recorder had to
-    drop samples. Put on simecs/<session>/notices; the proxy lists it in SessionState.warnings."""
+    drop samples. Put on <session>/notices; the proxy lists it in SessionState.warnings."""
 
     session: SessionId
     run_id: Name
@@ -440,7 +441,7 @@ class JogInput(Message, tag="jog"):
     qd: Numbers
 
 
-# -- nodes and recordings --------------------------------------------------------------------------
+# -- nodes and recordings ------------------------------------------------------------------------------
 class NodeStatus(Message, tag="node_status"):
     role: Name
     node_id: Name

@@ -13,7 +13,7 @@ from typing import Literal, get_args
 Phase = Literal[
     "created", "configured", "queued", "running", "paused", "finished", "aborted", "failed", "closed"
 ]
-#: What a worker reports about its run on simecs/<session>/run.
+#: What a worker reports about its run on <session>/run.
 WorkerPhase = Literal["starting", "running", "paused", "finished", "aborted", "failed"]
 
 PHASES: tuple[str, ...] = get_args(Phase)

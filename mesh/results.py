@@ -1,6 +1,6 @@
 """Full-resolution results (PROTOCOL.md §6.2): the selector a client asks with, and the reply frame.
 
-Every node that serves `simecs/<session>/results/<run>` builds its reply here, so the selector's rules
+Every node that serves `<session>/results/<run>` builds its reply here, so the selector's rules
 (which parameters, their bounds) are the same wherever the run's data lives.
 """
 

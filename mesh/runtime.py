@@ -192,9 +192,12 @@ class Node:
             self.declare(self.z.declare_subscriber(key, push, allowed_origin=origin))
         return worker
 
-    def subscribe_messages(self, key: str, cls: Any, handle: Callable[[Any], None], **options: Any) -> None:
+    def subscribe_messages(
+        self, key: str, cls: Any, handle: Callable[[Any, str], None], **options: Any
+    ) -> None:
         """`subscribe()` for JSON messages of type `cls`: a sample that does not decode is logged with
-        what was wrong and dropped; `handle` gets only valid messages."""
+        what was wrong and dropped; `handle(message, key)` gets only valid messages, with the key they
+        came on (what a node trusts, never the payload's claim)."""
 
         def decoded(sample: zenoh.Sample) -> None:
             try:
@@ -202,7 +205,7 @@ class Node:
             except codec.DecodeError as exc:
                 self.log.warning("bad message on %s: %s", sample.key_expr, exc)
                 return
-            handle(message)
+            handle(message, str(sample.key_expr))
 
         self.subscribe(key, decoded, **options)
 

@@ -78,17 +78,20 @@ class HotFeedback(Node):
 
     def _on_layout(self, sample: zenoh.Sample) -> None:
         try:
+            user, session = keys.owner_of(sample.key_expr)
             layout = codec.loads(m.RunLayout, sample.payload.to_bytes())
+            if layout.session != session:
+                raise ValueError(f"a layout of session {layout.session} on a key of session {session}")
             idx = np.array([layout.columns.index(c) for c in layout.live_columns], dtype=int)
         except (codec.DecodeError, ValueError) as exc:
             self.log.warning("bad layout on %s: %s", sample.key_expr, exc)
             return
         with self.lock:
-            old = self.streams.get(layout.session)
-            pub = old.publisher if old else self.publisher(keys.vars_live(layout.session), express=True)
+            old = self.streams.get(session)
+            pub = old.publisher if old else self.publisher(keys.vars_live(user, session), express=True)
             stream = Stream(layout, idx, int(1e9 / layout.live_rate_hz), publisher=pub)
-            self.streams[layout.session] = stream
-            early = self.early.pop(layout.session, None)
+            self.streams[session] = stream
+            early = self.early.pop(session, None)
             if early is not None and early.run_index == layout.run_index:
                 self._take(stream, early)
 
@@ -115,7 +118,7 @@ class HotFeedback(Node):
 
     def _on_full(self, sample: zenoh.Sample) -> None:
         try:
-            session = keys.session_of(str(sample.key_expr))
+            _user, session = keys.owner_of(sample.key_expr)
             frame = frames.decode(sample.payload.to_bytes(), last_row_only=True)
         except (ValueError, frames.FrameError) as exc:
             self.log.warning("bad frame on %s: %s", sample.key_expr, exc)

@@ -107,7 +107,7 @@ class Proxy(Node):
         self.serve(keys.LIBRARY, lambda _req: self.models.summaries())
         self.serve(keys.ALL_MODELS, self._on_model)
         self.serve(keys.ALL_DOCS, self._on_doc)
-        self.serve(keys.SESSIONS, self._on_sessions, threaded=True)
+        self.serve(keys.ALL_SESSION_REQUESTS, self._on_sessions, threaded=True)
         self.serve(keys.ALL_CMD, self._on_cmd, threaded=True)
         self.serve(keys.ALL_RESULTS_LIST, self._on_results_list, threaded=True)
         self.serve(keys.ALL_RESULTS, self._on_results, threaded=True)
@@ -134,23 +134,25 @@ class Proxy(Node):
 
     # -- sessions ----------------------------------------------------------------------------------
     def _on_sessions(self, req: Request) -> Any:
+        user = keys.parse("sessions", req.key)["user"]  # the key says whose: never the payload
         msg = req.json(m.SessionRequest)
         if isinstance(msg, m.ListSessions):
             with self.lock:
-                return self.store.of_user(msg.user)
+                return self.store.of_user(user)
         desc = self.models.describe(msg.model_id)
         with self.lock:
             if len(self.store) >= self.max_sessions:
                 raise RequestError("busy", f"the server holds its maximum of {self.max_sessions} sessions")
-            rec = self.store.create(msg.user, desc)
-            self.log.info("session %s created for %s on model %s", rec.id, msg.user, desc.id)
+            rec = self.store.create(user, desc)
+            self.log.info("session %s created for %s on model %s", rec.id, user, desc.id)
             return rec.snapshot()
 
     # -- commands ------------------------------------------------------------------------------
     def _on_cmd(self, req: Request) -> Any:
+        user = keys.owner_of(req.key)[0]
         cmd = req.json(m.SessionCommand)
         # Asking the recorder what a recording holds may take a while: not under the lock.
-        recording = self._recording(cmd.recording) if isinstance(cmd, m.Replay) else None
+        recording = self._recording(user, cmd.recording) if isinstance(cmd, m.Replay) else None
         with self.lock:
             rec = self.store.get(req.key)
             why = phases.refusal(cmd.op, rec.phase)
@@ -240,7 +242,7 @@ class Proxy(Node):
 
     def _close_session(self, rec: SessionRecord, cmd: m.CloseSession) -> str:
         if rec.phase in phases.GOING:
-            self.runs.orphans[rec.id] = rec.state.run_id
+            self.runs.orphans[rec.id] = (rec.user, rec.state.run_id)
             self.runs.control(rec, "abort")
         self.admission.withdraw(rec)
         self.store.close(rec)
@@ -254,9 +256,9 @@ class Proxy(Node):
         request = self.runs.request(rec, f"r{rec.run_counter + 1}")
         return self.runs.begin(rec, request, rec.settings.stop_time)
 
-    def _recording(self, name: str) -> m.RecordingInfo:
+    def _recording(self, user: str, name: str) -> m.RecordingInfo:
         try:
-            return MeshClient(self.z, timeout=5.0).recording_info(name)
+            return MeshClient(self.z, timeout=5.0).recording_info(user, name)
         except RemoteError as exc:
             raise RequestError(exc.code, exc.error.message, "recording") from None
         except NoReply:
@@ -286,7 +288,7 @@ class Proxy(Node):
         """The simulator holding a run's results answers; the proxy says only what does not exist."""
         where = keys.parse("results", req.key)
         with self.lock:
-            rec = self.store.records.get(where["session"])
+            rec = self.store.owned(where["user"], where["session"])
             if rec is None or rec.run_info(where["run"]) is not None:
                 raise NotMine()
             kept = ", ".join(r.run_id for r in rec.runs) or "none yet"

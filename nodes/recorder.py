@@ -95,18 +95,22 @@ class Recorder(Node):
 
     def start(self) -> None:
         self.pipeline.start(self.z, self.declare)
-        self.serve(keys.RECORDINGS, lambda _req: self.library.listing(), threaded=True)
+        self.serve(keys.ALL_RECORDING_LISTS, self._on_list, threaded=True)
         self.serve(keys.ALL_RECORDINGS, self._on_file, threaded=True)
         self.serve(keys.ALL_RECORDING_INFOS, self._on_info, threaded=True)
 
+    def _on_list(self, req: Request) -> Any:
+        return self.library.listing(keys.parse("recordings", req.key)["user"])
+
     def _on_file(self, req: Request) -> Any:
-        name = keys.parse("recording", req.key)["name"]
+        where = keys.parse("recording", req.key)
         if req.payload is not None:
-            return self.library.upload(name, req.payload)
-        return self.library.download(name)
+            return self.library.upload(where["user"], where["name"], req.payload)
+        return self.library.download(where["user"], where["name"])
 
     def _on_info(self, req: Request) -> Any:
-        return self.library.info(keys.parse("recording_info", req.key)["name"])
+        where = keys.parse("recording_info", req.key)
+        return self.library.info(where["user"], where["name"])
 
     def stop(self) -> None:
         self.pipeline.stop()

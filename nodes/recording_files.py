@@ -27,6 +27,7 @@ ENDED_GRACE_S = 2.0  # after an ended state without final frame: frames may stil
 PENDING_FRAMES = 256  # frames kept per session while its layout has not arrived yet
 PENDING_SESSIONS = 64  # sessions whose frames wait for a layout
 VIZ_RATE_HZ = 50.0  # /tf and /joint_states samples per simulated second
+Owner = tuple[str, str]  # (user, session): where a session's keys are
 LOG_LEVEL = {"running": fmt.LOG_INFO, "paused": fmt.LOG_INFO, "finished": fmt.LOG_INFO}
 
 
@@ -34,6 +35,7 @@ LOG_LEVEL = {"running": fmt.LOG_INFO, "paused": fmt.LOG_INFO, "finished": fmt.LO
 class Active:
     """A recording being written."""
 
+    user: str
     layout: m.RunLayout
     name: str
     writer: RunWriter
@@ -62,10 +64,10 @@ class RunFiles:
         library: RecordingsLibrary,
         node_id: str,
         log: Any,
-        lookup: Callable[[str, str, str], None],
-        notify: Callable[[m.Notice], None],
-        worker_alive: Callable[[str, str], bool],
-        take_drops: Callable[[], dict[str, list[int]]],
+        lookup: Callable[[Owner, str, str], None],
+        notify: Callable[[str, m.Notice], None],
+        worker_alive: Callable[[str, str, str], bool],
+        take_drops: Callable[[], dict[Owner, list[int]]],
         status_changed: Callable[[], None],
         viz_rate_hz: float = VIZ_RATE_HZ,
         idle_timeout_s: float = 30.0,
@@ -80,10 +82,10 @@ class RunFiles:
         self.status_changed = status_changed
         self.viz_rate_hz = viz_rate_hz
         self.idle_timeout_s = idle_timeout_s
-        self.active: dict[str, Active] = {}
-        self.pending: dict[str, collections.deque[bytes]] = {}
-        self.done: collections.OrderedDict[tuple[str, str], None] = collections.OrderedDict()
-        self.ignored: set[str] = set()  # sessions whose current run is a replay
+        self.active: dict[Owner, Active] = {}
+        self.pending: dict[Owner, collections.deque[bytes]] = {}
+        self.done: collections.OrderedDict[tuple[Owner, str], None] = collections.OrderedDict()
+        self.ignored: set[Owner] = set()  # sessions whose current run is a replay
         self.models: dict[str, tuple[ModelDescription, bytes]] = {}
         self.stats = {"rows": 0, "messages": 0, "files": 0, "dropped_frames": 0}
         self._last_drop_status = 0.0
@@ -95,14 +97,15 @@ class RunFiles:
     # -- what arrives ---------------------------------------------------------------------------------
     def on_layout(self, key: str, payload: bytes) -> None:
         try:
+            owner = keys.owner_of(key)
             layout = codec.loads(m.RunLayout, payload)
             keys.recording_name(layout.session, layout.run_id)
-            if layout.session != keys.session_of(key):
+            if layout.session != owner[1]:
                 raise ValueError(f"layout of session {layout.session} published under {key}")
         except (codec.DecodeError, ValueError) as exc:
             self.log.warning("ignoring bad layout on %s: %s", key, exc)
             return
-        sid = layout.session
+        sid = owner
         cur = self.active.get(sid)
         if cur is not None:
             if cur.layout.run_id == layout.run_id and cur.layout.run_index == layout.run_index:
@@ -113,44 +116,49 @@ class RunFiles:
         if layout.source == "replay":
             self.ignored.add(sid)
             self.pending.pop(sid, None)
-            self.log.info("session %s run %s is a replay: not recorded", sid, layout.run_id)
+            self.log.info("session %s of %s: run %s is a replay: not recorded", sid[1], sid[0], layout.run_id)
             return
         self.ignored.discard(sid)
-        self._open(layout)
+        self._open(owner[0], layout)
 
-    def _open(self, layout: m.RunLayout) -> None:
+    def _open(self, user: str, layout: m.RunLayout) -> None:
         base = keys.recording_name(layout.session, layout.run_id)
-        name = self.library.free_name(base)
-        path = self.library.path_of(name)
+        name = self.library.free_name(user, base)
+        path = self.library.path_of(user, name)
         run_meta = {"recorder": self.node_id}
         if name != base:
             run_meta["continues"] = base
         try:
+            path.parent.mkdir(parents=True, exist_ok=True)
             writer = RunWriter(path, layout, viz_rate_hz=self.viz_rate_hz, run_meta=run_meta)
         except (OSError, fmt.FormatError) as exc:
             self.log.error("cannot record run %s of %s into %s: %s", layout.run_id, layout.session, path, exc)
             return
-        rec = Active(layout, name, writer, last_data=time.monotonic(), next_seq=None if name != base else 0)
-        self.active[layout.session] = rec
+        rec = Active(
+            user, layout, name, writer, last_data=time.monotonic(), next_seq=None if name != base else 0
+        )
+        self.active[(user, layout.session)] = rec
         self.library.opened(
-            m.RecordingInfo(name, layout.session, layout.run_id, layout.model_id, 0, False, layout.stop_time)
+            path,
+            m.RecordingInfo(name, layout.session, layout.run_id, layout.model_id, 0, False, layout.stop_time),
         )
         self.stats["files"] += 1
         note = f" (continues {base}: the recorder restarted during the run)" if name != base else ""
         writer.write_log(
             fmt.LOG_INFO,
-            f"recording started: session {layout.session} run {layout.run_id} model {layout.model_id}, "
+            f"recording started: user {user} session {layout.session} run {layout.run_id} "
+            f"model {layout.model_id}, "
             f"{len(layout.columns)} columns{note}",
             0.0,
         )
-        self.lookup(layout.session, layout.run_id, layout.model_id)
-        self.log.info("recording %s", path.name)
-        for payload in self.pending.pop(layout.session, ()):
+        self.lookup((user, layout.session), layout.run_id, layout.model_id)
+        self.log.info("recording %s/%s", user, path.name)
+        for payload in self.pending.pop((user, layout.session), ()):
             self._write(rec, payload)
 
     def on_full(self, key: str, payload: bytes) -> None:
         try:
-            sid = keys.session_of(key)
+            sid = keys.owner_of(key)
         except ValueError:
             return
         rec = self.active.get(sid)
@@ -209,10 +217,14 @@ class RunFiles:
         except codec.DecodeError as exc:
             self.log.warning("ignoring bad state on %s: %s", key, exc)
             return
+        try:
+            sid = keys.owner_of(key)
+        except ValueError:
+            return
         if st.phase == "closed":
-            self.pending.pop(st.session, None)
-            self.ignored.discard(st.session)
-        rec = self.active.get(st.session)
+            self.pending.pop(sid, None)
+            self.ignored.discard(sid)
+        rec = self.active.get(sid)
         if rec is None or st.run_id != rec.layout.run_id:
             return
         if st.phase != rec.last_phase:
@@ -227,10 +239,10 @@ class RunFiles:
             deadline = time.monotonic() + (0.0 if rec.final_seen else ENDED_GRACE_S)
             rec.close_at = deadline if rec.close_at is None else min(rec.close_at, deadline)
 
-    def on_model(self, key: str, lookup: tuple[str, str, str]) -> None:
+    def on_model(self, key: str, lookup: tuple[Owner, str, str]) -> None:
         """The model description of a run, fetched by the lookup thread: the /scene and model.json."""
-        session, run_id, model_id = lookup
-        rec = self.active.get(session)
+        owner, run_id, model_id = lookup
+        rec = self.active.get(owner)
         if rec is None or rec.layout.run_id != run_id:
             return
         model = self.models.get(model_id)
@@ -248,7 +260,10 @@ class RunFiles:
             return
         rec.noticed.add(kind)
         self.notify(
-            m.Notice(session=rec.layout.session, run_id=rec.layout.run_id, source="recorder", message=message)
+            rec.user,
+            m.Notice(
+                session=rec.layout.session, run_id=rec.layout.run_id, source="recorder", message=message
+            ),
         )
 
     def housekeeping(self, now: float) -> None:
@@ -260,7 +275,7 @@ class RunFiles:
                 f"DROPPED {n} frames ({rows} samples) received between wall times {first} and {last} ns: "
                 "the recorder could not keep up (queue full); the file has a gap there"
             )
-            self.log.warning("session %s: %s", sid, text)
+            self.log.warning("session %s of %s: %s", sid[1], sid[0], text)
             if rec is not None:
                 rec.queue_drops += n
                 rec.dropped_rows += rows
@@ -287,11 +302,11 @@ class RunFiles:
                 and rec.close_at is None
             ):
                 rec.idle_checked = now
-                if not self.worker_alive(rec.layout.session, rec.layout.run_id):
+                if not self.worker_alive(rec.user, rec.layout.session, rec.layout.run_id):
                     self.close(rec, f"no data for {self.idle_timeout_s:g} s and the run's worker is gone")
 
     def close(self, rec: Active, closed_by: str) -> None:
-        self.active.pop(rec.layout.session, None)
+        self.active.pop((rec.user, rec.layout.session), None)
         phase = rec.end_phase or ("finished" if rec.final_seen and rec.final_rows else "")
         phase = phase or ("ended" if rec.final_seen else "incomplete")
         w = rec.writer
@@ -322,7 +337,7 @@ class RunFiles:
 
     def _fail(self, rec: Active, exc: BaseException) -> None:
         """Writing failed (disk full, ...): keep what is on disk, repaired if possible."""
-        self.active.pop(rec.layout.session, None)
+        self.active.pop((rec.user, rec.layout.session), None)
         rec.writer.abandon()
         self.log.error("recording %s failed: %s; repairing what was written", rec.name, exc)
         try:
@@ -332,7 +347,7 @@ class RunFiles:
         self._forget(rec)
 
     def _forget(self, rec: Active) -> None:
-        self.done[(rec.layout.session, rec.layout.run_id)] = None
+        self.done[((rec.user, rec.layout.session), rec.layout.run_id)] = None
         while len(self.done) > 4096:
             self.done.popitem(last=False)
-        self.library.closed(rec.name)
+        self.library.closed(rec.writer.path)

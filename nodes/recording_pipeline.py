@@ -25,7 +25,7 @@ from simecs.mesh import codec, frames, keys
 from simecs.mesh import messages as m
 from simecs.mesh.client import MeshClient, NoReply, RemoteError
 
-from .recording_files import VIZ_RATE_HZ, RunFiles
+from .recording_files import VIZ_RATE_HZ, Owner, RunFiles
 from .recordings_library import RecordingsLibrary
 
 BATCH_MIN = 8  # frames: a smaller batch makes the writer wait BATCH_WAIT_S before the next one
@@ -45,7 +45,7 @@ class Ingest:
         self.max_bytes = max_bytes
         self.frames = 0
         self.bytes = 0
-        self.drops: dict[str, list[int]] = {}  # session -> [frames, rows, first wall ns, last wall ns]
+        self.drops: dict[Owner, list[int]] = {}  # (user, session) -> [frames, rows, first ns, last ns]
         self.dropped_total = 0
 
     def put(self, kind: str, key: str, payload: Any) -> None:
@@ -61,7 +61,7 @@ class Ingest:
 
     def _drop(self, key: str, payload: bytes) -> None:
         try:
-            session = keys.session_of(key)
+            session = keys.owner_of(key)
             rows = frames.peek(payload).n_rows
         except (ValueError, frames.FrameError):
             return  # not a frame of a session: nothing a recording misses
@@ -83,7 +83,7 @@ class Ingest:
             self.bytes = 0
             return items
 
-    def take_drops(self) -> dict[str, list[int]]:
+    def take_drops(self) -> dict[Owner, list[int]]:
         with self.cv:
             drops, self.drops = self.drops, {}
             return drops
@@ -122,7 +122,7 @@ class RecordingPipeline:
             idle_timeout_s,
         )
         self._stop = threading.Event()
-        self._lookups: collections.deque[tuple[str, str, str]] = collections.deque()
+        self._lookups: collections.deque[tuple[Owner, str, str]] = collections.deque()
         self._lookup_cv = threading.Condition()
         self._threads: list[threading.Thread] = []
         self._subs: list[tuple[Any, str]] = []
@@ -243,22 +243,22 @@ class RecordingPipeline:
                     self.log.warning("model %s: %s", model_id, exc)
             self.ingest.put("model", "", lookup)
 
-    def _worker_alive(self, session: str, run_id: str) -> bool:
+    def _worker_alive(self, user: str, session: str, run_id: str) -> bool:
         try:
             assert self.z is not None
-            token = keys.run_token(session, run_id)
+            token = keys.run_token(user, session, run_id)
             return any(r.ok is not None for r in self.z.liveliness().get(token, timeout=1.0))
         except zenoh.ZError:
             return True
 
-    def _notify(self, notice: m.Notice) -> None:
+    def _notify(self, user: str, notice: m.Notice) -> None:
         try:
             assert self.z is not None
-            self.z.put(keys.notices(notice.session), codec.dumps(notice))
+            self.z.put(keys.notices(user, notice.session), codec.dumps(notice))
         except Exception as exc:  # the file still says it
             self.log.warning("could not publish a notice: %s", exc)
 
-    def _lookup(self, session: str, run_id: str, model_id: str) -> None:
+    def _lookup(self, owner: Owner, run_id: str, model_id: str) -> None:
         with self._lookup_cv:
-            self._lookups.append((session, run_id, model_id))
+            self._lookups.append((owner, run_id, model_id))
             self._lookup_cv.notify()

@@ -1,5 +1,6 @@
-"""The recordings library: the MCAP files in the recordings folder, as users list, download and upload
-them, and torn files (a recorder killed mid-run) repaired before anything else touches the folder.
+"""The recordings library: the MCAP files in the recordings folder, one folder per user, as each user
+lists, downloads and uploads their own, and torn files (a recorder killed mid-run) repaired before
+anything else touches the folder.
 
 The recording pipeline tells the library which files it is still writing: those are listed with their
 current size, and a download waits briefly for them to be closed.
@@ -28,47 +29,55 @@ MAX_FILE_BYTES = 1 << 30  # largest recording served or accepted over the mesh
 
 
 class RecordingsLibrary:
+    """`<folder>/<user>/<name>.mcap`: each user's recordings, in a folder of their own."""
+
     def __init__(self, folder: str | os.PathLike[str]) -> None:
         self.dir = Path(folder).resolve()
-        self.lock = threading.Condition()  # guards open_names and info_cache
-        self.open_names: dict[str, m.RecordingInfo] = {}
-        self.info_cache: dict[str, tuple[tuple[int, int], m.RecordingInfo | None]] = {}
+        self.lock = threading.Condition()  # guards open_files and info_cache
+        self.open_files: dict[Path, m.RecordingInfo] = {}
+        self.info_cache: dict[Path, tuple[tuple[int, int], m.RecordingInfo | None]] = {}
         self.recovered = 0
 
     # -- files being written --------------------------------------------------------------------------
-    def opened(self, info: m.RecordingInfo) -> None:
+    def opened(self, path: Path, info: m.RecordingInfo) -> None:
         with self.lock:
-            self.open_names[info.name] = info
+            self.open_files[path] = info
 
-    def closed(self, name: str) -> None:
+    def closed(self, path: Path) -> None:
         with self.lock:
-            self.open_names.pop(name, None)
+            self.open_files.pop(path, None)
             self.lock.notify_all()
 
     def writing(self) -> list[str]:
         with self.lock:
-            return sorted(self.open_names)
+            return sorted(f"{p.parent.name}/{i.name}" for p, i in self.open_files.items())
 
-    def free_name(self, base: str) -> str:
-        """`base`, or `base.2`, `base.3`, ... when a file of that name exists already."""
+    def path_of(self, user: str, name: str) -> Path:
+        """Where `user`'s recording `name` is (both checked: one key chunk each)."""
+        try:
+            keys.check_name(user, "user name")
+            keys.check_name(name, "recording name")
+        except keys.KeyProblem as exc:
+            raise RequestError("bad_request", str(exc), "name") from None
+        return self.dir / user / f"{name}.mcap"
+
+    def free_name(self, user: str, base: str) -> str:
+        """`base`, or `base.2`, `base.3`, ... when `user` has a file of that name already."""
         name, k = base, 2
-        while (self.dir / f"{name}.mcap").exists():
+        while self.path_of(user, name).exists():
             name, k = f"{base}.{k}", k + 1
         return name
-
-    def path_of(self, name: str) -> Path:
-        return self.dir / f"{name}.mcap"
 
     # -- crash recovery -------------------------------------------------------------------------------
     def recover_all(self) -> None:
         """Repair every torn file left by a crash; skip files another writer holds locked."""
         self.dir.mkdir(parents=True, exist_ok=True)
-        for tmp in self.dir.glob(".*.tmp"):
+        for tmp in self.dir.glob("*/.*.tmp"):
             try:
                 tmp.unlink()
             except OSError:
                 pass
-        for path in sorted(self.dir.glob("*.mcap")):
+        for path in sorted(self.dir.glob("*/*.mcap")):
             if mcapread.has_footer(path) or _locked(path):
                 continue
             try:
@@ -83,22 +92,14 @@ class RecordingsLibrary:
                 )
 
     # -- serving --------------------------------------------------------------------------------------
-    def _path(self, name: str) -> Path:
-        try:
-            keys.check_name(name, "recording name")
-        except ValueError as exc:
-            raise RequestError("bad_request", str(exc), "name") from None
-        return self.path_of(name)
-
     def _info(self, path: Path) -> m.RecordingInfo | None:
-        name = path.name[: -len(".mcap")]
         with self.lock:
-            writing = self.open_names.get(name)
+            writing = self.open_files.get(path)
         if writing is not None:  # its size grows while the run goes on
             return msgspec.structs.replace(writing, bytes=path.stat().st_size)
         st = path.stat()
         stamp = (st.st_mtime_ns, st.st_size)
-        cached = self.info_cache.get(name)
+        cached = self.info_cache.get(path)
         if cached is not None and cached[0] == stamp:
             return cached[1]
         try:
@@ -107,11 +108,12 @@ class RecordingsLibrary:
             log.warning("not listing %s: %s", path.name, exc)
             info = None
         with self.lock:
-            self.info_cache[name] = (stamp, info)
+            self.info_cache[path] = (stamp, info)
         return info
 
-    def listing(self) -> m.RecordingList:
-        paths = sorted(self.dir.glob("*.mcap"), key=lambda p: p.stat().st_mtime_ns, reverse=True)
+    def listing(self, user: str) -> m.RecordingList:
+        folder = self.path_of(user, "x").parent
+        paths = sorted(folder.glob("*.mcap"), key=lambda p: p.stat().st_mtime_ns, reverse=True)
         out = []
         for p in paths:
             try:
@@ -122,22 +124,22 @@ class RecordingsLibrary:
                 out.append(info)
         return m.RecordingList(out)
 
-    def info(self, name: str) -> m.RecordingInfo:
-        path = self._path(name)
+    def info(self, user: str, name: str) -> m.RecordingInfo:
+        path = self.path_of(user, name)
         if not path.is_file():
-            raise RequestError("not_found", f"no recording {name!r} in {self.dir}", "name")
+            raise RequestError("not_found", f"{user} has no recording {name!r}", "name")
         info = self._info(path)
         if info is None:
             raise RequestError("bad_request", f"{name} is not a readable simecs recording", "name")
         return info
 
-    def download(self, name: str) -> Binary:
-        path = self._path(name)
+    def download(self, user: str, name: str) -> Binary:
+        path = self.path_of(user, name)
         end = time.monotonic() + DOWNLOAD_WAIT_S
         with self.lock:
-            while name in self.open_names and time.monotonic() < end:
+            while path in self.open_files and time.monotonic() < end:
                 self.lock.wait(0.1)
-            if name in self.open_names:
+            if path in self.open_files:
                 raise RequestError(
                     "conflict",
                     f"recording {name} is still being written (its run is going on): "
@@ -145,7 +147,7 @@ class RecordingsLibrary:
                     "name",
                 )
         if not path.is_file():
-            raise RequestError("not_found", f"no recording {name!r} in {self.dir}", "name")
+            raise RequestError("not_found", f"{user} has no recording {name!r}", "name")
         size = path.stat().st_size
         if size > MAX_FILE_BYTES:
             raise RequestError(
@@ -154,8 +156,8 @@ class RecordingsLibrary:
         info = self._info(path)
         return Binary(path.read_bytes(), attachment=info)
 
-    def upload(self, name: str, data: bytes) -> m.RecordingInfo:
-        path = self._path(name)
+    def upload(self, user: str, name: str, data: bytes) -> m.RecordingInfo:
+        path = self.path_of(user, name)
         if len(data) > MAX_FILE_BYTES:
             raise RequestError(
                 "bad_request", f"upload {name}: {len(data)} bytes is more than {MAX_FILE_BYTES}"
@@ -170,12 +172,14 @@ class RecordingsLibrary:
                 "payload",
             ) from None
         with self.lock:
-            if path.exists() or name in self.open_names:
+            if path.exists() or path in self.open_files:
                 raise RequestError(
                     "conflict", f"a recording named {name!r} already exists; choose another name", "name"
                 )
             files.atomic_write(path, data)
-        log.info("stored uploaded recording %s (%d bytes, %d samples)", path.name, len(data), len(rec.rows))
+        log.info(
+            "stored uploaded recording %s of %s (%d bytes, %d samples)", name, user, len(data), len(rec.rows)
+        )
         lay = rec.layout
         return m.RecordingInfo(
             name, lay.session, lay.run_id, lay.model_id, len(data), rec.recovered, lay.stop_time

@@ -20,18 +20,18 @@ from simecs.mesh.config import DEFAULT_HUB, load
 from . import mcapread
 
 
-def put_in_library(client: MeshClient, path: Path, rec: mcapread.Recording) -> str:
-    """The name of `path` in the server's library: the recording already there, or a fresh upload."""
+def put_in_library(client: MeshClient, user: str, path: Path, rec: mcapread.Recording) -> str:
+    """The name of `path` in `user`'s recordings: the recording already there, or a fresh upload."""
     data = path.read_bytes()
     base = keys.name_from_file(path.name)
     for k in range(1, 100):
         name = base if k == 1 else f"{base}.{k}"[:64]
         try:
-            info = client.recording_info(name)
+            info = client.recording_info(user, name)
         except RemoteError as exc:
             if exc.code != "not_found":
                 raise
-            client.upload_recording(name, data)
+            client.upload_recording(user, name, data)
             return name
         if info.bytes == len(data) and (info.session, info.run_id) == (rec.layout.session, rec.layout.run_id):
             return name  # this very file is in the library already
@@ -47,7 +47,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--session", default="", help="replay in this session (same model) instead of a new one"
     )
-    parser.add_argument("--user", default="replay", help="owner of the new session (default replay)")
+    parser.add_argument(
+        "--user", default="replay", help="whose recordings and session: the user name (default replay)"
+    )
     parser.add_argument("--paused", action="store_true", help="start paused (resume from a client)")
     parser.add_argument("--detach", action="store_true", help="return once the replay has started")
     parser.add_argument("--connect", default=None, help=f"hub endpoint (default {DEFAULT_HUB})")
@@ -68,9 +70,9 @@ def main(argv: list[str] | None = None) -> int:
     cfg = load(args.mesh_config).with_overrides(connect=[args.connect] if args.connect else None)
     try:
         with MeshClient.open(cfg, timeout=30.0) as client:
-            name = put_in_library(client, path, rec)
+            name = put_in_library(client, args.user, path, rec)
             if args.session:
-                session = client.session(args.session)
+                session = client.session(args.user, args.session)
             else:
                 session = client.create_session(args.user, rec.layout.model_id)
             run_id = session.replay(name, args.speed, args.paused)

@@ -1,6 +1,6 @@
-"""Full-resolution results on a simulator host's disk: one `.npy` of rows and one `.json` of what they
-are per run, the last `RUNS_KEPT` runs of each session. The worker that ran a run writes it; the
-simulator node serves it.
+"""Full-resolution results on a simulator host's disk, `<folder>/<user>/<session>/`: one `.npy` of rows
+and one `.json` of what they are per run, the last `RUNS_KEPT` runs of each session. The worker that ran
+a run writes it; the simulator node serves it, to the session's user only.
 """
 
 from __future__ import annotations
@@ -36,36 +36,37 @@ class ResultsStore:
     def __init__(self, folder: str | os.PathLike[str]) -> None:
         self.folder = Path(folder)
 
-    def _paths(self, session: str, run_id: str) -> tuple[Path, Path]:
-        keys.check_name(run_id, "run id")
+    def _folder(self, user: str, session: str) -> Path:
+        keys.check_name(user, "user name")
         if not keys.is_session_id(session):
             raise ValueError(f"{session!r:.40} is not a session id")
-        base = self.folder / session
+        return self.folder / user / session
+
+    def _paths(self, user: str, session: str, run_id: str) -> tuple[Path, Path]:
+        keys.check_name(run_id, "run id")
+        base = self._folder(user, session)
         return base / f"{run_id}.npy", base / f"{run_id}.json"
 
-    def save(self, session: str, run: StoredRun, rows: np.ndarray) -> None:
+    def save(self, user: str, session: str, run: StoredRun, rows: np.ndarray) -> None:
         """Store a run's rows and description atomically, then forget the session's oldest runs."""
-        npy, meta = self._paths(session, run.run_id)
+        npy, meta = self._paths(user, session, run.run_id)
         npy.parent.mkdir(parents=True, exist_ok=True)
         tmp = npy.with_name(f".{npy.name}.tmp.npy")
         np.save(tmp, rows)
         os.replace(tmp, npy)
         files.write_json(meta, {**vars(run), "saved": time.time()})
-        self.prune(session)
+        self.prune(user, session)
 
-    def prune(self, session: str) -> None:
-        runs = sorted(self._metas(session), key=lambda p: _run_number(p.stem))
-        for meta in runs[:-RUNS_KEPT]:
+    def prune(self, user: str, session: str) -> None:
+        folder = self._folder(user, session)
+        metas = list(folder.glob("r*.json")) if folder.is_dir() else []
+        for meta in sorted(metas, key=lambda p: _run_number(p.stem))[:-RUNS_KEPT]:
             meta.unlink(missing_ok=True)
             meta.with_suffix(".npy").unlink(missing_ok=True)
 
-    def _metas(self, session: str) -> list[Path]:
-        folder = self.folder / session
-        return list(folder.glob("r*.json")) if folder.is_dir() else []
-
-    def load(self, session: str, run_id: str) -> tuple[StoredRun, np.ndarray] | None:
+    def load(self, user: str, session: str, run_id: str) -> tuple[StoredRun, np.ndarray] | None:
         """A run's description and rows (memory-mapped), or None when this host does not hold it."""
-        npy, meta = self._paths(session, run_id)
+        npy, meta = self._paths(user, session, run_id)
         if not meta.is_file() or not npy.is_file():
             return None
         data: dict[str, Any] = files.read_json(meta)

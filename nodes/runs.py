@@ -44,8 +44,8 @@ class RunTracker:
         self.z = zenoh_session
         self.lock = lock
         self.log = log
-        #: Runs of closed sessions that were told to abort: session id -> run id.
-        self.orphans: dict[str, str] = {}
+        #: Runs of closed sessions that were told to abort: session id -> (user, run id).
+        self.orphans: dict[str, tuple[str, str]] = {}
 
     def request(
         self,
@@ -86,15 +86,15 @@ class RunTracker:
     def handed_over(self, request: m.RunRequest, host: str, hosts: list[str], errors: list[str]) -> None:
         """Admission's outcome of handing a run to a simulator host (called with the lock held)."""
         sid, run_id = request.session, request.run_id
-        rec = self.store.records.get(sid)
+        rec = self.store.owned(request.user, sid)
         if rec is None or rec.abort_run == run_id:
             if host:  # aborted or closed while it was being handed over: stop it at once
                 self.log.info(
                     "session %s run %s started on %s after its abort: aborting it", sid, run_id, host
                 )
                 if rec is None:
-                    self.orphans[sid] = run_id
-                self.send_control(sid, run_id, "abort")
+                    self.orphans[sid] = (request.user, run_id)
+                self.send_control(request.user, sid, run_id, "abort")
             return
         if rec.state.run_id != run_id:
             return
@@ -129,10 +129,11 @@ class RunTracker:
     def control(self, rec: SessionRecord, op: str, at: float = 0.0) -> None:
         if op == "abort":
             rec.abort_run = rec.state.run_id
-        self.send_control(rec.id, rec.state.run_id, op, at)
+        self.send_control(rec.user, rec.id, rec.state.run_id, op, at)
 
-    def send_control(self, sid: str, run_id: str, op: str, at: float = 0.0) -> None:
-        self.z().put(keys.control(sid), codec.dumps(m.RunControl(op=op, run_id=run_id, time=at)))  # type: ignore[arg-type]
+    def send_control(self, user: str, sid: str, run_id: str, op: str, at: float = 0.0) -> None:
+        control = m.RunControl(op=op, run_id=run_id, time=at)  # type: ignore[arg-type]
+        self.z().put(keys.control(user, sid), codec.dumps(control))
 
     def pause(self, rec: SessionRecord, cmd: m.Pause) -> str:
         self.control(rec, "pause")
@@ -189,7 +190,9 @@ class RunTracker:
         """A run that ended while the proxy was down: its stored results tell how it ended."""
         run_id = rec.state.run_id
         try:
-            selector = keys.results(rec.id, run_id) + "?t0=-1;t1=-1"  # no rows: the description only
+            selector = (
+                keys.results(rec.user, rec.id, run_id) + "?t0=-1;t1=-1"
+            )  # no rows: the description only
             _, att = MeshClient(self.z(), timeout=3.0).request_binary(selector, m.ResultsAttachment)
             info: m.RunInfo = att.run
         except (RemoteError, NoReply, codec.DecodeError, zenoh.ZError, AttributeError):
@@ -200,16 +203,20 @@ class RunTracker:
         self.end_run(rec, info.phase if info.phase in phases.ENDED else "failed", info.reason)
 
     # -- reports from workers ------------------------------------------------------------------------
-    def on_run_status(self, st: m.RunStatus) -> None:
+    def on_run_status(self, st: m.RunStatus, key: str) -> None:
+        user, sid = keys.owner_of(key)
+        if st.session != sid:
+            log.warning("ignoring a run status of session %s published under %s", st.session, key)
+            return
         with self.lock:
-            rec = self.store.records.get(st.session)
+            rec = self.store.owned(user, sid)
             if st.phase not in phases.ENDED and (
                 (rec is not None and rec.abort_run == st.run_id)
-                or (rec is None and self.orphans.get(st.session) == st.run_id)
+                or (rec is None and self.orphans.get(sid) == (user, st.run_id))
             ):
-                self.send_control(st.session, st.run_id, "abort")  # in case the first was missed
-            if st.phase in phases.ENDED and self.orphans.get(st.session) == st.run_id:
-                del self.orphans[st.session]
+                self.send_control(user, sid, st.run_id, "abort")  # in case the first was missed
+            if st.phase in phases.ENDED and self.orphans.get(sid) == (user, st.run_id):
+                del self.orphans[sid]
             if rec is None or rec.state.run_id != st.run_id or rec.phase not in phases.UNDER_WAY:
                 return
             progress = min(1.0, st.sim_time / st.stop_time) if st.stop_time > 0 else 0.0
@@ -233,10 +240,11 @@ class RunTracker:
             if not changed:
                 self.store.publish_state(rec, persist=False)
 
-    def on_notice(self, notice: m.Notice) -> None:
+    def on_notice(self, notice: m.Notice, key: str) -> None:
+        user, sid = keys.owner_of(key)
         with self.lock:
-            rec = self.store.records.get(notice.session)
-            if rec is None or rec.state.run_id != notice.run_id:
+            rec = self.store.owned(user, sid)
+            if rec is None or notice.session != sid or rec.state.run_id != notice.run_id:
                 return
             text = f"{notice.source}: {notice.message}"
             if text not in rec.state.warnings and len(rec.state.warnings) < MAX_WARNINGS:
@@ -250,12 +258,12 @@ class RunTracker:
             token = keys.parse("run_token", sample.key_expr)
         except ValueError:
             return
-        sid, run_id = token["session"], token["run"]
+        user, sid, run_id = token["user"], token["session"], token["run"]
         # The worker's last RunStatus may still be on its way (another channel than liveliness):
         # give it a moment before calling the run lost. Still well within the 1 s promise.
         time.sleep(LAST_REPORT_GRACE_S)
         with self.lock:
-            rec = self.store.records.get(sid)
+            rec = self.store.owned(user, sid)
             if rec is None or rec.state.run_id != run_id or rec.phase not in phases.GOING:
                 return
             self.end_run(

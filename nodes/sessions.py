@@ -128,8 +128,8 @@ class SessionStore:
     # -- lifecycle -----------------------------------------------------------------------------------
     def _add(self, rec: SessionRecord) -> None:
         self.records[rec.id] = rec
-        rec.pubs["state"] = self._publisher(keys.state(rec.id))
-        rec.pubs["params"] = self._publisher(keys.params(rec.id))
+        rec.pubs["state"] = self._publisher(keys.state(rec.user, rec.id))
+        rec.pubs["params"] = self._publisher(keys.params(rec.user, rec.id))
 
     def create(self, user: str, desc: ModelDescription) -> SessionRecord:
         sid = keys.new_session_id()
@@ -149,15 +149,19 @@ class SessionStore:
         return rec
 
     def get(self, key: str) -> SessionRecord:
-        """The session a per-session key names."""
-        try:
-            sid = keys.session_of(key)
-        except ValueError as exc:
-            raise RequestError("bad_request", str(exc), "session") from None
-        rec = self.records.get(sid)
+        """The session a per-session key names; its user must be the one in the key (a session of
+        another user is as unknown as one that never existed)."""
+        user, sid = keys.owner_of(key)
+        rec = self.owned(user, sid)
         if rec is None:
-            raise RequestError("not_found", f"no session {sid} (closed, or never created)", "session")
+            raise RequestError(
+                "not_found", f"{user} has no session {sid} (closed, or never created)", "session"
+            )
         return rec
+
+    def owned(self, user: str, sid: str) -> SessionRecord | None:
+        rec = self.records.get(sid)
+        return rec if rec is not None and rec.user == user else None
 
     def close(self, rec: SessionRecord) -> None:
         """The user's explicit end of a session: its file goes (parameter sets and results stay)."""

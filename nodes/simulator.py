@@ -139,10 +139,10 @@ class Simulator(Node):
 
         The proxy ignores this if the worker's own final status or the loss of its token came first.
         """
-        session, run_id = key.split(" ")
+        user, session, run_id = key.split(" ")
         reason = f"the simulator process of run {run_id} disappeared (exit code {code})"
         status = m.RunStatus(session=session, run_id=run_id, phase="failed", reason=reason)
-        self.z.put(keys.run_status(session), codec.dumps(status))
+        self.z.put(keys.run_status(user, session), codec.dumps(status))
 
     def _on_run(self, req: Request) -> m.Accepted:
         run = req.json(m.RunRequest)
@@ -161,7 +161,7 @@ class Simulator(Node):
                 proc.stdin.close()
             except OSError as exc:
                 raise RequestError("internal", f"worker process could not take the run: {exc}") from None
-            key = f"{run.session} {run.run_id}"
+            key = f"{run.user} {run.session} {run.run_id}"
             self.busy[key] = proc
             if run.settings.pacing == "fast":
                 self.fast.add(key)
@@ -190,7 +190,7 @@ class Simulator(Node):
             where = keys.parse("results", req.key)
         except ValueError:
             raise NotMine() from None
-        found = self.store.load(where["session"], where["run"])
+        found = self.store.load(where["user"], where["session"], where["run"])
         if found is None:
             raise NotMine()
         run, data = found

@@ -99,7 +99,7 @@ class RecordingSource:
 
     def __init__(self, req: m.RunRequest, client: MeshClient) -> None:
         try:
-            data = client.download_recording(req.recording, timeout=60.0)
+            data = client.download_recording(req.user, req.recording, timeout=60.0)
         except RemoteError as exc:
             raise ValueError(f"recording {req.recording}: {exc.error.message}") from None
         except NoReply:

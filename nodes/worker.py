@@ -89,16 +89,16 @@ class Run:
         self.source: RunSource | None = None
         self.sim_time = 0.0
         self.rtf = 0.0
-        s = req.session
+        u, s = req.user, req.session
         self.full = z.declare_publisher(
-            keys.vars_full(s), congestion_control=zenoh.CongestionControl.BLOCK, express=True
+            keys.vars_full(u, s), congestion_control=zenoh.CongestionControl.BLOCK, express=True
         )
-        self.status_pub = z.declare_publisher(keys.run_status(s))
+        self.status_pub = z.declare_publisher(keys.run_status(u, s))
         self.layout_pub = zenoh.ext.declare_advanced_publisher(
-            z, keys.layout(s), cache=zenoh.ext.CacheConfig(1), publisher_detection=True
+            z, keys.layout(u, s), cache=zenoh.ext.CacheConfig(1), publisher_detection=True
         )
-        self.control_sub = z.declare_subscriber(keys.control(s), self.control.on_sample)
-        self.token = z.liveliness().declare_token(keys.run_token(s, req.run_id))
+        self.control_sub = z.declare_subscriber(keys.control(u, s), self.control.on_sample)
+        self.token = z.liveliness().declare_token(keys.run_token(u, s, req.run_id))
         self.seq = 0
         self.final_sent = False
 
@@ -228,7 +228,7 @@ class Run:
             units=list(source.units) if source is not None else ["s"],
             model_id=self.req.model_id,
         )
-        self.store.save(self.req.session, run, data)
+        self.store.save(self.req.user, self.req.session, run, data)
         self.samples = run.samples
 
     def close(self) -> None:

@@ -15,6 +15,7 @@ from simecs.mesh.config import MeshConfig
 from simecs.nodes.hotfeedback import HotFeedback
 
 SID = keys.new_session_id()
+USER = "ann"
 COLS = ["time", "joint1.q", "joint1.qd"]
 
 
@@ -55,13 +56,13 @@ def node(rate_hz: float = 10.0) -> tuple[HotFeedback, Publisher, m.RunLayout]:
 
 
 def layout_sample(layout: m.RunLayout) -> Sample:
-    return Sample(keys.layout(SID), codec.dumps(layout))
+    return Sample(keys.layout(USER, SID), codec.dumps(layout))
 
 
 def frame_sample(seq: int, t: float, final: bool = False, rows: int = 1) -> Sample:
     data = np.array([[t - (rows - 1 - k) * 0.01, 0.1 * t, 1.0] for k in range(rows)]).reshape(rows, 3)
     fr = frames.Frame(1, seq, time.time_ns(), data, frames.FLAG_FINAL if final else 0)
-    return Sample(keys.vars_full(SID), frames.encode(fr))
+    return Sample(keys.vars_full(USER, SID), frames.encode(fr))
 
 
 def test_frames_that_come_before_their_layout_are_not_lost() -> None:
@@ -91,7 +92,7 @@ def test_an_aborted_run_ends_with_an_empty_final_frame_not_a_stale_sample() -> N
     hf._on_full(frame_sample(0, 0.0))  # type: ignore[arg-type]
     hf._on_full(frame_sample(1, 0.02))  # held back by the 1 Hz limit
     empty = frames.Frame(1, 2, time.time_ns(), np.empty((0, len(COLS))), frames.FLAG_FINAL)
-    hf._on_full(Sample(keys.vars_full(SID), frames.encode(empty)))  # type: ignore[arg-type]
+    hf._on_full(Sample(keys.vars_full(USER, SID), frames.encode(empty)))  # type: ignore[arg-type]
     last = pub.sent[-1][1]
     assert last.final and last.rows.shape[0] == 0
     assert COLS[0] == columns.TIME

@@ -15,7 +15,15 @@ def test_session_ids_are_unguessable_and_valid() -> None:
 @pytest.mark.parametrize("bad", ["", "*", "**", "a/b", "$*", "@node", "x" * 22 + "/", "short"])
 def test_session_keys_refuse_bad_ids(bad: str) -> None:
     with pytest.raises(ValueError):
-        keys.cmd(bad)
+        keys.cmd("ann", bad)
+
+
+@pytest.mark.parametrize("bad", ["", "*", "**", "a/b", "$*", "@run", "ann bob", "x" * 65])
+def test_user_keys_refuse_bad_user_names(bad: str) -> None:
+    sid = keys.new_session_id()
+    for build in (lambda: keys.cmd(bad, sid), lambda: keys.sessions(bad), lambda: keys.user_space(bad)):
+        with pytest.raises(ValueError):
+            build()
 
 
 @pytest.mark.parametrize("bad", ["", "*", "a/b", "../x", "-x", "x" * 65, "a b"])
@@ -24,17 +32,21 @@ def test_names_refuse_wildcards_and_paths(bad: str) -> None:
         keys.model(bad)
 
 
-def test_session_of_parses_back() -> None:
+def test_owner_of_parses_back() -> None:
     sid = keys.new_session_id()
-    for key in (keys.cmd(sid), keys.state(sid), keys.vars_full(sid), keys.results(sid, "r3")):
-        assert keys.session_of(key) == sid
-    with pytest.raises(ValueError):
-        keys.session_of(keys.LIBRARY)
+    built = (keys.cmd, keys.state, keys.vars_full, lambda u, s: keys.results(u, s, "r3"))
+    for key in (build("ann", sid) for build in built):
+        assert keys.owner_of(key) == ("ann", sid)
+        assert key.startswith(keys.user_space("ann")[:-2])
+    others = (keys.LIBRARY, keys.sessions("ann"), keys.recording("ann", "x"), "simecs/u/*/sessions/x")
+    for not_per_session in others:
+        with pytest.raises(ValueError):
+            keys.owner_of(not_per_session)
 
 
 def test_liveliness_tokens_are_under_at_chunks() -> None:
     assert "/@node/" in keys.node_token("proxy", "p1")
-    assert "/@run/" in keys.run_token(keys.new_session_id(), "r1")
+    assert "/@run/" in keys.run_token("ann", keys.new_session_id(), "r1")
 
 
 def test_defaults_are_safe() -> None:

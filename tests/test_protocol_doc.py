@@ -35,6 +35,7 @@ def test_every_message_type_is_in_the_document_once() -> None:
 def test_every_key_of_the_table_is_built_and_parsed_by_the_table() -> None:
     sid = keys.new_session_id()
     chunks = {
+        "user": "ann",
         "session": sid,
         "model": "m0",
         "page": "p0",

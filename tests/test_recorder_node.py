@@ -18,7 +18,15 @@ from simecs.nodes import mcapfmt as fmt
 from simecs.nodes import mcapread
 
 from .conftest import Mesh, start_service, wait_until
-from .test_recorder_support import FakeProxy, FakeRun, arm_model, check_file, make_rows, wait_file_closed
+from .test_recorder_support import (
+    USER,
+    FakeProxy,
+    FakeRun,
+    arm_model,
+    check_file,
+    make_rows,
+    wait_file_closed,
+)
 
 SID = "Rec0rderTestSess10n-Ab"
 
@@ -37,7 +45,7 @@ def test_published_run_is_recorded_listed_downloaded_uploaded(mesh: Mesh) -> Non
         for k in range(30):
             run.frame(rows[k * 10 : (k + 1) * 10], final=k == 29)
         run.state("finished", float(rows[-1, 0]))
-        path = rec_dir / f"{keys.recording_name(SID, 'r1')}.mcap"
+        path = rec_dir / USER / f"{keys.recording_name(SID, 'r1')}.mcap"
         wait_file_closed(path)
     finally:
         run.close()
@@ -54,29 +62,29 @@ def test_published_run_is_recorded_listed_downloaded_uploaded(mesh: Mesh) -> Non
     assert any("recording started" in t for t in texts) and any("finished" in t for t in texts)
 
     name = path.stem
-    listed = {r.name: r for r in client.recordings()}
+    listed = {r.name: r for r in client.recordings(USER)}
     assert listed[name].session == SID and listed[name].run_id == "r1" and not listed[name].recovered
-    data, att = client.request_binary(keys.recording(name), m.RecordingInfo)
+    data, att = client.request_binary(keys.recording(USER, name), m.RecordingInfo)
     assert data == path.read_bytes() and att.name == name
-    assert client.recording_info(name) == att
+    assert client.recording_info(USER, name) == att
 
-    info = client.upload_recording("uploaded-copy", data)
-    assert info.name == "uploaded-copy" and (rec_dir / "uploaded-copy.mcap").read_bytes() == data
+    info = client.upload_recording(USER, "uploaded-copy", data)
+    assert info.name == "uploaded-copy" and (rec_dir / USER / "uploaded-copy.mcap").read_bytes() == data
     with pytest.raises(RemoteError, match="already exists") as err:
-        client.request(keys.recording("uploaded-copy"), data)
+        client.request(keys.recording(USER, "uploaded-copy"), data)
     assert err.value.code == "conflict"
     with pytest.raises(RemoteError, match="not an MCAP file") as err:
-        client.request(keys.recording("junk"), b"PK\x03\x04 a zip file, not a recording")
+        client.request(keys.recording(USER, "junk"), b"PK\x03\x04 a zip file, not a recording")
     assert err.value.code == "bad_request"
     with pytest.raises(RemoteError, match="incomplete MCAP"):
-        client.request(keys.recording("torn"), data[: len(data) // 2])
+        client.request(keys.recording(USER, "torn"), data[: len(data) // 2])
     with pytest.raises(RemoteError) as err:
-        client.request_binary(keys.recording("nosuch"), m.RecordingInfo)
+        client.request_binary(keys.recording(USER, "nosuch"), m.RecordingInfo)
     assert err.value.code == "not_found"
     with pytest.raises(RemoteError) as err:
-        client.recording_info("nosuch")
+        client.recording_info(USER, "nosuch")
     assert err.value.code == "not_found" and err.value.field == "name"
-    assert not (rec_dir / "junk.mcap").exists() and not (rec_dir / "torn.mcap").exists()
+    assert not (rec_dir / USER / "junk.mcap").exists() and not (rec_dir / USER / "torn.mcap").exists()
 
 
 def test_sigkill_mid_run_keeps_everything_up_to_the_last_flush(mesh: Mesh) -> None:
@@ -95,14 +103,14 @@ def test_sigkill_mid_run_keeps_everything_up_to_the_last_flush(mesh: Mesh) -> No
             time.sleep(0.02)
         mesh.stop("recorder", signal.SIGKILL)
         killed = time.monotonic()
-        path = rec_dir / f"{keys.recording_name(SID, 'r1')}.mcap"
+        path = rec_dir / USER / f"{keys.recording_name(SID, 'r1')}.mcap"
         assert path.exists() and not mcapread.has_footer(path)
         mesh.start("recorder", "--dir", str(rec_dir), name="recorder2")
         wait_until(lambda: mcapread.has_footer(path), 15, what="recovery at start")
         # The run goes on: the restarted recorder continues it in a second file.
         for k in range(120, 150):
             run.frame(rows[k * 10 : (k + 1) * 10], final=k == 149)
-        cont = rec_dir / f"{path.stem}.2.mcap"
+        cont = path.parent / f"{path.stem}.2.mcap"
         wait_file_closed(cont)
     finally:
         run.close()
@@ -112,8 +120,8 @@ def test_sigkill_mid_run_keeps_everything_up_to_the_last_flush(mesh: Mesh) -> No
     assert len(rec.rows) >= flushed_by, (len(rec.rows), flushed_by)
     assert np.array_equal(rec.rows, rows[: len(rec.rows)])
     assert any("recovered" in log["message"] for log in rec.logs)
-    assert client.recordings()[0].name in (path.stem, cont.stem)
-    assert {r.name: r.recovered for r in client.recordings()}[path.stem] is True
+    assert client.recordings(USER)[0].name in (path.stem, cont.stem)
+    assert {r.name: r.recovered for r in client.recordings(USER)}[path.stem] is True
     _v2, rec2 = check_file(cont)
     assert rec2.metadata[fmt.META_RUN]["continues"] == path.stem
     assert np.array_equal(rec2.rows[-300:], rows[1200:1500])
@@ -126,14 +134,14 @@ def test_real_run_leaves_a_valid_recording(mesh: Mesh) -> None:
     rec_dir = mesh.folder / "rec"
     mesh.start("recorder", "--dir", str(rec_dir))
     client = service.client
-    s = client.create_session("tester", "spider")
+    s = client.create_session(USER, "spider")
     s.set_settings(stop_time=0.5, output_interval=0.002, pacing="fast")
     from simecs.models.spider import STANDARD_TARGET
 
     s.set_joint_path([(list(STANDARD_TARGET), 100.0, 100.0)])
     run_id = s.run()
     s.wait_for(["finished", "failed", "aborted"], 90, run_id)
-    path = rec_dir / f"{keys.recording_name(s.id, run_id)}.mcap"
+    path = rec_dir / USER / f"{keys.recording_name(s.id, run_id)}.mcap"
     wait_file_closed(path)
     v, rec = check_file(path)
     columns, results = s.results(run_id)
@@ -151,8 +159,8 @@ def test_real_run_leaves_a_valid_recording(mesh: Mesh) -> None:
     ids = {e["id"] for e in json.loads(scene.data)["entities"]}
     assert {f"link{i}" for i in range(1, 8)} <= ids
     name = path.stem
-    assert name in {r.name for r in client.recordings()}
-    data = client.download_recording(name)
+    assert name in {r.name for r in client.recordings(USER)}
+    data = client.download_recording(USER, name)
     assert mcapread.validate(data).messages == v.messages
 
 
@@ -177,7 +185,7 @@ def test_aborted_run_and_dropped_frames_are_marked_in_the_file(mesh: Mesh) -> No
             run.frame(rows[k * 10 : (k + 1) * 10])
         run.frame(np.empty((0, rows.shape[1])), final=True)  # how a worker ends an aborted run
         run.state("aborted", float(rows[-1, 0]), "aborted by the user")
-        path = rec_dir / f"{keys.recording_name(SID, 'r1')}.mcap"
+        path = rec_dir / USER / f"{keys.recording_name(SID, 'r1')}.mcap"
         wait_file_closed(path)
         wait_until(lambda: statuses and statuses[-1]["detail"]["dropped_frames"] > 0, 10, what="status")
     finally:
@@ -205,7 +213,7 @@ def test_frames_lost_on_the_way_show_as_a_gap(mesh: Mesh) -> None:
     rows = make_rows(arm_model(), 70)
     notices: list[m.Notice] = []
     sub = client.z.declare_subscriber(
-        keys.notices(SID), lambda s: notices.append(codec.loads(m.Notice, s.payload.to_bytes()))
+        keys.notices(USER, SID), lambda s: notices.append(codec.loads(m.Notice, s.payload.to_bytes()))
     )
     try:
         run.announce()
@@ -215,7 +223,7 @@ def test_frames_lost_on_the_way_show_as_a_gap(mesh: Mesh) -> None:
                 run.seq += 1  # lost between the simulator and the recorder
                 continue
             run.frame(rows[k * 10 : (k + 1) * 10], final=k == 6)
-        path = rec_dir / f"{keys.recording_name(SID, 'r1')}.mcap"
+        path = rec_dir / USER / f"{keys.recording_name(SID, 'r1')}.mcap"
         wait_file_closed(path)
     finally:
         run.close()

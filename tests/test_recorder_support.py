@@ -28,6 +28,7 @@ from simecs.nodes import mcapfmt as fmt
 from simecs.nodes import mcapread
 
 MODEL_ID = "testarm"
+USER = "ann"  # whose sessions the fake runs are (the recorder files them under recordings/ann/)
 
 
 def arm_model() -> ModelDescription:
@@ -121,16 +122,19 @@ def layout_for(session: str, run_id: str = "r1", run_index: int = 1, stop_time: 
 class FakeRun:
     """Publishes one run as a simulator worker does."""
 
-    def __init__(self, z: zenoh.Session, session: str, run_id: str = "r1", run_index: int = 1) -> None:
+    def __init__(
+        self, z: zenoh.Session, session: str, run_id: str = "r1", run_index: int = 1, user: str = USER
+    ) -> None:
         self.z = z
+        self.user = user
         self.layout = layout_for(session, run_id, run_index)
         self.layout_pub = zenoh.ext.declare_advanced_publisher(
-            z, keys.layout(session), cache=zenoh.ext.CacheConfig(1), publisher_detection=True
+            z, keys.layout(user, session), cache=zenoh.ext.CacheConfig(1), publisher_detection=True
         )
         self.full = z.declare_publisher(
-            keys.vars_full(session), congestion_control=zenoh.CongestionControl.BLOCK
+            keys.vars_full(user, session), congestion_control=zenoh.CongestionControl.BLOCK
         )
-        self.token = z.liveliness().declare_token(keys.run_token(session, run_id))
+        self.token = z.liveliness().declare_token(keys.run_token(user, session, run_id))
         self.seq = 0
         self.sent: list[frames.Frame] = []
 
@@ -150,7 +154,7 @@ class FakeRun:
         st = m.SessionState(
             self.layout.session, phase, run_id=self.layout.run_id, sim_time=sim_time, reason=reason
         )  # type: ignore[arg-type]
-        self.z.put(keys.state(self.layout.session), codec.dumps(st))
+        self.z.put(keys.state(self.user, self.layout.session), codec.dumps(st))
 
     def close(self) -> None:
         for e in (self.layout_pub, self.full, self.token):

@@ -61,7 +61,7 @@ def record_a_run(
         wait_until(lambda: s.snapshot().state.sim_time > abort_at, timeout=30, what="run under way")
         s.abort()
     s.wait_for(list(("finished", "aborted", "failed")), 60, run_id)
-    path = mesh.folder / "rec" / f"{keys.recording_name(s.id, run_id)}.mcap"
+    path = mesh.folder / "rec" / s.user / f"{keys.recording_name(s.id, run_id)}.mcap"
     wait_file_closed(path)
     return s, path
 
@@ -128,7 +128,7 @@ def test_a_replay_is_a_run_of_the_session_paced_paused_and_sought(recording_serv
     finally:
         col.close()
     # The recorder did not record the replays as new runs.
-    assert sorted(p.name for p in (mesh.folder / "rec").glob("*.mcap")) == [path.name]
+    assert sorted(p.name for p in (mesh.folder / "rec").glob("*/*.mcap")) == [path.name]
 
 
 def test_a_replay_ends_as_its_recording_did_and_can_be_aborted(recording_service: Mesh) -> None:
@@ -193,11 +193,11 @@ def test_replay_cli_uploads_and_plays_as_fast_as_possible(recording_service: Mes
     assert out.returncode == 0, out.stdout + out.stderr
     assert "(recording kept_run)" in out.stdout and "run r1 finished" in out.stdout
     sid = out.stdout.split(" as session ", 1)[1].split()[0]
-    replayed = client.session(sid)
+    replayed = client.session("replay", sid)
     _cols, rows = replayed.results("r1")
     assert np.array_equal(rows, mcapread.load(path).rows)
-    assert client.recording_info("kept_run").bytes == path.stat().st_size
-    # The library's own file is not uploaded again.
+    assert client.recording_info("replay", "kept_run").bytes == path.stat().st_size
+    # The user's own file in the library is not uploaded again.
     again = subprocess.run(
         [
             sys.executable,
@@ -207,6 +207,8 @@ def test_replay_cli_uploads_and_plays_as_fast_as_possible(recording_service: Mes
             "--speed",
             "0",
             "--detach",
+            "--user",
+            "ann",
             "--connect",
             mesh.endpoint,
         ],

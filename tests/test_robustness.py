@@ -76,7 +76,7 @@ def test_concurrent_commands_are_applied_whole(service: Service) -> None:
 def test_a_flood_of_bad_commands_leaves_the_proxy_serving(service: Service) -> None:
     client = service.client
     s = client.create_session("ann", "spider")
-    key = keys.cmd(s.id)
+    key = keys.cmd(s.user, s.id)
     payloads = [b"{", b'{"op":"set_params","values":{"x":1}}', b'{"op":"run"}', b"\xff" * 1000]
 
     def flood(i: int) -> int:

@@ -20,7 +20,7 @@ VIEWER_ACL = {
             "messages": ["query", "put"],
             "flows": ["ingress", "egress"],
             "permission": "deny",
-            "key_exprs": ["simecs/*/cmd", "simecs/*/control", "simecs/*/jog"],
+            "key_exprs": [f"simecs/u/*/sessions/*/{k}" for k in ("cmd", "control", "jog")],
         }
     ],
     "subjects": [{"id": "viewers", "usernames": ["watcher"]}],
@@ -76,11 +76,11 @@ def test_a_viewer_watches_but_cannot_command(secured: LocalMesh) -> None:
                 states.append(st)
                 seen.set()
 
-            with watcher.session(session.id).watch(on_state=on_state):
+            with watcher.session("ann", session.id).watch(on_state=on_state):
                 assert seen.wait(5.0), "the viewer role may subscribe to state"
                 with pytest.raises(NoReply):
-                    watcher.session(session.id).set_params({"joint1.ctrl.kp_pos": 1.0})
+                    watcher.session("ann", session.id).set_params({"joint1.ctrl.kp_pos": 1.0})
                 with pytest.raises(NoReply):
-                    watcher.session(session.id).snapshot()
+                    watcher.session("ann", session.id).snapshot()
             assert states[-1].session == session.id
         assert session.snapshot().values["joint1.ctrl.kp_pos"] == 42.0

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from simecs.mesh import codec, frames, keys
 from simecs.mesh import messages as m
-from simecs.mesh.client import RemoteError, SessionClient
+from simecs.mesh.client import NoReply, RemoteError, SessionClient
 
 from .conftest import Mesh, Service, start_service, wait_until
 
@@ -107,10 +107,24 @@ def test_two_sessions_are_isolated(service: Service) -> None:
     rec_b.close()
     assert sum(f.rows.shape[0] for f in rec_a.full) == 151
     assert sum(f.rows.shape[0] for f in rec_b.full) == 101
-    # Commands naming the other session's run are refused; a foreign session id is unknown.
+    # A foreign session id is unknown; so is ann's session under bob's keys (a session is reached
+    # only under its own user's keys), and bob's list and results never show ann's.
     with pytest.raises(RemoteError) as err:
-        c.session(keys.new_session_id()).snapshot()
+        c.session("ann", keys.new_session_id()).snapshot()
     assert err.value.code == "not_found"
+    for request in (
+        lambda s: s.snapshot(),
+        lambda s: s.abort(),
+        lambda s: s.set_params({}),
+        lambda s: s.runs(),
+    ):
+        with pytest.raises(RemoteError) as err:
+            request(c.session("bob", a.id))
+        assert err.value.code == "not_found" and "bob has no session" in err.value.error.message
+    assert [e.session for e in c.list_sessions("bob")] == [b.id]
+    with pytest.raises((RemoteError, NoReply)):  # nobody holds results of bob's (unknown) session
+        c.session("bob", a.id).results(ra)
+    assert a.snapshot().state.phase == "finished"
 
 
 def test_pause_resume_abort_within_a_chunk(service: Service) -> None:
@@ -198,7 +212,7 @@ def test_a_first_run_starts_at_once_and_the_session_keeps_its_last_ten_runs(serv
         s.results("r2")
     assert err.value.code == "not_found" and "r3" in err.value.error.message
     assert s.results("r3")[1].shape[0] > 0
-    folder = service.data_dir / "results" / s.id
+    folder = service.data_dir / "results" / s.user / s.id
     assert sorted(p.name for p in folder.glob("*.npy")) == sorted(f"r{i}.npy" for i in range(3, 13))
 
 
@@ -217,7 +231,7 @@ def test_results_selectors_are_strict(service: Service) -> None:
         ("every=0", "every"),
         ("vars=nope", "vars"),
     ):
-        replies = list(c.z.get(f"{keys.results(s.id, run_id)}?{selector}", timeout=5))
+        replies = list(c.z.get(f"{keys.results(s.user, s.id, run_id)}?{selector}", timeout=5))
         assert len(replies) == 1 and replies[0].err is not None, selector
         err = codec.loads(m.Error, replies[0].err.payload.to_bytes())
         assert (err.code, err.field) == ("bad_request", field), (selector, err)
@@ -237,7 +251,7 @@ def test_parameter_sets_and_sessions_survive_a_restart_of_every_node(mesh: Mesh)
     mesh.start_hub()
     start_service(mesh)
     c = mesh.client()
-    back = c.session(s.id).snapshot()
+    back = c.session(s.user, s.id).snapshot()
     assert back.values == values and back.initial[0] == 0.1
     other = c.create_session("ann", "spider")
     assert other.list_param_sets() == ["stiff"]
@@ -348,7 +362,8 @@ def test_abort_while_a_run_is_being_handed_over_stops_it(service: Service) -> No
     prepare(s, stop_time=5.0, pacing="realtime")
     reports: list[m.RunStatus] = []
     sub = c.z.declare_subscriber(
-        keys.run_status(s.id), lambda smp: reports.append(codec.loads(m.RunStatus, smp.payload.to_bytes()))
+        keys.run_status(s.user, s.id),
+        lambda smp: reports.append(codec.loads(m.RunStatus, smp.payload.to_bytes())),
     )
     sim = service.mesh.procs["simulator"]
     os.kill(sim.pid, signal.SIGSTOP)  # the hand-over waits for it (within its 1 s lease)
@@ -409,7 +424,7 @@ def test_hostile_payloads_get_errors_naming_the_field_and_nodes_survive(
 ) -> None:
     c = service.client
     s = c.create_session("ann", "spider")
-    for key in (keys.cmd(s.id), keys.SESSIONS, keys.simulator_run("simulator-t")):
+    for key in (keys.cmd(s.user, s.id), keys.sessions("ann"), keys.simulator_run("simulator-t")):
         replies = list(c.z.get(key, payload=payload or None, timeout=5))
         assert len(replies) == 1 and replies[0].err is not None
         err = codec.loads(m.Error, replies[0].err.payload.to_bytes())
@@ -457,9 +472,9 @@ def test_notices_about_a_run_reach_its_state(service: Service) -> None:
     s.wait_for(["running"], 30, run_id)
     notice = m.Notice(session=s.id, run_id=run_id, source="recorder", message="dropped samples")
     for _ in range(2):  # the same notice twice is listed once
-        c.z.put(keys.notices(s.id), codec.dumps(notice))
-    c.z.put(keys.notices(s.id), codec.dumps(m.Notice(s.id, "r99", "recorder", "another run")))
-    c.z.put(keys.notices(s.id), b"not json")  # refused, logged, nothing else happens
+        c.z.put(keys.notices(s.user, s.id), codec.dumps(notice))
+    c.z.put(keys.notices(s.user, s.id), codec.dumps(m.Notice(s.id, "r99", "recorder", "another run")))
+    c.z.put(keys.notices(s.user, s.id), b"not json")  # refused, logged, nothing else happens
     wait_until(lambda: s.snapshot().state.warnings, what="warning in state")
     assert s.wait_for(["finished"], 30, run_id).warnings == ["recorder: dropped samples"]
     prepare(s, stop_time=0.1)

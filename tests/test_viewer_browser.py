@@ -132,7 +132,7 @@ def use_case(mesh: Mesh, browser: Any) -> None:
     page.get_by_role("button", name=SPIDER).click()
     text_appears(page, "Spider arm (joint-independent control)")
     sid = wait_until(lambda: next(iter(sessions_of(client)), None), timeout=20, what="a session")
-    session = client.session(sid)
+    session = client.session(USER, sid)
     assert session.snapshot().model_id == "spider"
 
     # 2. parameters in place: a valid length reshapes the arm at once; an invalid mass is refused
@@ -270,8 +270,9 @@ def two_tabs(mesh: Mesh, browser: Any) -> None:
 
     a.get_by_role("button", name="link3 (3)").click()
     chromium.set_field(a, a.get_by_label("length [m]"), "0.9")
-    wait_until(lambda: client.session(sid_a).snapshot().values["link3.length"] == 0.9, timeout=10, what="A")
-    assert client.session(sid_b).snapshot().values["link3.length"] == 0.7
+    length_a = lambda: client.session(USER, sid_a).snapshot().values["link3.length"]  # noqa: E731
+    wait_until(lambda: length_a() == 0.9, timeout=10, what="A")
+    assert client.session(USER, sid_b).snapshot().values["link3.length"] == 0.7
 
     # each tab keeps its own session over a reload (the other tab is still open)
     b.reload()

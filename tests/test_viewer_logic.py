@@ -257,16 +257,19 @@ class FakeMesh:
         return [
             m.SessionEntry(s.id, s.snap.model_id, s.snap.state.phase)
             for s in self.sessions.values()
-            if s.snap
+            if s.snap and s.snap.user == user
         ]
 
-    def session(self, sid: str) -> FakeSession:
-        return self.sessions.get(sid) or FakeSession(self, sid, None)
+    def session(self, user: str, sid: str) -> FakeSession:
+        found = self.sessions.get(sid)
+        if found is not None and found.snap is not None and found.snap.user == user:
+            return found
+        return FakeSession(self, sid, None)  # another user's session is as unknown as a closed one
 
-    def download_recording(self, name: str) -> bytes:
+    def download_recording(self, user: str, name: str) -> bytes:
         return b"\x89MCAP0\r\n" + name.encode()
 
-    def upload_recording(self, name: str, data: bytes) -> m.RecordingInfo:
+    def upload_recording(self, user: str, name: str, data: bytes) -> m.RecordingInfo:
         self.uploaded.append(name)
         return m.RecordingInfo(name, "s", "r1", self.upload_model or "arm3", len(data))
 
@@ -976,6 +979,8 @@ def test_one_tab_per_session() -> None:
     second = session.SessionController(ctl.host, tab_id=4)
     seen = Recorder()
     second.subscribe(seen)
+    second.start()  # the same browser: the same user
+    second.drain()
     second.open_session(sc.id)
     second.drain()
     assert second.session is None and seen.of(events.Notice)[-1].title == "Session already open"

@@ -181,7 +181,7 @@ class SessionController(Dispatcher):
         def job() -> None:
             if self.host.claims.held_by_other(sid, self):
                 raise ValueError("that session is open in another tab: close it there")
-            self.host.mc.session(sid).close()
+            self.host.mc.session(self.user, sid).close()
             self.notify("Session closed", f"Session {sid[:8]}… is closed.", "ok")
             self._list_library(can_dismiss=True)
 
@@ -200,7 +200,7 @@ class SessionController(Dispatcher):
                 "warning",
             )
             return False
-        sc = self.host.mc.session(sid)
+        sc = self.host.mc.session(self.user, sid)
         try:
             snap = snapshot or sc.snapshot()
             model = self.host.describe(snap.model_id)

@@ -22,6 +22,7 @@ from typing import Any
 import jsonschema
 import zenoh
 
+USER = "stranger"  # the user name is part of every key of the user's sessions and recordings
 SCHEMA = json.loads((Path(__file__).resolve().parent.parent / "protocol.schema.json").read_text())
 #: The frame header as the schema describes it (x-simecs-frame, PROTOCOL.md §6.1): "<4sHHIIQQII".
 HEADER = struct.Struct(
@@ -71,7 +72,7 @@ def decode_frame(payload: bytes) -> tuple[int, list[list[float]]]:
     return flags, [list(values[r * n_cols : (r + 1) * n_cols]) for r in range(n_rows)]
 
 
-def run_and_watch(z: zenoh.Session, sid: str, command: dict) -> tuple[str, dict, int]:
+def run_and_watch(z: zenoh.Session, space: str, command: dict) -> tuple[str, dict, int]:
     """Start a run (`run` or `replay`), count its live frames, wait for its end state."""
     seen: dict[str, Any] = {"frames": 0}
     done = threading.Event()
@@ -91,11 +92,11 @@ def run_and_watch(z: zenoh.Session, sid: str, command: dict) -> tuple[str, dict,
         seen["layout"] = message("RunLayout", json.loads(sample.payload.to_bytes()))
 
     with (
-        z.declare_subscriber(f"simecs/{sid}/vars/live", on_live),
-        z.declare_subscriber(f"simecs/{sid}/vars/layout", on_layout),
-        z.declare_subscriber(f"simecs/{sid}/state", on_state),
+        z.declare_subscriber(f"{space}/vars/live", on_live),
+        z.declare_subscriber(f"{space}/vars/layout", on_layout),
+        z.declare_subscriber(f"{space}/state", on_state),
     ):
-        seen["run"] = request(z, f"simecs/{sid}/cmd", command)["run_id"]
+        seen["run"] = request(z, f"{space}/cmd", command)["run_id"]
         done.wait(60)
         end = time.monotonic() + 10
         while "end" not in seen and time.monotonic() < end:
@@ -111,11 +112,10 @@ def main(endpoint: str) -> int:
     with zenoh.open(config) as z:
         models = message("ModelList", request(z, "simecs/library"))["models"]
         print("models:", ", ".join(m["id"] for m in models))
-        snap = request(
-            z, "simecs/sessions", {"op": "create", "v": 1, "user": "stranger", "model_id": "spider"}
-        )
+        snap = request(z, f"simecs/u/{USER}/sessions", {"op": "create", "v": 1, "model_id": "spider"})
         sid = snap["session"]
-        cmd = f"simecs/{sid}/cmd"
+        space = f"simecs/u/{USER}/sessions/{sid}"  # every key of the session is under it
+        cmd = f"{space}/cmd"
         request(z, cmd, {"op": "set_initial", "v": 1, "joints": [0.0] * 7})
         path = {
             "kind": "joint_path",
@@ -128,29 +128,30 @@ def main(endpoint: str) -> int:
         settings = {"stop_time": 1.0, "output_interval": 0.01, "pacing": "fast"}
         request(z, cmd, {"op": "set_settings", "v": 1, "settings": settings})
 
-        run_id, end, frames = run_and_watch(z, sid, {"op": "run", "v": 1})
+        run_id, end, frames = run_and_watch(z, space, {"op": "run", "v": 1})
         print(f"run {run_id}: {end.get('phase')}, {frames} live frames")
 
-        for reply in z.get(f"simecs/{sid}/results/{run_id}?vars=joint1.q,joint2.q", timeout=10):
+        for reply in z.get(f"{space}/results/{run_id}?vars=joint1.q,joint2.q", timeout=10):
             if reply.ok is None:
                 raise RuntimeError(message("Error", json.loads(reply.err.payload.to_bytes())))
             att = message("ResultsAttachment", json.loads(reply.ok.attachment.to_bytes()))
             _flags, rows = decode_frame(reply.ok.payload.to_bytes())
             print(f"{len(rows)} samples of {att['columns']}; last: {rows[-1]}")
 
-        # The recorder keeps the run as <session>_<run>; replaying it is a run of the session too.
+        # The recorder keeps the run in the user's recordings as <session>_<run>; replaying it is a run
+        # of the session too.
         recording = f"{sid}_{run_id}"
         for _ in range(50):  # the recorder closes the file a moment after the run ends
             try:
-                message("RecordingInfo", request(z, f"simecs/recordings/{recording}/info"))
+                message("RecordingInfo", request(z, f"simecs/u/{USER}/recordings/{recording}/info"))
                 break
             except RuntimeError:
                 time.sleep(0.1)
         replay_id, replayed, _frames = run_and_watch(
-            z, sid, {"op": "replay", "v": 1, "recording": recording, "speed": 0}
+            z, space, {"op": "replay", "v": 1, "recording": recording, "speed": 0}
         )
         print(f"replay {replay_id}: {replayed.get('phase')}")
-        runs = message("RunList", request(z, f"simecs/{sid}/results"))
+        runs = message("RunList", request(z, f"{space}/results"))
         print(
             "runs:",
             ", ".join(f"{r['run_id']} {r['phase']}" + (" (replay)" if r["recording"] else "") for r in runs),
