@@ -196,7 +196,7 @@ def _readable(tp: Any, at_type: Any, problem: str, field: str) -> str:
     if NAME_PATTERN in problem:
         return "must be 1-64 characters of letters, digits, '_', '-', '.' (not starting with '_', '-', '.')"
     if SESSION_ID_PATTERN in problem:
-        return "must be a session id (22 characters of A-Z a-z 0-9 _ -)"
+        return "must be a session id (22 characters of A-Z a-z 0-9 _ -, the first a letter or digit)"
     if problem == "Number out of range":
         return "number out of range (numbers must be finite, and integers fit in 64 bits)"
     problem = re.sub(r"`(\w+)`", lambda m: _WORDS.get(m.group(1), m.group(1)), problem)

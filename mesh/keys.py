@@ -298,7 +298,12 @@ def user_space(user: str) -> str:
 
 # -- checking chunks ------------------------------------------------------------------------------------
 def new_session_id() -> str:
-    return secrets.token_urlsafe(16)
+    """128 random bits, starting with a letter or digit like every name (a recording is named
+    `<session>_<run>`, and a leading `-` would read as an option on a command line)."""
+    while True:
+        sid = secrets.token_urlsafe(16)
+        if sid[0].isalnum():
+            return sid
 
 
 def is_session_id(text: str) -> bool:

@@ -12,7 +12,7 @@ from typing import Annotated, Literal
 from msgspec import Meta, Struct
 
 #: Session ids are 128 random bits in URL-safe base64: unguessable, and safe as one key chunk.
-SESSION_ID_PATTERN = r"^[A-Za-z0-9_-]{22}$"
+SESSION_ID_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9_-]{21}$"
 #: Model ids, run ids, node ids, user, parameter-set and recording names: one plain key chunk.
 NAME_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,63}$"
 MAX_TEXT = 100_000
@@ -20,7 +20,7 @@ MAX_NUMBERS = 100_000
 
 #: 1-64 letters, digits, '_', '-', '.', starting with a letter or digit (PROTOCOL.md calls it "name").
 Name = Annotated[str, Meta(pattern=NAME_PATTERN)]
-#: 22 characters of A-Z a-z 0-9 _ - (PROTOCOL.md calls it "session id").
+#: 22 characters of A-Z a-z 0-9 _ -, the first a letter or digit (PROTOCOL.md: "session id").
 SessionId = Annotated[str, Meta(pattern=SESSION_ID_PATTERN)]
 Text = Annotated[str, Meta(max_length=MAX_TEXT)]
 Numbers = Annotated[list[float], Meta(max_length=MAX_NUMBERS)]

@@ -10,6 +10,9 @@ def test_session_ids_are_unguessable_and_valid() -> None:
     ids = {keys.new_session_id() for _ in range(1000)}
     assert len(ids) == 1000
     assert all(keys.is_session_id(i) for i in ids)
+    # every one names a recording too (<session>_<run> must be a name: no leading - or _)
+    assert all(keys.check_name(keys.recording_name(i, "r1"), "recording name") for i in ids)
+    assert not keys.is_session_id("_" + "a" * 21) and not keys.is_session_id("-" + "a" * 21)
 
 
 @pytest.mark.parametrize("bad", ["", "*", "**", "a/b", "$*", "@node", "x" * 22 + "/", "short"])
