@@ -76,6 +76,11 @@ class MeshConfig:
             # A client retries its router instead of failing at once (STACK-NOTES).
             entries["connect/timeout_ms"] = {"client": 10000}
             entries["connect/exit_on_failure"] = {"client": True}
+            # After losing the hub (a restart), look for it again every 0.1 s, backing off to 1 s:
+            # zenoh's default waits up to 4 s between tries. Must be set as one object.
+            entries["connect/retry"] = dict(HUB_RETRY)
+        if self.mode == "router":
+            entries.update(router_entries())
         if self.user:
             entries["transport/auth/usrpwd/user"] = self.user
             entries["transport/auth/usrpwd/password"] = self.password
@@ -143,6 +148,37 @@ def open_session(cfg: MeshConfig, deadline_s: float = 20.0) -> Any:
             if time.monotonic() > end:
                 raise RuntimeError(f"cannot join the mesh at {cfg.connect or cfg.listen}: {exc}") from None
             time.sleep(0.1)
+
+
+def router_entries() -> dict[str, Any]:
+    """What a hub needs so that a slow subscriber slows only itself (PROTOCOL.md §3, docs/LAN.md).
+
+    Workers publish `vars/full` with blocking congestion control (lossless as far as the hub). A
+    subscriber whose link is full would then hold the hub's thread for that worker for up to 5 s, and
+    every other key with it. The hub instead drops the sample stream on its way out to a link that cannot
+    take it within 20 ms; the recorder fills such gaps from the run's results."""
+    from . import keys
+
+    streams = [keys.wildcard("vars_full"), keys.wildcard("vars_live")]
+    return {
+        "qos/network": [
+            {
+                "id": "sample_streams_drop_for_slow_links",
+                "messages": ["put"],
+                "flows": ["egress"],
+                "key_exprs": streams,
+                "overwrite": {"congestion_control": "drop"},
+            }
+        ],
+        "transport/link/tx/queue/congestion_control/drop/wait_before_drop": SLOW_LINK_WAIT_US,
+    }
+
+
+#: How long the hub waits for room on a full link before it drops a sample stream's sample (µs).
+SLOW_LINK_WAIT_US = 20_000
+
+#: How a client retries its hub after losing it (milliseconds).
+HUB_RETRY = {"period_init_ms": 100, "period_max_ms": 1000, "period_increase_factor": 2.0}
 
 
 def hub_config(endpoint: str = DEFAULT_HUB, base: MeshConfig | None = None) -> MeshConfig:

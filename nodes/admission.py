@@ -11,17 +11,20 @@ from __future__ import annotations
 import collections
 import os
 import threading
+import time
 from collections.abc import Callable
 from typing import Any
 
 import zenoh
 from simecs.mesh import codec, keys, phases
 from simecs.mesh import messages as m
+from simecs.mesh.hublink import HubLink
 from simecs.mesh.runtime import RequestError
 
 from .sessions import SessionRecord, SessionStore
 
 HANDOVER_TIMEOUT_S = 10.0
+HUB_WAIT_S = 60.0  # a hand-over that met a hub restart waits this long for the hub, then tries again
 
 #: (request, host that took it or "", hosts tried, their refusals), called with the proxy's lock held.
 Outcome = Callable[[m.RunRequest, str, list[str], list[str]], None]
@@ -46,6 +49,7 @@ class Admission:
         self.queue: collections.deque[str] = collections.deque()
         self.pending: dict[str, m.RunRequest] = {}  # session -> the request of its queued run
         self._rr = 0
+        self.hub: HubLink | None = None  # set once the proxy's session is open
 
     def occupied(self) -> int:
         """Simulation slots in use: runs going, and runs being handed to a simulator."""
@@ -107,17 +111,25 @@ class Admission:
         return sorted(hosts)
 
     def _dispatch(self, request: m.RunRequest, rr: int) -> None:
-        """Offer the run to the simulators in turn (without the lock), then report the outcome."""
+        """Offer the run to the simulators in turn (without the lock), then report the outcome. A
+        hand-over that failed because the hub went away is tried again once the hub is back."""
         hosts: list[str] = []
         errors: list[str] = []
         accepted = ""
         try:
-            hosts = self.simulators()
             payload = codec.dumps(request)
-            for i in range(len(hosts)):
-                host = hosts[(rr + i) % len(hosts)]
-                accepted = self._offer(host, payload, errors)
-                if accepted:
+            for _attempt in range(3):
+                began = time.monotonic()
+                hosts, errors = self.simulators(), []
+                for i in range(len(hosts)):
+                    host = hosts[(rr + i) % len(hosts)]
+                    accepted = self._offer(host, payload, errors)
+                    if accepted:
+                        break
+                if accepted or self.hub is None or not self.hub.lost_since(began):
+                    break
+                if not self.hub.wait_back(HUB_WAIT_S):
+                    errors.append(f"the hub has been unreachable for {HUB_WAIT_S:g} s")
                     break
         except Exception as exc:  # never leave the slot taken
             errors.append(f"{type(exc).__name__}: {exc}")

@@ -332,6 +332,9 @@ def load(source: str | os.PathLike[str] | bytes, strict: bool = False) -> Record
             )
         rows[i, order] = np.frombuffer(data, dtype="<f8", offset=4)
         seqs[i] = msg.sequence
+    if len(rows) > 1 and np.any(np.diff(rows[:, 0]) < 0):  # a gap filled after the run (RECORDINGS.md)
+        by_time = np.argsort(rows[:, 0], kind="stable")
+        rows, seqs = rows[by_time], seqs[by_time]
     logs = []
     for msg in sc.messages:
         if msg.channel_id == log_ch:

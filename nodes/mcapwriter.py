@@ -261,8 +261,15 @@ class RunWriter:
     def log_time(self, sim_time: float) -> int:
         return self.t0 + int(round(sim_time * 1e9))
 
-    def write_frame(self, frame: frames.Frame) -> int:
-        """Append every row of a frame; returns the number of messages written."""
+    def write_frame(self, frame: frames.Frame, backfill: bool = False) -> int:
+        """Append every row of a frame; returns the number of messages written. `backfill`: rows that
+        fill an earlier gap (they get their own /tf and /joint_states samples; readers order by time)."""
+        if backfill:
+            resume_viz, self._next_viz = self._next_viz, -math.inf
+            try:
+                return self.write_frame(frame)
+            finally:
+                self._next_viz = resume_viz
         rows = frame.rows
         if rows.ndim != 2 or (rows.shape[0] and rows.shape[1] != len(self.layout.columns)):
             raise FormatError(

@@ -21,6 +21,7 @@ import msgspec
 from simecs.mesh import codec, keys, phases
 from simecs.mesh import messages as m
 from simecs.mesh.client import MeshClient, NoReply, RemoteError
+from simecs.mesh.hublink import HubLink
 from simecs.mesh.model import DocPage, ModelDescription, check_joints
 from simecs.mesh.runtime import Node, NotMine, Request, RequestError, main_for, mesh_from_args
 
@@ -104,6 +105,9 @@ class Proxy(Node):
     def start(self) -> None:
         self.library = ModelLibrary()
         self.store.load(self.library.descriptions)
+        # Tells a hub restart (every run token disappears, the workers run on) from a lost worker.
+        self.hub = HubLink(self.z)
+        self.runs.hub = self.admission.hub = self.hub
         self.serve(keys.LIBRARY, lambda _req: self.models.summaries())
         self.serve(keys.ALL_MODELS, self._on_model)
         self.serve(keys.ALL_DOCS, self._on_doc)

@@ -1,6 +1,11 @@
 """The files of the runs being recorded: a `RunLayout` opens one, frames and states go into it, the
 run's end (or a silent worker) closes it, and losses are written down where a reader will see them.
 
+Frames lost on the way (a hub restart, the hub dropping for a slow link, our own full queue) leave gaps
+in the frame numbers. When the run ends, the samples of every gap are fetched from the simulator's
+results of the run and written into the file before it is closed, so a recording holds every sample
+however the stream went; only what cannot be fetched stays marked as lost.
+
 Only the recorder's writer thread calls these methods (recording_pipeline.py feeds it), so nothing here
 locks. Replays are not recorded again; frames that come before their run's layout wait a little.
 """
@@ -8,11 +13,12 @@ locks. Replays are not recorded again; frames that come before their run's layou
 from __future__ import annotations
 
 import collections
+import math
 import time
-from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Protocol
 
+import numpy as np
 from simecs.mesh import codec, frames, keys, phases
 from simecs.mesh import messages as m
 from simecs.mesh.model import ModelDescription
@@ -27,8 +33,40 @@ ENDED_GRACE_S = 2.0  # after an ended state without final frame: frames may stil
 PENDING_FRAMES = 256  # frames kept per session while its layout has not arrived yet
 PENDING_SESSIONS = 64  # sessions whose frames wait for a layout
 VIZ_RATE_HZ = 50.0  # /tf and /joint_states samples per simulated second
+FILL_WAIT_S = 20.0  # how long a run's file waits for the samples of its gaps before it closes anyway
 Owner = tuple[str, str]  # (user, session): where a session's keys are
 LOG_LEVEL = {"running": fmt.LOG_INFO, "paused": fmt.LOG_INFO, "finished": fmt.LOG_INFO}
+
+
+@dataclass
+class Gap:
+    """Frames lost on the way: the samples after time `after` and before time `before`."""
+
+    seq: int  # the first missing frame number (the filled samples are written under it)
+    after: float = -math.inf
+    before: float = math.inf
+
+
+class RecorderMesh(Protocol):
+    """What the run files ask of the mesh; recording_pipeline.py answers (from its own threads, the
+    answers come back as items of the writer's queue)."""
+
+    def lookup(self, owner: Owner, run_id: str, model_id: str) -> None:
+        """Fetch the run's model description; it comes back through `RunFiles.on_model`."""
+
+    def fill(self, owner: Owner, run_id: str, gaps: list[Gap], columns: list[str]) -> None:
+        """Fetch the samples of `gaps` (rows of `columns`) from the run's results; they come back
+        through `on_fill`."""
+
+    def notify(self, user: str, notice: m.Notice) -> None: ...
+
+    def worker_alive(self, user: str, session: str, run_id: str) -> bool: ...
+
+    def take_drops(self) -> dict[Owner, list[int]]:
+        """Frames our own queue dropped since the last call, per session."""
+        return {}
+
+    def status_changed(self) -> None: ...
 
 
 @dataclass
@@ -54,6 +92,10 @@ class Active:
     idle_checked: float = 0.0
     next_seq: int | None = 0  # None: accept any first frame (a continuation starts mid-run)
     noticed: set[str] = field(default_factory=set)  # kinds of Notice already sent for this run
+    gaps: list[Gap] = field(default_factory=list)
+    filled_rows: int = 0
+    closing_by: str = ""  # set while the file waits for the samples of its gaps
+    fill_deadline: float = 0.0
 
 
 class RunFiles:
@@ -64,35 +106,28 @@ class RunFiles:
         library: RecordingsLibrary,
         node_id: str,
         log: Any,
-        lookup: Callable[[Owner, str, str], None],
-        notify: Callable[[str, m.Notice], None],
-        worker_alive: Callable[[str, str, str], bool],
-        take_drops: Callable[[], dict[Owner, list[int]]],
-        status_changed: Callable[[], None],
+        mesh: RecorderMesh,
         viz_rate_hz: float = VIZ_RATE_HZ,
         idle_timeout_s: float = 30.0,
     ) -> None:
         self.library = library
         self.node_id = node_id
         self.log = log
-        self.lookup = lookup  # ask for a run's model description (it comes back through on_model)
-        self.notify = notify
-        self.worker_alive = worker_alive
-        self.take_drops = take_drops
-        self.status_changed = status_changed
+        self.mesh = mesh
         self.viz_rate_hz = viz_rate_hz
         self.idle_timeout_s = idle_timeout_s
         self.active: dict[Owner, Active] = {}
+        self.filling: dict[tuple[Owner, str], Active] = {}  # ended runs waiting for their gaps' samples
         self.pending: dict[Owner, collections.deque[bytes]] = {}
         self.done: collections.OrderedDict[tuple[Owner, str], None] = collections.OrderedDict()
         self.ignored: set[Owner] = set()  # sessions whose current run is a replay
         self.models: dict[str, tuple[ModelDescription, bytes]] = {}
-        self.stats = {"rows": 0, "messages": 0, "files": 0, "dropped_frames": 0}
+        self.stats = {"rows": 0, "messages": 0, "files": 0, "dropped_frames": 0, "filled_rows": 0}
         self._last_drop_status = 0.0
 
     def close_all(self, closed_by: str) -> None:
-        for rec in list(self.active.values()):
-            self.close(rec, closed_by)
+        for rec in [*self.active.values(), *self.filling.values()]:
+            self._finish(rec, rec.closing_by or closed_by)
 
     # -- what arrives ---------------------------------------------------------------------------------
     def on_layout(self, key: str, payload: bytes) -> None:
@@ -111,7 +146,7 @@ class RunFiles:
             if cur.layout.run_id == layout.run_id and cur.layout.run_index == layout.run_index:
                 return  # the same layout again (history and live)
             self.close(cur, f"superseded by run {layout.run_id}")
-        if (sid, layout.run_id) in self.done:
+        if (sid, layout.run_id) in self.done or (sid, layout.run_id) in self.filling:
             return
         if layout.source == "replay":
             self.ignored.add(sid)
@@ -151,7 +186,7 @@ class RunFiles:
             f"{len(layout.columns)} columns{note}",
             0.0,
         )
-        self.lookup((user, layout.session), layout.run_id, layout.model_id)
+        self.mesh.lookup((user, layout.session), layout.run_id, layout.model_id)
         self.log.info("recording %s/%s", user, path.name)
         for payload in self.pending.pop((user, layout.session), ()):
             self._write(rec, payload)
@@ -182,12 +217,14 @@ class RunFiles:
         if rec.next_seq is not None and frame.seq > rec.next_seq:
             missing = frame.seq - rec.next_seq
             rec.dropped_frames += missing
-            self._notice(rec, "gap", "frames were lost before reaching the recorder: the recording has gaps")
+            after = rec.sim_time if rec.writer.rows else -math.inf
+            before = float(frame.rows[0, 0]) if frame.rows.shape[0] else math.inf
+            rec.gaps.append(Gap(rec.next_seq, after, before))
             rec.writer.write_log(
-                fmt.LOG_ERROR,
-                f"MISSING frames {rec.next_seq}..{frame.seq - 1} ({missing} frames): dropped before they "
-                f"were written (recorder overloaded or the network lost them); the file has a gap after t = "
-                f"{rec.sim_time:.4f} s",
+                fmt.LOG_WARNING,
+                f"MISSING frames {rec.next_seq}..{frame.seq - 1} ({missing} frames): lost before they "
+                f"reached the recorder (hub restart, slow link, or our queue full) after t = "
+                f"{rec.sim_time:.4f} s; their samples are fetched from the run's results when it ends",
                 rec.sim_time,
             )
         rec.next_seq = max(rec.next_seq or 0, frame.seq + 1)
@@ -259,7 +296,7 @@ class RunFiles:
         if kind in rec.noticed:
             return
         rec.noticed.add(kind)
-        self.notify(
+        self.mesh.notify(
             rec.user,
             m.Notice(
                 session=rec.layout.session, run_id=rec.layout.run_id, source="recorder", message=message
@@ -267,25 +304,23 @@ class RunFiles:
         )
 
     def housekeeping(self, now: float) -> None:
-        drops = self.take_drops()
+        drops = self.mesh.take_drops()
         for sid, (n, rows, first, last) in drops.items():
             self.stats["dropped_frames"] += n
             rec = self.active.get(sid)
             text = (
                 f"DROPPED {n} frames ({rows} samples) received between wall times {first} and {last} ns: "
-                "the recorder could not keep up (queue full); the file has a gap there"
+                "the recorder could not keep up (queue full); they are fetched from the run's results "
+                "when it ends"
             )
             self.log.warning("session %s of %s: %s", sid[1], sid[0], text)
             if rec is not None:
                 rec.queue_drops += n
                 rec.dropped_rows += rows
-                self._notice(
-                    rec, "queue", "the recorder could not keep up and dropped samples: the recording has gaps"
-                )
-                rec.writer.write_log(fmt.LOG_ERROR, text, rec.sim_time)
+                rec.writer.write_log(fmt.LOG_WARNING, text, rec.sim_time)
         if drops and now - self._last_drop_status > 1.0:
             self._last_drop_status = now
-            self.status_changed()
+            self.mesh.status_changed()
         for rec in list(self.active.values()):
             if rec.close_at is not None and now >= rec.close_at:
                 self.close(rec, "final frame" if rec.final_seen else "run ended")
@@ -302,28 +337,88 @@ class RunFiles:
                 and rec.close_at is None
             ):
                 rec.idle_checked = now
-                if not self.worker_alive(rec.user, rec.layout.session, rec.layout.run_id):
+                if not self.mesh.worker_alive(rec.user, rec.layout.session, rec.layout.run_id):
                     self.close(rec, f"no data for {self.idle_timeout_s:g} s and the run's worker is gone")
+        for rec in list(self.filling.values()):
+            if now >= rec.fill_deadline:
+                rec.writer.write_log(
+                    fmt.LOG_ERROR,
+                    f"the run's results did not come within {FILL_WAIT_S:g} s: its gaps stay",
+                    rec.sim_time,
+                )
+                self._finish(rec, rec.closing_by)
 
     def close(self, rec: Active, closed_by: str) -> None:
+        """The run is over: fill its gaps from its results first (they come back through `on_fill`)."""
         self.active.pop((rec.user, rec.layout.session), None)
+        if not rec.final_seen and rec.next_seq is not None:  # the end of the stream was lost too
+            rec.gaps.append(Gap(rec.next_seq, rec.sim_time if rec.writer.rows else -math.inf))
+        if not rec.gaps:
+            self._finish(rec, closed_by)
+            return
+        rec.closing_by = closed_by
+        rec.fill_deadline = time.monotonic() + FILL_WAIT_S
+        self.filling[((rec.user, rec.layout.session), rec.layout.run_id)] = rec
+        self.mesh.fill((rec.user, rec.layout.session), rec.layout.run_id, list(rec.gaps), rec.layout.columns)
+
+    def on_fill(self, key: str, answer: tuple[Owner, str, list[tuple[Gap, np.ndarray]], str]) -> None:
+        """The samples of a run's gaps, fetched from its results (or why they could not be)."""
+        owner, run_id, pieces, problem = answer
+        rec = self.filling.pop((owner, run_id), None)
+        if rec is None:
+            return
+        for gap, rows in pieces:
+            if rows.shape[0] == 0:
+                continue
+            try:
+                frame = frames.Frame(rec.layout.run_index, gap.seq, time.time_ns(), rows, 0)
+                rec.writer.write_frame(frame, backfill=True)
+            except fmt.FormatError as exc:
+                problem = f"the results do not fit the recording: {exc}"
+                break
+            except OSError as exc:
+                self._fail(rec, exc)
+                return
+            rec.filled_rows += rows.shape[0]
+            rec.sim_time = max(rec.sim_time, float(rows[-1, 0]))
+            rec.gaps.remove(gap)
+            rec.writer.write_log(
+                fmt.LOG_INFO,
+                f"FILLED {rows.shape[0]} samples from t = {rows[0, 0]:.4f} to {rows[-1, 0]:.4f} s (frames "
+                f"from {gap.seq} lost on the way) from the run's results",
+                float(rows[0, 0]),
+            )
+        self.stats["filled_rows"] += rec.filled_rows
+        if rec.gaps and problem:
+            rec.writer.write_log(fmt.LOG_ERROR, f"gaps not filled: {problem}", rec.sim_time)
+        self._finish(rec, rec.closing_by)
+
+    def _finish(self, rec: Active, closed_by: str) -> None:
+        self.active.pop((rec.user, rec.layout.session), None)
+        self.filling.pop(((rec.user, rec.layout.session), rec.layout.run_id), None)
         phase = rec.end_phase or ("finished" if rec.final_seen and rec.final_rows else "")
         phase = phase or ("ended" if rec.final_seen else "incomplete")
         w = rec.writer
-        # Each count sees a subset of the losses; both are lower bounds, the larger one is reported.
-        dropped = max(rec.dropped_frames, rec.queue_drops)
+        lost = len(rec.gaps)
+        if lost:
+            self._notice(rec, "gap", "samples were lost on the way to the recorder: the recording has gaps")
         try:
             summary = f"recording closed ({closed_by}): run {phase}, {w.rows} samples in {w.frames} frames"
-            if dropped:
-                summary += f"; at least {dropped} frames DROPPED"
-            w.write_log(fmt.LOG_INFO if not dropped else fmt.LOG_ERROR, summary, rec.sim_time)
+            if rec.filled_rows:
+                summary += f"; {rec.filled_rows} of them filled in from the run's results"
+            if lost:
+                summary += f"; {lost} gaps LEFT (at least {max(rec.dropped_frames, rec.queue_drops)} frames)"
+            w.write_log(fmt.LOG_INFO if not lost else fmt.LOG_ERROR, summary, rec.sim_time)
             w.close(
                 {
                     "phase": phase,
                     "reason": rec.end_reason,
                     "closed_by": closed_by,
-                    "dropped_frames": str(dropped),
+                    # Each count sees a subset of the losses: both are lower bounds, the larger is kept.
+                    "dropped_frames": str(max(rec.dropped_frames, rec.queue_drops)),
                     "dropped_rows": str(rec.dropped_rows),
+                    "filled_rows": str(rec.filled_rows),
+                    "gaps": str(lost),
                     "stray_frames": str(rec.stray_frames),
                     "sim_time": repr(rec.sim_time),
                     "closed_ns": str(time.time_ns()),
@@ -338,6 +433,7 @@ class RunFiles:
     def _fail(self, rec: Active, exc: BaseException) -> None:
         """Writing failed (disk full, ...): keep what is on disk, repaired if possible."""
         self.active.pop((rec.user, rec.layout.session), None)
+        self.filling.pop(((rec.user, rec.layout.session), rec.layout.run_id), None)
         rec.writer.abandon()
         self.log.error("recording %s failed: %s; repairing what was written", rec.name, exc)
         try:

@@ -6,12 +6,14 @@ writer thread, at a lower CPU priority, hands them to the run files (`recording_
 the MCAP files. If frames are ever dropped (queue full, ring overflow, or lost on the way: gaps in frame
 numbers), the file says so on /log and in `simecs.end`, the session gets a `Notice`, and the node's
 status counts them. Files are flushed about once a second, so a crash loses at most ~1 s. A lookup
-thread fetches each new run's model description (for /scene and model.json).
+thread fetches each new run's model description (for /scene and model.json) and, when a run with gaps
+ends, the samples of its gaps from the run's results (recording_files.py).
 """
 
 from __future__ import annotations
 
 import collections
+import math
 import os
 import threading
 import time
@@ -19,15 +21,18 @@ import traceback
 from collections.abc import Callable
 from typing import Any
 
+import numpy as np
 import zenoh
 import zenoh.ext
 from simecs.mesh import codec, frames, keys
 from simecs.mesh import messages as m
 from simecs.mesh.client import MeshClient, NoReply, RemoteError
 
-from .recording_files import VIZ_RATE_HZ, Owner, RunFiles
+from .recording_files import VIZ_RATE_HZ, Gap, Owner, RunFiles
 from .recordings_library import RecordingsLibrary
 
+FILL_TRIES = 10  # a run's results are stored a moment after its last frame: ask again this often
+FILL_RETRY_S = 0.5
 BATCH_MIN = 8  # frames: a smaller batch makes the writer wait BATCH_WAIT_S before the next one
 BATCH_WAIT_S = 0.02
 WRITER_NICE = 10  # how much lower the writer thread's CPU priority is than the node's
@@ -109,20 +114,10 @@ class RecordingPipeline:
     ) -> None:
         self.log = log
         self.ingest = Ingest(queue_frames, int(queue_mb * 1024 * 1024))
-        self.files = RunFiles(
-            library,
-            node_id,
-            log,
-            self._lookup,
-            self._notify,
-            self._worker_alive,
-            self.ingest.take_drops,
-            status_changed,
-            viz_rate_hz,
-            idle_timeout_s,
-        )
+        self._status_changed = status_changed
+        self.files = RunFiles(library, node_id, log, self, viz_rate_hz, idle_timeout_s)
         self._stop = threading.Event()
-        self._lookups: collections.deque[tuple[Owner, str, str]] = collections.deque()
+        self._lookups: collections.deque[tuple[str, Owner, str, Any]] = collections.deque()
         self._lookup_cv = threading.Condition()
         self._threads: list[threading.Thread] = []
         self._subs: list[tuple[Any, str]] = []
@@ -198,6 +193,7 @@ class RecordingPipeline:
             "state": files.on_state,
             "full": files.on_full,
             "model": files.on_model,
+            "fill": files.on_fill,
         }
         next_house = 0.0
         while not self._stop.is_set():
@@ -223,7 +219,7 @@ class RecordingPipeline:
                     self.log.error("recorder housekeeping failed:\n%s", traceback.format_exc())
         files.close_all("recorder stopped")
 
-    # -- the lookup thread: the model description of each new run ------------------------------------
+    # -- the lookup thread: model descriptions of new runs, samples of the gaps of ended runs -------------
     def _lookup_loop(self) -> None:
         assert self.z is not None
         client = MeshClient(self.z, timeout=3.0)
@@ -233,17 +229,57 @@ class RecordingPipeline:
                     self._lookup_cv.wait(0.5)
                 if not self._lookups:
                     continue
-                lookup = self._lookups.popleft()
-            model_id = lookup[2]
-            if model_id not in self.files.models:
-                try:
-                    desc = client.describe(model_id)
-                    self.files.models[model_id] = (desc, codec.dumps(desc))
-                except (RemoteError, NoReply, codec.DecodeError, ValueError, zenoh.ZError) as exc:
-                    self.log.warning("model %s: %s", model_id, exc)
-            self.ingest.put("model", "", lookup)
+                kind, owner, run_id, arg = self._lookups.popleft()
+            if kind == "model":
+                if arg not in self.files.models:
+                    try:
+                        desc = client.describe(arg)
+                        self.files.models[arg] = (desc, codec.dumps(desc))
+                    except (RemoteError, NoReply, codec.DecodeError, ValueError, zenoh.ZError) as exc:
+                        self.log.warning("model %s: %s", arg, exc)
+                self.ingest.put("model", "", (owner, run_id, arg))
+            else:
+                pieces, problem = self._fetch_gaps(client, owner, run_id, *arg)
+                self.ingest.put("fill", "", (owner, run_id, pieces, problem))
 
-    def _worker_alive(self, user: str, session: str, run_id: str) -> bool:
+    def _fetch_gaps(
+        self, client: MeshClient, owner: Owner, run_id: str, gaps: list[Gap], columns: list[str]
+    ) -> tuple[list[tuple[Gap, np.ndarray]], str]:
+        """The samples of each gap, from the run's results (by whichever host holds them)."""
+        pieces: list[tuple[Gap, np.ndarray]] = []
+        session = client.session(*owner)
+        for gap in gaps:
+            t0 = gap.after if math.isfinite(gap.after) else None
+            t1 = gap.before if math.isfinite(gap.before) else None
+            for attempt in range(FILL_TRIES):
+                try:
+                    got, rows = session.results(run_id, t0=t0, t1=t1)
+                    break
+                except NoReply:
+                    problem = "no node holds the run's results"
+                except (RemoteError, codec.DecodeError, frames.FrameError, zenoh.ZError) as exc:
+                    return pieces, f"the run's results: {exc}"
+                if attempt + 1 < FILL_TRIES and not self._stop.wait(FILL_RETRY_S):
+                    continue
+                return pieces, problem
+            if got != columns:
+                return pieces, "the run's results have other columns than its stream"
+            inside = (rows[:, 0] > gap.after) & (rows[:, 0] < gap.before)
+            pieces.append((gap, np.ascontiguousarray(rows[inside])))
+        return pieces, ""
+
+    # -- what the run files ask of the mesh (recording_files.RecorderMesh) ------------------------------
+    def lookup(self, owner: Owner, run_id: str, model_id: str) -> None:
+        with self._lookup_cv:
+            self._lookups.append(("model", owner, run_id, model_id))
+            self._lookup_cv.notify()
+
+    def fill(self, owner: Owner, run_id: str, gaps: list[Gap], columns: list[str]) -> None:
+        with self._lookup_cv:
+            self._lookups.append(("fill", owner, run_id, (gaps, columns)))
+            self._lookup_cv.notify()
+
+    def worker_alive(self, user: str, session: str, run_id: str) -> bool:
         try:
             assert self.z is not None
             token = keys.run_token(user, session, run_id)
@@ -251,14 +287,15 @@ class RecordingPipeline:
         except zenoh.ZError:
             return True
 
-    def _notify(self, user: str, notice: m.Notice) -> None:
+    def notify(self, user: str, notice: m.Notice) -> None:
         try:
             assert self.z is not None
             self.z.put(keys.notices(user, notice.session), codec.dumps(notice))
         except Exception as exc:  # the file still says it
             self.log.warning("could not publish a notice: %s", exc)
 
-    def _lookup(self, owner: Owner, run_id: str, model_id: str) -> None:
-        with self._lookup_cv:
-            self._lookups.append((owner, run_id, model_id))
-            self._lookup_cv.notify()
+    def take_drops(self) -> dict[Owner, list[int]]:
+        return self.ingest.take_drops()
+
+    def status_changed(self) -> None:
+        self._status_changed()

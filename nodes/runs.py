@@ -15,6 +15,7 @@ import zenoh
 from simecs.mesh import codec, keys, phases
 from simecs.mesh import messages as m
 from simecs.mesh.client import MeshClient, NoReply, RemoteError
+from simecs.mesh.hublink import HubLink
 from simecs.mesh.runtime import RequestError
 
 from .admission import Admission
@@ -23,6 +24,8 @@ from .sessions import SessionRecord, SessionStore
 MAX_WARNINGS = 20
 #: How long a lost run token waits for the worker's own last report (it travels another way).
 LAST_REPORT_GRACE_S = 0.3
+#: How long runs whose tokens went with the hub wait for it to come back before they are settled.
+HUB_AWAY_S = 120.0
 
 log = logging.getLogger("simecs.proxy")
 
@@ -46,6 +49,10 @@ class RunTracker:
         self.log = log
         #: Runs of closed sessions that were told to abort: session id -> (user, run id).
         self.orphans: dict[str, tuple[str, str]] = {}
+        #: Runs whose token disappeared with the hub: (user, session) -> run id, checked when it is back.
+        self.suspended: dict[tuple[str, str], str] = {}
+        self.hub: HubLink | None = None  # set once the proxy's session is open
+        self._hub_check: threading.Thread | None = None
 
     def request(
         self,
@@ -186,8 +193,10 @@ class RunTracker:
                     self.store.publish_params(rec, [])
             self.admission.update()
 
-    def _settle_ended_run(self, rec: SessionRecord) -> None:
-        """A run that ended while the proxy was down: its stored results tell how it ended."""
+    def _settle_ended_run(
+        self, rec: SessionRecord, lost: str = "the run was lost while the proxy was down"
+    ) -> None:
+        """A run that ended while the proxy could not hear it: its stored results tell how it ended."""
         run_id = rec.state.run_id
         try:
             selector = (
@@ -196,7 +205,7 @@ class RunTracker:
             _, att = MeshClient(self.z(), timeout=3.0).request_binary(selector, m.ResultsAttachment)
             info: m.RunInfo = att.run
         except (RemoteError, NoReply, codec.DecodeError, zenoh.ZError, AttributeError):
-            self.end_run(rec, "failed", "the run was lost while the proxy was down")
+            self.end_run(rec, "failed", lost)
             return
         rec.state.sim_time = info.sim_time
         rec.state.progress = min(1.0, info.sim_time / info.stop_time) if info.stop_time else 0.0
@@ -259,6 +268,7 @@ class RunTracker:
         except ValueError:
             return
         user, sid, run_id = token["user"], token["session"], token["run"]
+        gone_at = time.monotonic()
         # The worker's last RunStatus may still be on its way (another channel than liveliness):
         # give it a moment before calling the run lost. Still well within the 1 s promise.
         time.sleep(LAST_REPORT_GRACE_S)
@@ -266,7 +276,45 @@ class RunTracker:
             rec = self.store.owned(user, sid)
             if rec is None or rec.state.run_id != run_id or rec.phase not in phases.GOING:
                 return
+            if self.hub is not None and self.hub.lost_since(gone_at - 0.05):
+                # Every token went with the hub: the worker most likely runs on. Decide when it is back.
+                self.suspended[(user, sid)] = run_id
+                self.log.warning("session %s run %s: the hub went away; run kept meanwhile", sid, run_id)
+                self._check_when_hub_back()
+                return
             self.end_run(
                 rec, "failed", f"the simulator process of run {run_id} disappeared (crashed or killed)"
             )
             self.admission.update()
+
+    def _check_when_hub_back(self) -> None:
+        """Once the hub is back and every node had time to reconnect: runs whose worker is back go on;
+        the others ended meanwhile, and their stored results tell how (or they failed)."""
+        if self._hub_check is not None and self._hub_check.is_alive():
+            return
+
+        def check() -> None:
+            assert self.hub is not None
+            back = self.hub.wait_back(HUB_AWAY_S)
+            alive = set()
+            if back:
+                for reply in self.z().liveliness().get(keys.RUN_TOKENS, timeout=1.0):
+                    if reply.ok is not None:
+                        token = keys.parse("run_token", reply.ok.key_expr)
+                        alive.add((token["user"], token["session"], token["run"]))
+            with self.lock:
+                for (user, sid), run_id in list(self.suspended.items()):
+                    del self.suspended[(user, sid)]
+                    rec = self.store.owned(user, sid)
+                    if rec is None or rec.state.run_id != run_id or rec.phase not in phases.GOING:
+                        continue
+                    if (user, sid, run_id) in alive:
+                        self.log.info("session %s run %s: its worker is back with the hub", sid, run_id)
+                    elif back:
+                        self._settle_ended_run(rec, "its simulator process was lost while the hub was away")
+                    else:
+                        self.end_run(rec, "failed", f"the hub was unreachable for more than {HUB_AWAY_S:g} s")
+                self.admission.update()
+
+        self._hub_check = threading.Thread(target=check, name="hub-check", daemon=True)
+        self._hub_check.start()

@@ -146,7 +146,12 @@ class Simulator(Node):
 
     def _on_run(self, req: Request) -> m.Accepted:
         run = req.json(m.RunRequest)
+        key = f"{run.user} {run.session} {run.run_id}"
         with self.lock:
+            taken = self.busy.get(key)
+            if taken is not None and taken.poll() is None:
+                # Offered again: the proxy did not get our answer (the hub went away meanwhile).
+                return m.Accepted(self.node_id, taken.pid)
             if len(self.busy) >= self.max_runs:
                 raise RequestError(
                     "busy", f"simulator {self.node_id} already runs {len(self.busy)} simulations"
@@ -161,7 +166,6 @@ class Simulator(Node):
                 proc.stdin.close()
             except OSError as exc:
                 raise RequestError("internal", f"worker process could not take the run: {exc}") from None
-            key = f"{run.user} {run.session} {run.run_id}"
             self.busy[key] = proc
             if run.settings.pacing == "fast":
                 self.fast.add(key)

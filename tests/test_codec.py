@@ -10,7 +10,7 @@ import msgspec.inspect as mi
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from simecs.mesh import codec, messages
+from simecs.mesh import codec, messages, primitives
 from simecs.mesh import model as model_types
 
 MESSAGE_TYPES = [
@@ -35,7 +35,7 @@ def example_of(info: mi.Type) -> typing.Any:
         lo = info.ge if info.ge is not None else 1
         return int(max(lo, 1) if info.le is None or info.le >= 1 else lo)
     if isinstance(info, mi.StrType):
-        if info.pattern and "{22}" in info.pattern:
+        if info.pattern == primitives.SESSION_ID_PATTERN:
             return SESSION
         return "x"
     if isinstance(info, mi.BoolType):
