@@ -32,6 +32,7 @@ from simecs.mesh import codec, columns, frames, keys
 from simecs.mesh import messages as m
 from simecs.mesh.client import MeshClient
 from simecs.mesh.config import MeshConfig, open_session
+from simecs.mesh.seal import SealedPublisher
 from simecs.nodes import mcapread
 from simecs.testing.launch import LocalMesh, clean_env
 
@@ -56,10 +57,18 @@ def absorb(mesh: LocalMesh, rec_dir: Path) -> dict[str, Any]:
     settings = m.RunSettings(stop_time=stop, output_interval=OUTPUT, pacing="fast")
     context = m.RunContext("bench", desc.default_values(), [0.0] * len(desc.links), None, settings)
     layout = m.RunLayout(sid, "r1", 1, desc.id, cols, units, cols[:1], 50.0, stop, OUTPUT, context)
-    lay_pub = zenoh.ext.declare_advanced_publisher(
-        z, keys.layout(user, sid), cache=zenoh.ext.CacheConfig(1), publisher_detection=True
+    # Published as a worker would: sealed with the mesh's service key, or the recorder ignores it.
+    layout_key, full_key = keys.layout(user, sid), keys.vars_full(user, sid)
+    lay_pub = SealedPublisher(
+        zenoh.ext.declare_advanced_publisher(
+            z, layout_key, cache=zenoh.ext.CacheConfig(1), publisher_detection=True
+        ),
+        layout_key,
+        mesh.seal,
     )
-    full = z.declare_publisher(keys.vars_full(user, sid), congestion_control=zenoh.CongestionControl.BLOCK)
+    full = SealedPublisher(
+        z.declare_publisher(full_key, congestion_control=zenoh.CongestionControl.BLOCK), full_key, mesh.seal
+    )
     n = BURST_FRAMES * ROWS_PER_FRAME
     t = np.arange(n) * OUTPUT
     rows = np.sin(np.outer(t, np.linspace(0.5, 3.0, len(cols))) + np.linspace(0, 1, len(cols)))
@@ -85,10 +94,9 @@ def absorb(mesh: LocalMesh, rec_dir: Path) -> dict[str, Any]:
         for p in payloads:
             full.put(p)
         sent_s = time.perf_counter() - t0
-        z.put(
-            keys.state(user, sid),
-            codec.dumps(m.SessionState(sid, "finished", run_id="r1", sim_time=float(t[-1]))),
-        )
+        state_key = keys.state(user, sid)
+        state = codec.dumps(m.SessionState(sid, "finished", run_id="r1", sim_time=float(t[-1])))
+        z.put(state_key, state, attachment=mesh.seal.mac(state_key, state))
         path = rec_dir / user / f"{keys.recording_name(sid, 'r1')}.mcap"
         end = time.monotonic() + 300
         while not mcapread.has_footer(path):

@@ -17,8 +17,10 @@ import zenoh.ext
 
 from . import codec, frames, keys
 from . import messages as m
+from . import seal as seals
 from .config import MeshConfig, open_session
 from .model import DocPage, ModelDescription, ModelSummary
+from .seal import Seal
 from .workers import BoundedWorker
 
 
@@ -50,16 +52,31 @@ def _decode_error(payload: bytes) -> m.Error:
 
 
 class MeshClient:
-    """Server-wide requests; `session(id)` gives the per-session API."""
+    """Server-wide requests; `session(id)` gives the per-session API.
 
-    def __init__(self, session: zenoh.Session, timeout: float = 10.0, owns_session: bool = False) -> None:
+    With the service's `seal` (only processes of the service have it: the viewer, tests), what a
+    session publishes is shown only if a service node put it (mesh/seal.py); other clients take it
+    as it comes."""
+
+    def __init__(
+        self,
+        session: zenoh.Session,
+        timeout: float = 10.0,
+        owns_session: bool = False,
+        seal: Seal | None = None,
+    ) -> None:
         self.z = session
         self.timeout = timeout
         self._owns = owns_session
+        self.seal = seal
 
     @classmethod
     def open(cls, cfg: MeshConfig, timeout: float = 10.0) -> MeshClient:
-        return cls(open_session(cfg), timeout=timeout, owns_session=True)
+        """A client of the mesh `cfg` describes; it checks seals when `cfg.service_key_file` names
+        a key file that exists."""
+        path = seals.key_file(cfg.service_key_file) if cfg.service_key_file else None
+        seal = seals.load(path) if path is not None and path.exists() else None
+        return cls(open_session(cfg), timeout=timeout, owns_session=True, seal=seal)
 
     def close(self) -> None:
         if self._owns:
@@ -280,8 +297,14 @@ class SessionClient:
         watch = Watch()
         z = self.client.z
 
+        seal = self.client.seal
+
         def add(key: str, cb: Callable[[Any], None], decode: Callable[[bytes], Any], latched: bool) -> None:
-            worker = BoundedWorker(f"watch:{key}", lambda s: cb(decode(s.payload.to_bytes())), maxlen=4096)
+            def handle(sample: zenoh.Sample) -> None:
+                if seal is None or seal.sample_valid(sample):
+                    cb(decode(sample.payload.to_bytes()))
+
+            worker = BoundedWorker(f"watch:{key}", handle, maxlen=4096)
             watch._workers.append(worker)
             if latched:
                 history = zenoh.ext.HistoryConfig(detect_late_publishers=True)

@@ -46,6 +46,7 @@ class MeshConfig:
     users_file: str = ""  # router only: "user:password" lines accepted by the hub
     tls: TlsConfig | None = None
     access_control: dict[str, Any] | None = None  # router only: zenoh `access_control` section
+    service_key_file: str = ""  # the service nodes' shared secret (mesh/seal.py); "" = the default
     extra: dict[str, Any] = field(default_factory=dict)  # any other zenoh key -> JSON value
 
     def with_overrides(self, **changes: Any) -> MeshConfig:

@@ -383,13 +383,25 @@ def recording_name(session: str, run_id: str) -> str:
     return f"{_check('session', session)}_{check_name(run_id, 'run id')}"
 
 
+_RUN_RECORDING = re.compile(SESSION_ID_PATTERN[:-1] + r"_r[0-9]+(\.[0-9]+)?$")
+
+
+def is_run_recording_name(name: str) -> bool:
+    """Whether `name` has the form the recorder gives runs (`<session>_<run>`, `.2`... for a
+    continuation): such names are kept for runs, never taken by uploads (an upload could otherwise
+    stand in for the recording of a run still to come)."""
+    return bool(_RUN_RECORDING.match(name))
+
+
 def name_from_file(filename: str) -> str:
-    """The recording name a file is stored under: its stem (without folders and `.mcap`), reduced to
-    one key chunk (the CLI's replay and the viewer's upload both name files this way)."""
+    """The recording name a file is uploaded under: its stem (without folders and `.mcap`), reduced to
+    one key chunk, with `-copy` added to a run's name (the CLI's replay and the viewer's upload both
+    name files this way)."""
     stem = filename.replace("\\", "/").rpartition("/")[2]
     stem = stem[: -len(".mcap")] if stem.lower().endswith(".mcap") else stem
     name = "".join(c if (c.isascii() and c.isalnum()) or c in "_-." else "_" for c in stem)
-    return name.lstrip("._-")[:64] or "upload"
+    name = name.lstrip("._-")[:64] or "upload"
+    return f"{name[:59]}-copy" if is_run_recording_name(name) else name
 
 
 def node_token(role: str, node_id: str) -> str:

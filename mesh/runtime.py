@@ -29,6 +29,7 @@ import zenoh
 import zenoh.ext
 
 from . import affinity, codec, keys
+from . import seal as seals
 from .config import MeshConfig, open_session
 from .config import load as load_config
 from .logs import setup_logging
@@ -72,6 +73,12 @@ class Request:
     key: str
     payload: bytes | None
     parameters: dict[str, str]
+    sealed: bool = False  # sent by a service node (mesh/seal.py)
+
+    def from_service(self, what: str) -> None:
+        """Refuse the request unless a service node sent it."""
+        if not self.sealed:
+            raise RequestError("forbidden", f"{what} come from service nodes only (no valid seal)")
 
     def json(self, cls: Any) -> Any:
         if self.payload is None:
@@ -105,6 +112,8 @@ class Node:
         self._declared: list[Any] = []
         self._workers: list[BoundedWorker] = []
         self._status_pub: Any = None
+        self._seal: seals.Seal | None = None
+        self.unsealed = 0  # samples and queries of service keys refused for want of a valid seal
         self.log = logging.getLogger(f"simecs.{self.role}")
 
     @classmethod
@@ -133,19 +142,54 @@ class Node:
         assert self.session is not None, "node not started"
         return self.session
 
+    @property
+    def seal(self) -> seals.Seal:
+        """The service's seal (mesh/seal.py), from the service key file (made if missing)."""
+        if self._seal is None:
+            self._seal = seals.load(seals.key_file(self.mesh.service_key_file), create=True)
+        return self._seal
+
+    @seal.setter
+    def seal(self, value: seals.Seal) -> None:
+        self._seal = value
+
     def declare(self, entity: Any) -> Any:
         self._declared.append(entity)
         return entity
 
     def publisher(self, key: str, latched: bool = False, **kwargs: Any) -> Any:
-        """A publisher; `latched` keeps the last sample for late joiners (advanced publisher cache)."""
+        """A publisher whose samples carry the service's seal; `latched` keeps the last sample for
+        late joiners (advanced publisher cache)."""
+        pub: Any
         if latched:
-            return self.declare(
-                zenoh.ext.declare_advanced_publisher(
-                    self.z, key, cache=zenoh.ext.CacheConfig(1), publisher_detection=True, **kwargs
-                )
+            pub = zenoh.ext.declare_advanced_publisher(
+                self.z, key, cache=zenoh.ext.CacheConfig(1), publisher_detection=True, **kwargs
             )
-        return self.declare(self.z.declare_publisher(key, **kwargs))
+        else:
+            pub = self.z.declare_publisher(key, **kwargs)
+        return self.declare(seals.SealedPublisher(pub, key, self.seal))
+
+    def put(self, key: str, payload: bytes) -> None:
+        """One sealed sample on `key` (for keys put too seldom to keep a publisher)."""
+        self.z.put(key, payload, attachment=self.seal.mac(key, payload))
+
+    def sealed_only(self, handle: Callable[[zenoh.Sample], None]) -> Callable[[zenoh.Sample], None]:
+        """`handle`, for samples that carry the service's seal; others are counted and logged."""
+
+        def checked(sample: zenoh.Sample) -> None:
+            if self.seal.sample_valid(sample):
+                handle(sample)
+                return
+            self.unsealed += 1
+            if self.unsealed <= 10 or self.unsealed % 1000 == 0:
+                self.log.warning(
+                    "ignored a sample on %s without a valid service seal (%d so far): only service "
+                    "nodes write this key",
+                    sample.key_expr,
+                    self.unsealed,
+                )
+
+        return checked
 
     def subscribe(
         self,
@@ -156,13 +200,17 @@ class Node:
         remote_only: bool = False,
         inline: bool = False,
         liveliness: bool = False,
+        sealed: bool = False,
     ) -> BoundedWorker | None:
         """Run `handle(sample)` in a worker thread, never in zenoh's callback.
 
         `inline=True` calls it in zenoh's callback instead, saving a thread wake-up (about a
         millisecond on an idle VM): only for handlers that never block and return in microseconds.
         Exceptions are logged either way. `liveliness=True` watches liveliness tokens under `key`
-        (PUT when one appears, DELETE when it goes) instead of data."""
+        (PUT when one appears, DELETE when it goes) instead of data. `sealed=True`: only samples
+        with the service's seal reach `handle` (keys that only service nodes write)."""
+        if sealed:
+            handle = self.sealed_only(handle)
         worker: BoundedWorker | None = None
         push: Callable[[zenoh.Sample], None]
         if inline:
@@ -218,14 +266,16 @@ class Node:
             try:
                 payload = query.payload.to_bytes() if query.payload is not None else None
                 params = dict(list(query.selector.parameters)) if query.selector.parameters else {}  # type: ignore[call-overload]
-                result = handle(Request(key_str, payload, params))
+                sealed = query.attachment is not None and self.seal.sample_valid(query)
+                result = handle(Request(key_str, payload, params, sealed))
                 if isinstance(result, Binary):
                     att = None if result.attachment is None else codec.dumps(result.attachment)
                     query.reply(query.key_expr, result.payload, attachment=att)
                 else:
                     if not isinstance(result, Ok):
                         result = Ok(data=result)
-                    query.reply(query.key_expr, codec.dumps(result))
+                    body = codec.dumps(result)  # sealed: a service node may rely on the answer
+                    query.reply(query.key_expr, body, attachment=self.seal.mac(key_str, body))
             except NotMine:
                 pass
             except Exception as exc:
@@ -254,6 +304,7 @@ class Node:
             **self.status_detail(),
             "declared": len(self._declared),
             "dropped": sum(w.dropped for w in self._workers),
+            **({"unsealed": self.unsealed} if self.unsealed else {}),
             **({"cpu": self.cpu} if self.cpu is not None else {}),
         }
 
@@ -273,6 +324,7 @@ class Node:
     def run(self) -> int:
         """Run until SIGINT/SIGTERM or `stop_event`; returns the process exit code."""
         self._install_signals()
+        _ = self.seal  # a missing or unreadable service key stops the node here, with its reason
         self.session = open_session(self.mesh)
         try:
             if self.live_path:

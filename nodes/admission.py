@@ -20,6 +20,7 @@ from simecs.mesh import codec, keys, phases
 from simecs.mesh import messages as m
 from simecs.mesh.hublink import HubLink
 from simecs.mesh.runtime import RequestError
+from simecs.mesh.seal import Seal
 
 from .sessions import SessionRecord, SessionStore
 
@@ -35,6 +36,7 @@ class Admission:
         self,
         store: SessionStore,
         zenoh_session: Callable[[], zenoh.Session],
+        seal: Callable[[], Seal],
         lock: threading.RLock,
         outcome: Outcome,
         max_running: int | None = None,
@@ -42,6 +44,7 @@ class Admission:
     ) -> None:
         self.store = store
         self._z = zenoh_session
+        self._seal = seal
         self.lock = lock
         self.outcome = outcome
         self.max_running = max_running or os.cpu_count() or 1
@@ -141,16 +144,24 @@ class Admission:
             self.update()
 
     def _offer(self, host: str, payload: bytes, errors: list[str]) -> str:
+        """Hand the run to `host`: sealed, so the host knows it comes from the proxy; and only a sealed
+        answer counts (a peer that merely declared itself a simulator does not get the run)."""
+        key, seal = keys.simulator_run(host), self._seal()
         try:
             replies: list[Any] = list(
-                self._z().get(keys.simulator_run(host), payload=payload, timeout=HANDOVER_TIMEOUT_S)
+                self._z().get(
+                    key, payload=payload, attachment=seal.mac(key, payload), timeout=HANDOVER_TIMEOUT_S
+                )
             )
         except zenoh.ZError as exc:
             errors.append(f"{host}: {exc}")
             return ""
         for reply in replies:
             if reply.ok is not None:
-                return host
+                if seal.sample_valid(reply.ok):
+                    return host
+                errors.append(f"{host}: its answer carries no valid service seal (not a service node)")
+                continue
             errors.append(f"{host}: {reply.err.payload.to_bytes().decode('utf-8', 'replace')[:300]}")
         if not replies:
             errors.append(f"{host}: no answer")

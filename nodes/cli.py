@@ -85,6 +85,7 @@ def cmd_ls(args: argparse.Namespace) -> int:
     import zenoh.ext
     from simecs.mesh import codec, keys
     from simecs.mesh import messages as m
+    from simecs.mesh import seal as seals
     from simecs.mesh.config import load, open_session
 
     cfg = load(args.mesh_config).with_overrides(connect=[args.connect] if args.connect else None)
@@ -92,14 +93,22 @@ def cmd_ls(args: argparse.Namespace) -> int:
     try:
         statuses: dict[str, m.NodeStatus] = {}
         states: dict[str, m.SessionState] = {}
+        # On a machine of the service, show only what service nodes said (mesh/seal.py).
+        key_path = seals.key_file(cfg.service_key_file)
+        seal = seals.load(key_path) if key_path.exists() else None
+
+        def trusted(s: zenoh.Sample) -> bool:
+            return seal is None or seal.sample_valid(s)
 
         def on_status(s: zenoh.Sample) -> None:
-            st = codec.loads(m.NodeStatus, s.payload.to_bytes())
-            statuses[f"{st.role}/{st.node_id}"] = st
+            if trusted(s):
+                st = codec.loads(m.NodeStatus, s.payload.to_bytes())
+                statuses[f"{st.role}/{st.node_id}"] = st
 
         def on_state(s: zenoh.Sample) -> None:
-            st = codec.loads(m.SessionState, s.payload.to_bytes())
-            states[st.session] = st
+            if trusted(s):
+                st = codec.loads(m.SessionState, s.payload.to_bytes())
+                states[st.session] = st
 
         history = zenoh.ext.HistoryConfig(detect_late_publishers=True)
         subs = [

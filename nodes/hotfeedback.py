@@ -61,19 +61,21 @@ class HotFeedback(Node):
         super().__init__(mesh, node_id)
         self.lock = threading.Lock()
         self.wakeup = threading.Condition(self.lock)
-        self.streams: dict[str, Stream] = {}
+        self.streams: dict[tuple[str, str], Stream] = {}  # by (user, session)
         #: The newest frame of a session whose layout has not been handled yet (frames are taken in
         #: zenoh's callback, layouts on a worker thread: a short run's frames can come first).
-        self.early: collections.OrderedDict[str, frames.Frame] = collections.OrderedDict()
+        self.early: collections.OrderedDict[tuple[str, str], frames.Frame] = collections.OrderedDict()
         self.forwarded = 0
 
     def status_detail(self) -> dict[str, Any]:
         return {"streams": len(self.streams), "forwarded": self.forwarded}
 
     def start(self) -> None:
-        self.subscribe(keys.ALL_LAYOUT, self._on_layout, maxlen=256, latched=True)
-        # Per frame: parse a header, copy one row, maybe one put: microseconds, so no thread hop.
-        self.subscribe(keys.ALL_FULL, self._on_full, inline=True)
+        # Only workers write these keys: samples without the service's seal are ignored.
+        self.subscribe(keys.ALL_LAYOUT, self._on_layout, maxlen=256, latched=True, sealed=True)
+        # Per frame: check the seal, parse a header, copy one row, maybe one put: tens of
+        # microseconds, so no thread hop.
+        self.subscribe(keys.ALL_FULL, self._on_full, inline=True, sealed=True)
         threading.Thread(target=self._release_held, name="hotfeedback:release", daemon=True).start()
 
     def _on_layout(self, sample: zenoh.Sample) -> None:
@@ -87,11 +89,11 @@ class HotFeedback(Node):
             self.log.warning("bad layout on %s: %s", sample.key_expr, exc)
             return
         with self.lock:
-            old = self.streams.get(session)
+            old = self.streams.get((user, session))
             pub = old.publisher if old else self.publisher(keys.vars_live(user, session), express=True)
             stream = Stream(layout, idx, int(1e9 / layout.live_rate_hz), publisher=pub)
-            self.streams[session] = stream
-            early = self.early.pop(session, None)
+            self.streams[(user, session)] = stream
+            early = self.early.pop((user, session), None)
             if early is not None and early.run_index == layout.run_index:
                 self._take(stream, early)
 
@@ -118,19 +120,19 @@ class HotFeedback(Node):
 
     def _on_full(self, sample: zenoh.Sample) -> None:
         try:
-            _user, session = keys.owner_of(sample.key_expr)
+            owner = keys.owner_of(sample.key_expr)
             frame = frames.decode(sample.payload.to_bytes(), last_row_only=True)
         except (ValueError, frames.FrameError) as exc:
             self.log.warning("bad frame on %s: %s", sample.key_expr, exc)
             return
         with self.lock:
-            stream = self.streams.get(session)
+            stream = self.streams.get(owner)
             if stream is None or stream.layout.run_index != frame.run_index:
                 # Its layout is not handled yet: keep the newest frame (a final one stays final).
-                before = self.early.pop(session, None)
+                before = self.early.pop(owner, None)
                 if before is not None and before.run_index == frame.run_index and before.final:
                     frame.flags |= frames.FLAG_FINAL
-                self.early[session] = frame
+                self.early[owner] = frame
                 while len(self.early) > EARLY_SESSIONS:
                     self.early.popitem(last=False)
                 return

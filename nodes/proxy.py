@@ -54,7 +54,9 @@ class Proxy(Node):
             data / "sessions", lambda key: self.publisher(key, latched=True), self._release
         )
         self.paramsets = ParamSetStore(data / "paramsets")
-        self.runs = RunTracker(self.store, lambda: self.z, self.lock, max_running, max_queue)
+        self.runs = RunTracker(
+            self.store, lambda: self.z, lambda: self.seal, self.lock, max_running, max_queue
+        )
         self.admission = self.runs.admission
         self.commands: dict[type, Callable[[SessionRecord, Any], Any]] = {
             m.SetParams: self._set_params,
@@ -115,8 +117,10 @@ class Proxy(Node):
         self.serve(keys.ALL_CMD, self._on_cmd, threaded=True)
         self.serve(keys.ALL_RESULTS_LIST, self._on_results_list, threaded=True)
         self.serve(keys.ALL_RESULTS, self._on_results, threaded=True)
-        self.subscribe_messages(keys.ALL_RUN_STATUS, m.RunStatus, self.runs.on_run_status, maxlen=4096)
-        self.subscribe_messages(keys.ALL_NOTICES, m.Notice, self.runs.on_notice, maxlen=256)
+        self.subscribe_messages(
+            keys.ALL_RUN_STATUS, m.RunStatus, self.runs.on_run_status, maxlen=4096, sealed=True
+        )
+        self.subscribe_messages(keys.ALL_NOTICES, m.Notice, self.runs.on_notice, maxlen=256, sealed=True)
         self.subscribe(keys.RUN_TOKENS, self.runs.on_run_token, maxlen=4096, liveliness=True)
         self.runs.recover()
 

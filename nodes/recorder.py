@@ -94,7 +94,7 @@ class Recorder(Node):
         return super().run()
 
     def start(self) -> None:
-        self.pipeline.start(self.z, self.declare)
+        self.pipeline.start(self.z, self.declare, self.seal)
         self.serve(keys.ALL_RECORDING_LISTS, self._on_list, threaded=True)
         self.serve(keys.ALL_RECORDINGS, self._on_file, threaded=True)
         self.serve(keys.ALL_RECORDING_INFOS, self._on_info, threaded=True)

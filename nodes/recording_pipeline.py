@@ -27,6 +27,7 @@ import zenoh.ext
 from simecs.mesh import codec, frames, keys
 from simecs.mesh import messages as m
 from simecs.mesh.client import MeshClient, NoReply, RemoteError
+from simecs.mesh.seal import Seal
 
 from .recording_files import VIZ_RATE_HZ, Gap, Owner, RunFiles
 from .recordings_library import RecordingsLibrary
@@ -122,14 +123,18 @@ class RecordingPipeline:
         self._threads: list[threading.Thread] = []
         self._subs: list[tuple[Any, str]] = []
         self.z: zenoh.Session | None = None
+        self.seal: Seal | None = None
+        self.unsealed = 0
 
     # -- threads ------------------------------------------------------------------------------------
-    def start(self, z: zenoh.Session, declare: Callable[[Any], Any]) -> None:
+    def start(self, z: zenoh.Session, declare: Callable[[Any], Any], seal: Seal) -> None:
         """Subscribe and start the threads. No Python runs in zenoh's threads (a slow callback, or one
         waiting for the GIL while the writer encodes, would stall the link and with it the simulator):
         samples land in native ring buffers (a full ring drops its oldest sample: for frames, seen as a
-        gap in frame numbers) and a puller thread moves them into the writer's queue."""
+        gap in frame numbers) and a puller thread moves them into the writer's queue, keeping only
+        samples with the service's seal (only workers and the proxy write these keys)."""
         self.z = z
+        self.seal = seal
 
         def ring(key: str, latched: bool) -> Any:
             channel: Any = zenoh.handlers.RingChannel(RING_FRAMES)
@@ -162,6 +167,8 @@ class RecordingPipeline:
 
     def _pull_loop(self) -> None:
         put, stop = self.ingest.put, self._stop
+        assert self.seal is not None
+        valid = self.seal.valid
         last_data = 0.0
         while not stop.is_set():
             moved = False
@@ -170,13 +177,27 @@ class RecordingPipeline:
                     sample = sub.try_recv()
                     if sample is None:
                         break
-                    put(kind, str(sample.key_expr), sample.payload.to_bytes())
+                    key, payload, att = str(sample.key_expr), sample.payload.to_bytes(), sample.attachment
+                    if valid(key, payload, att.to_bytes() if att is not None else None):
+                        put(kind, key, payload)
+                    else:
+                        self._refuse(key)
                     moved = True
             now = time.monotonic()
             if moved:
                 last_data = now
             else:  # poll often while data flows, seldom when idle (a 2 ms poll costs 3 % of a core)
                 time.sleep(0.005 if now - last_data < 0.5 else 0.02)
+
+    def _refuse(self, key: str) -> None:
+        self.unsealed += 1
+        if self.unsealed <= 10 or self.unsealed % 1000 == 0:
+            self.log.warning(
+                "ignored a sample on %s without a valid service seal (%d so far): only workers and "
+                "the proxy write it",
+                key,
+                self.unsealed,
+            )
 
     def _writer_loop(self) -> None:
         # Encoding and compressing yield the CPU to the simulator: only this thread is niced (Linux
@@ -290,7 +311,9 @@ class RecordingPipeline:
     def notify(self, user: str, notice: m.Notice) -> None:
         try:
             assert self.z is not None
-            self.z.put(keys.notices(user, notice.session), codec.dumps(notice))
+            assert self.seal is not None
+            key, payload = keys.notices(user, notice.session), codec.dumps(notice)
+            self.z.put(key, payload, attachment=self.seal.mac(key, payload))
         except Exception as exc:  # the file still says it
             self.log.warning("could not publish a notice: %s", exc)
 

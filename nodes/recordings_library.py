@@ -158,6 +158,13 @@ class RecordingsLibrary:
 
     def upload(self, user: str, name: str, data: bytes) -> m.RecordingInfo:
         path = self.path_of(user, name)
+        if keys.is_run_recording_name(name):
+            raise RequestError(
+                "bad_request",
+                f"{name!r}: names of the form <session>_r<N> are kept for the recordings of runs; "
+                "choose another name",
+                "name",
+            )
         if len(data) > MAX_FILE_BYTES:
             raise RequestError(
                 "bad_request", f"upload {name}: {len(data)} bytes is more than {MAX_FILE_BYTES}"

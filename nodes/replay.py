@@ -23,6 +23,23 @@ from . import mcapread
 def put_in_library(client: MeshClient, user: str, path: Path, rec: mcapread.Recording) -> str:
     """The name of `path` in `user`'s recordings: the recording already there, or a fresh upload."""
     data = path.read_bytes()
+
+    def already_there(name: str) -> bool:
+        try:
+            info = client.recording_info(user, name)
+        except ValueError:  # not a name at all
+            return False
+        except RemoteError as exc:
+            if exc.code in ("not_found", "bad_request"):
+                return False
+            raise
+        return info.bytes == len(data) and (info.session, info.run_id) == (
+            rec.layout.session,
+            rec.layout.run_id,
+        )
+
+    if already_there(path.stem):  # a file of the library itself, e.g. recordings/ann/<session>_r1.mcap
+        return path.stem
     base = keys.name_from_file(path.name)
     for k in range(1, 100):
         name = base if k == 1 else f"{base}.{k}"[:64]

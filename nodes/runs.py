@@ -17,6 +17,7 @@ from simecs.mesh import messages as m
 from simecs.mesh.client import MeshClient, NoReply, RemoteError
 from simecs.mesh.hublink import HubLink
 from simecs.mesh.runtime import RequestError
+from simecs.mesh.seal import Seal
 
 from .admission import Admission
 from .sessions import SessionRecord, SessionStore
@@ -38,13 +39,15 @@ class RunTracker:
         self,
         store: SessionStore,
         zenoh_session: Callable[[], zenoh.Session],
+        seal: Callable[[], Seal],
         lock: threading.RLock,
         max_running: int | None = None,
         max_queue: int = 16,
     ) -> None:
         self.store = store
-        self.admission = Admission(store, zenoh_session, lock, self.handed_over, max_running, max_queue)
+        self.admission = Admission(store, zenoh_session, seal, lock, self.handed_over, max_running, max_queue)
         self.z = zenoh_session
+        self.seal = seal
         self.lock = lock
         self.log = log
         #: Runs of closed sessions that were told to abort: session id -> (user, run id).
@@ -140,7 +143,8 @@ class RunTracker:
 
     def send_control(self, user: str, sid: str, run_id: str, op: str, at: float = 0.0) -> None:
         control = m.RunControl(op=op, run_id=run_id, time=at)  # type: ignore[arg-type]
-        self.z().put(keys.control(user, sid), codec.dumps(control))
+        key, payload = keys.control(user, sid), codec.dumps(control)
+        self.z().put(key, payload, attachment=self.seal().mac(key, payload))  # workers obey only this
 
     def pause(self, rec: SessionRecord, cmd: m.Pause) -> str:
         self.control(rec, "pause")

@@ -20,6 +20,7 @@ from typing import Any
 
 from simecs.mesh import codec, keys
 from simecs.mesh import messages as m
+from simecs.mesh import seal as seals
 from simecs.mesh.results import results_reply
 from simecs.mesh.runtime import Binary, Node, NotMine, Request, RequestError, main_for, mesh_from_args
 
@@ -88,6 +89,7 @@ class Simulator(Node):
             cmd += ["--connect", ep]
         cmd += ["--cpu", self.cpu_choice]  # where its zenoh threads go (mesh.affinity)
         env = dict(os.environ)
+        env["SIMECS_SERVICE_KEY_FILE"] = str(seals.key_file(self.mesh.service_key_file))
         if self.mesh_config_path:
             env["SIMECS_MESH_CONFIG"] = self.mesh_config_path
         return subprocess.Popen(
@@ -142,9 +144,10 @@ class Simulator(Node):
         user, session, run_id = key.split(" ")
         reason = f"the simulator process of run {run_id} disappeared (exit code {code})"
         status = m.RunStatus(session=session, run_id=run_id, phase="failed", reason=reason)
-        self.z.put(keys.run_status(user, session), codec.dumps(status))
+        self.put(keys.run_status(user, session), codec.dumps(status))
 
     def _on_run(self, req: Request) -> m.Accepted:
+        req.from_service("run requests")  # the proxy's: its admission and its sessions' owners
         run = req.json(m.RunRequest)
         key = f"{run.user} {run.session} {run.run_id}"
         with self.lock:

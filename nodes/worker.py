@@ -25,9 +25,11 @@ import zenoh
 import zenoh.ext
 from simecs.mesh import affinity, codec, columns, frames, keys
 from simecs.mesh import messages as m
+from simecs.mesh import seal as seals
 from simecs.mesh.config import open_session
 from simecs.mesh.logs import setup_logging
 from simecs.mesh.runtime import mesh_from_args, node_arguments
+from simecs.mesh.seal import Seal, SealedPublisher
 
 from .results_store import ResultsStore, StoredRun
 from .sources import RunSource, open_source
@@ -49,8 +51,9 @@ def chunk_length(speed: float, output_interval: float) -> float:
 class Control:
     """Pause, resume, abort and seek, as the proxy sends them on the session's control key."""
 
-    def __init__(self, run_id: str, paused: bool) -> None:
+    def __init__(self, run_id: str, paused: bool, seal: Seal) -> None:
         self.run_id = run_id
+        self.seal = seal
         self.paused = threading.Event()
         if paused:
             self.paused.set()
@@ -59,6 +62,8 @@ class Control:
         self.seek_to: float | None = None
 
     def on_sample(self, sample: zenoh.Sample) -> None:
+        if not self.seal.sample_valid(sample):  # only the proxy steers runs
+            return
         try:
             ctl = codec.loads(m.RunControl, sample.payload.to_bytes())
         except codec.DecodeError:
@@ -81,21 +86,29 @@ class Control:
 
 
 class Run:
-    def __init__(self, z: zenoh.Session, req: m.RunRequest, store: ResultsStore) -> None:
+    def __init__(self, z: zenoh.Session, req: m.RunRequest, store: ResultsStore, seal: Seal) -> None:
         self.z, self.req, self.store = z, req, store
-        self.control = Control(req.run_id, req.paused)
+        self.control = Control(req.run_id, req.paused, seal)
         self.samples = 0
         self.chunks: list[np.ndarray] = []
         self.source: RunSource | None = None
         self.sim_time = 0.0
         self.rtf = 0.0
         u, s = req.user, req.session
-        self.full = z.declare_publisher(
-            keys.vars_full(u, s), congestion_control=zenoh.CongestionControl.BLOCK, express=True
+        # Every sample carries the service's seal: the proxy, recorder and hot-feedback act only on those.
+        full_key, status_key, layout_key = keys.vars_full(u, s), keys.run_status(u, s), keys.layout(u, s)
+        self.full = SealedPublisher(
+            z.declare_publisher(full_key, congestion_control=zenoh.CongestionControl.BLOCK, express=True),
+            full_key,
+            seal,
         )
-        self.status_pub = z.declare_publisher(keys.run_status(u, s))
-        self.layout_pub = zenoh.ext.declare_advanced_publisher(
-            z, keys.layout(u, s), cache=zenoh.ext.CacheConfig(1), publisher_detection=True
+        self.status_pub = SealedPublisher(z.declare_publisher(status_key), status_key, seal)
+        self.layout_pub = SealedPublisher(
+            zenoh.ext.declare_advanced_publisher(
+                z, layout_key, cache=zenoh.ext.CacheConfig(1), publisher_detection=True
+            ),
+            layout_key,
+            seal,
         )
         self.control_sub = z.declare_subscriber(keys.control(u, s), self.control.on_sample)
         self.token = z.liveliness().declare_token(keys.run_token(u, s, req.run_id))
@@ -239,8 +252,8 @@ class Run:
                 pass
 
 
-def run_request(z: zenoh.Session, req: m.RunRequest, store: ResultsStore, log: Any) -> int:
-    run = Run(z, req, store)
+def run_request(z: zenoh.Session, req: m.RunRequest, store: ResultsStore, seal: Seal, log: Any) -> int:
+    run = Run(z, req, store, seal)
     phase, reason = "failed", ""
     try:
         phase, reason = run.execute()
@@ -278,6 +291,7 @@ def main(argv: list[str] | None = None) -> None:
 
         models.warmup()
         cfg = mesh_from_args(args)
+        seal = seals.load(seals.key_file(cfg.service_key_file))  # the simulator's, made before us
         z = affinity.open_on_mesh_core(lambda: open_session(cfg), args.cpu)
         try:
             print(READY, flush=True)
@@ -292,7 +306,7 @@ def main(argv: list[str] | None = None) -> None:
                     # Throughput, not latency: on the mesh core its frames would take CPU time
                     # from the simulation whenever the OS puts both there.
                     affinity.pin_process(os.sched_getaffinity(0))
-                code = run_request(z, req, ResultsStore(Path(args.results_dir)), log)
+                code = run_request(z, req, ResultsStore(Path(args.results_dir)), seal, log)
         finally:
             z.close()
     except Exception as exc:

@@ -16,6 +16,7 @@ import tempfile
 import time
 from pathlib import Path
 
+from simecs.mesh import seal as seals
 from simecs.mesh.client import MeshClient
 from simecs.mesh.config import MeshConfig
 
@@ -35,12 +36,15 @@ class LocalMesh:
         self.folder = Path(folder) if folder else Path(tempfile.mkdtemp(prefix="smx"))
         self._owns_folder = folder is None
         self.endpoint = f"unixsock-stream/{self.folder}/hub.sock"
+        self.key_file = self.folder / "service.key"  # this mesh's service secret (mesh/seal.py)
+        self.seal = seals.load(self.key_file, create=True)
         self.procs: dict[str, subprocess.Popen[bytes]] = {}
         self.clients: list[MeshClient] = []
 
     @property
     def config(self) -> MeshConfig:
-        return MeshConfig(mode="client", connect=[self.endpoint])
+        """A client of this mesh that checks the service's seals, as the viewer does."""
+        return MeshConfig(mode="client", connect=[self.endpoint], service_key_file=str(self.key_file))
 
     def spawn(
         self, name: str, module: str, *args: str, node_id: str | None = None
@@ -51,9 +55,11 @@ class LocalMesh:
             argv += ["--connect", self.endpoint]
         if node_id:
             argv += ["--node-id", node_id]
+        env = clean_env()
+        env["SIMECS_SERVICE_KEY_FILE"] = str(self.key_file)
         with open(self.folder / f"{name}.log", "ab") as log:
             proc = subprocess.Popen(
-                argv, stdout=log, stderr=subprocess.STDOUT, env=clean_env(), start_new_session=True
+                argv, stdout=log, stderr=subprocess.STDOUT, env=env, start_new_session=True
             )
         self.procs[name] = proc
         return proc

@@ -36,7 +36,7 @@ def test_published_run_is_recorded_listed_downloaded_uploaded(mesh: Mesh) -> Non
     mesh.start("recorder", "--dir", str(rec_dir))
     client = mesh.new_client()
     proxy = FakeProxy(client.z, [SID])
-    run = FakeRun(client.z, SID)
+    run = FakeRun(client.z, mesh.seal, SID)
     try:
         run.announce()
         time.sleep(0.3)
@@ -73,6 +73,10 @@ def test_published_run_is_recorded_listed_downloaded_uploaded(mesh: Mesh) -> Non
     with pytest.raises(RemoteError, match="already exists") as err:
         client.request(keys.recording(USER, "uploaded-copy"), data)
     assert err.value.code == "conflict"
+    future = keys.recording_name(SID, "r2")  # the name the session's next run will be recorded under
+    with pytest.raises(RemoteError, match="kept for the recordings of runs") as err:
+        client.upload_recording(USER, future, data)
+    assert err.value.code == "bad_request" and not (rec_dir / USER / f"{future}.mcap").exists()
     with pytest.raises(RemoteError, match="not an MCAP file") as err:
         client.request(keys.recording(USER, "junk"), b"PK\x03\x04 a zip file, not a recording")
     assert err.value.code == "bad_request"
@@ -91,7 +95,7 @@ def test_sigkill_mid_run_keeps_everything_up_to_the_last_flush(mesh: Mesh) -> No
     rec_dir = mesh.folder / "rec"
     mesh.start("recorder", "--dir", str(rec_dir))
     client = mesh.new_client()
-    run = FakeRun(client.z, SID)
+    run = FakeRun(client.z, mesh.seal, SID)
     rows = make_rows(arm_model(), 1500)
     sent_at: list[tuple[float, int]] = []
     try:
@@ -176,7 +180,7 @@ def test_aborted_run_and_dropped_frames_are_marked_in_the_file(mesh: Mesh) -> No
         lambda s: statuses.append(json.loads(s.payload.to_bytes())),
         history=zenoh.ext.HistoryConfig(detect_late_publishers=True),
     )
-    run = FakeRun(client.z, SID)
+    run = FakeRun(client.z, mesh.seal, SID)
     rows = make_rows(arm_model(), 1000)
     try:
         run.announce()
@@ -215,7 +219,7 @@ def test_frames_lost_on_the_way_show_as_a_gap(mesh: Mesh) -> None:
     rec_dir = mesh.folder / "rec"
     mesh.start("recorder", "--dir", str(rec_dir))
     client = mesh.new_client()
-    run = FakeRun(client.z, SID)
+    run = FakeRun(client.z, mesh.seal, SID)
     rows = make_rows(arm_model(), 70)
     notices: list[m.Notice] = []
     sub = client.z.declare_subscriber(

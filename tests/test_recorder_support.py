@@ -24,6 +24,7 @@ from mcap.stream_reader import StreamReader, get_chunk_data_stream
 from simecs.mesh import codec, columns, frames, keys, kinematics
 from simecs.mesh import messages as m
 from simecs.mesh.model import Link, ModelDescription, Parameter, Shape, Variable
+from simecs.mesh.seal import Seal, SealedPublisher
 from simecs.nodes import mcapfmt as fmt
 from simecs.nodes import mcapread
 
@@ -120,19 +121,31 @@ def layout_for(session: str, run_id: str = "r1", run_index: int = 1, stop_time: 
 
 
 class FakeRun:
-    """Publishes one run as a simulator worker does."""
+    """Publishes one run as a simulator worker does: with the service's seal of the mesh."""
 
     def __init__(
-        self, z: zenoh.Session, session: str, run_id: str = "r1", run_index: int = 1, user: str = USER
+        self,
+        z: zenoh.Session,
+        seal: Seal,
+        session: str,
+        run_id: str = "r1",
+        run_index: int = 1,
+        user: str = USER,
     ) -> None:
         self.z = z
+        self.seal = seal
         self.user = user
         self.layout = layout_for(session, run_id, run_index)
-        self.layout_pub = zenoh.ext.declare_advanced_publisher(
-            z, keys.layout(user, session), cache=zenoh.ext.CacheConfig(1), publisher_detection=True
+        layout_key, full_key = keys.layout(user, session), keys.vars_full(user, session)
+        self.layout_pub = SealedPublisher(
+            zenoh.ext.declare_advanced_publisher(
+                z, layout_key, cache=zenoh.ext.CacheConfig(1), publisher_detection=True
+            ),
+            layout_key,
+            seal,
         )
-        self.full = z.declare_publisher(
-            keys.vars_full(user, session), congestion_control=zenoh.CongestionControl.BLOCK
+        self.full = SealedPublisher(
+            z.declare_publisher(full_key, congestion_control=zenoh.CongestionControl.BLOCK), full_key, seal
         )
         self.token = z.liveliness().declare_token(keys.run_token(user, session, run_id))
         self.seq = 0
@@ -154,7 +167,8 @@ class FakeRun:
         st = m.SessionState(
             self.layout.session, phase, run_id=self.layout.run_id, sim_time=sim_time, reason=reason
         )  # type: ignore[arg-type]
-        self.z.put(keys.state(self.user, self.layout.session), codec.dumps(st))
+        key, payload = keys.state(self.user, self.layout.session), codec.dumps(st)
+        self.z.put(key, payload, attachment=self.seal.mac(key, payload))
 
     def close(self) -> None:
         for e in (self.layout_pub, self.full, self.token):

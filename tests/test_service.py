@@ -424,12 +424,17 @@ def test_hostile_payloads_get_errors_naming_the_field_and_nodes_survive(
 ) -> None:
     c = service.client
     s = c.create_session("ann", "spider")
-    for key in (keys.cmd(s.user, s.id), keys.sessions("ann"), keys.simulator_run("simulator-t")):
-        replies = list(c.z.get(key, payload=payload or None, timeout=5))
+    run_key = keys.simulator_run("simulator-t")
+    seal = service.mesh.seal.mac(run_key, payload)  # a run request as the proxy would send it
+    for key, attachment in ((keys.cmd(s.user, s.id), None), (keys.sessions("ann"), None), (run_key, seal)):
+        replies = list(c.z.get(key, payload=payload or None, attachment=attachment, timeout=5))
         assert len(replies) == 1 and replies[0].err is not None
         err = codec.loads(m.Error, replies[0].err.payload.to_bytes())
         assert err.code == "bad_request" and err.message
         assert err.field != "" if field == "*" else err.field == field, (key, err)
+    # The same request from anyone but the proxy is refused before it is read.
+    replies = list(c.z.get(run_key, payload=payload or None, timeout=5))
+    assert codec.loads(m.Error, replies[0].err.payload.to_bytes()).code == "forbidden"
     assert {r for r, _ in c.live_nodes()} >= {"proxy", "simulator", "hotfeedback"}
     assert s.snapshot().state.phase == "created"
 
@@ -470,13 +475,21 @@ def test_notices_about_a_run_reach_its_state(service: Service) -> None:
     prepare(s, stop_time=1.0, pacing="realtime")
     run_id = s.run()
     s.wait_for(["running"], 30, run_id)
+    key = keys.notices(s.user, s.id)
+
+    def as_recorder(payload: bytes) -> None:  # sealed as the service's recorder would
+        c.z.put(key, payload, attachment=service.mesh.seal.mac(key, payload))
+
     notice = m.Notice(session=s.id, run_id=run_id, source="recorder", message="dropped samples")
     for _ in range(2):  # the same notice twice is listed once
-        c.z.put(keys.notices(s.user, s.id), codec.dumps(notice))
-    c.z.put(keys.notices(s.user, s.id), codec.dumps(m.Notice(s.id, "r99", "recorder", "another run")))
-    c.z.put(keys.notices(s.user, s.id), b"not json")  # refused, logged, nothing else happens
+        as_recorder(codec.dumps(notice))
+    as_recorder(codec.dumps(m.Notice(s.id, "r99", "recorder", "another run")))
+    as_recorder(b"not json")  # refused, logged, nothing else happens
+    forged = m.Notice(s.id, run_id, "recorder", "re-login at http://evil.example")
+    c.z.put(key, codec.dumps(forged))  # without the seal: not from the service, ignored
     wait_until(lambda: s.snapshot().state.warnings, what="warning in state")
     assert s.wait_for(["finished"], 30, run_id).warnings == ["recorder: dropped samples"]
+    assert "without a valid service seal" in service.mesh.log("proxy")
     prepare(s, stop_time=0.1)
     second = s.run()
     assert s.wait_for(["finished"], 30, second).warnings == []

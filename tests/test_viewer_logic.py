@@ -843,6 +843,11 @@ def test_uploaded_files_get_key_safe_recording_names() -> None:
     assert export.upload_name("été.mcap") == "t_"
     assert export.upload_name(".mcap") == "upload"
     assert keys.check_name(export.upload_name("x" * 200 + ".mcap"), "recording name")
+    # A run's name stays the run's: its downloaded file comes back as a copy.
+    sid = keys.new_session_id()
+    assert export.upload_name(f"{sid}_r12.mcap") == f"{sid}_r12-copy"
+    assert export.upload_name(f"{sid}_r12.2.mcap") == f"{sid}_r12.2-copy"
+    assert not keys.is_run_recording_name(export.upload_name(f"{sid}_r12.mcap"))
 
 
 def test_results_panel_lists_runs_and_replays(server: Any) -> None:

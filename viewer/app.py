@@ -78,7 +78,7 @@ class Viewer(Node):
 
     # -- node lifecycle ---------------------------------------------------------------------------
     def start(self) -> None:
-        self.mc = MeshClient(self.z, timeout=10.0)
+        self.mc = MeshClient(self.z, timeout=10.0, seal=self.seal)  # shows only what the service said
         server = viser.ViserServer(host=self.host, port=self.port, label="simecs", verbose=False)
         # Never offer or open a public share tunnel (STACK-NOTES): hide the button, disable the call.
         server.gui.configure_theme(show_share_button=False, show_logo=False, control_width="large")

@@ -1,0 +1,63 @@
+"""A well-formed message from the wrong peer changes nothing: another client, without the service key,
+forges every service key of a user's running session, sends a run request straight to the simulator and
+poses as a simulator, and the run, its state, results and recording are as if it had not."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+from simecs.mesh import codec
+from simecs.mesh import messages as m
+from simecs.mesh.client import MeshClient
+from simecs.mesh.config import MeshConfig
+from simecs.testing import forgery
+
+from .conftest import Mesh, start_service, wait_until
+from .test_resilience import assert_recording_is_the_results, prepared
+
+
+def test_forged_messages_change_nothing(mesh: Mesh) -> None:
+    start_service(mesh)
+    mesh.start("recorder", "--dir", str(mesh.folder / "rec"))
+    client = mesh.client()
+    # A plain client of the same hub: no service key (MeshConfig without service_key_file).
+    with MeshClient.open(MeshConfig(connect=[mesh.endpoint])) as attacker:
+        fake = forgery.FakeSimulator(attacker.z)
+        try:
+            wait_until(lambda: ("simulator", forgery.FAKE_SIMULATOR) in client.live_nodes(), what="fake")
+            s = prepared(client, "ann", 2.0, "realtime")
+            states: list[m.SessionState] = []
+            with s.watch(on_state=states.append):
+                runs = [s.run()]
+                wait_until(lambda: s.snapshot().state.sim_time > 0.2, timeout=30, what="run under way")
+                width = len(client.describe("spider").variables) + 1
+                sent = 0
+                for _ in range(3):
+                    sent += forgery.forge(attacker.z, "ann", s.id, runs[0], 1, width)
+                    time.sleep(0.2)
+                replies = forgery.direct_run_request(attacker.z, "simulator-t", "ann", s.id, "r9")
+                assert [codec.loads(m.Error, r.err.payload.to_bytes()).code for r in replies] == ["forbidden"]
+                end = s.wait_for(["finished", "failed", "aborted"], 60, runs[0])
+                time.sleep(0.5)  # anything the forgeries could still cause
+            # Hosts are offered runs in turn: the fake one's turn comes, its unsealed "ok" counts
+            # for nothing and the run goes to the real host.
+            s.set_settings(stop_time=0.1, output_interval=0.002, pacing="fast")
+            for _ in range(2):
+                runs.append(s.run())
+                assert s.wait_for(["finished", "failed", "aborted"], 60, runs[-1]).phase == "finished"
+            assert fake.offered >= 1
+        finally:
+            fake.close()
+    assert sent > 30
+    assert end.phase == "finished" and end.sim_time == 2.0 and end.warnings == [], end
+    assert {st.phase for st in states} <= {"configured", "queued", "running", "finished"}  # no pause
+    info = {r.run_id: r for r in s.runs()}[runs[0]]
+    assert info.phase == "finished" and info.recording == ""
+    _columns, rows = s.results(runs[0])
+    assert rows.shape[0] == 1001 and np.all(np.diff(rows[:, 0]) > 0)
+    assert 7.0 not in rows[:5, 1:]  # none of the forged samples
+    assert_recording_is_the_results(mesh, s, runs[0])
+    assert s.snapshot().values["joint1.ctrl.kp_pos"] != 1.0
+    assert [r.run_id for r in s.runs()] == runs  # the direct request started nothing
+    assert "without a valid service seal" in mesh.log("proxy")
