@@ -52,6 +52,21 @@ class MeshConfig:
     def with_overrides(self, **changes: Any) -> MeshConfig:
         return replace(self, **{k: v for k, v in changes.items() if v is not None})
 
+    @property
+    def secured(self) -> bool:
+        """Whether this mesh tells users apart (the hub checks names and passwords)."""
+        return bool(self.user)
+
+    def as_user(self, user: str, password: str, timeout_ms: int = 3000) -> MeshConfig:
+        """This (a service node's) configuration, joining as `user` instead: how the viewer acts for
+        a user who logged in on a secured mesh, so the hub's rules for that user apply to all it does.
+        A wrong password fails after `timeout_ms` (zenoh says no more than that it could not join)."""
+        tls = TlsConfig(root_ca_certificate=self.tls.root_ca_certificate) if self.tls else None
+        extra = {"connect/timeout_ms": {"client": timeout_ms}}
+        return MeshConfig(
+            mode="client", connect=list(self.connect), user=user, password=password, tls=tls, extra=extra
+        )
+
     def to_zenoh(self) -> Any:
         """The zenoh.Config for this mesh configuration."""
         import zenoh

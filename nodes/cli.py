@@ -10,7 +10,9 @@ import os
 import sys
 import time
 
-from simecs.mesh.config import DEFAULT_HUB
+from simecs.mesh.config import DEFAULT_HUB, MeshConfig, load
+
+SECURE_DIR = os.path.join(os.environ.get("SIMECS_DATA", ".simecs"), "secure")
 
 #: Node name -> module with a `main(argv)`. The viewer lives in its own package.
 NODES = {
@@ -35,14 +37,42 @@ def _available(module: str) -> bool:
     return importlib.util.find_spec(module) is not None
 
 
+def secure_setup(args: argparse.Namespace) -> tuple[str, list[str], list[str], str]:
+    """For `simecs up --secure`: (the hub endpoint nodes connect to, the hub's flags, every other
+    node's flags, a line for the banner); certificates, credentials and configurations are made here."""
+    from simecs.mesh import seal
+    from simecs.nodes.secure import HUB_PORT, SecureFolder
+
+    folder = SecureFolder(args.secure_dir)
+    host = args.hub_host
+    folder.ensure_certificates([host])
+    local = f"tls/127.0.0.1:{HUB_PORT}"
+    listen = [f"tls/{host}:{HUB_PORT}"] + ([local] if host != "127.0.0.1" else [])
+    hub_flags = ["--mesh-config", str(folder.hub_config(listen))]
+    key_file = str(seal.key_file(""))
+    seal.load(key_file, create=True)
+    node_flags = ["--mesh-config", str(folder.node_config(local, key_file))]
+    users = folder.users()
+    note = (
+        f"secured: TLS on tls/{host}:{HUB_PORT}, {len(users)} users ({folder.dir}/users.json); users "
+        f"join with `simecs users config NAME --hub tls/{host}:{HUB_PORT}` and {folder.ca_file}"
+    )
+    if not users:
+        note += "\nno users yet: add them with `simecs users add NAME`, then start again"
+    return local, hub_flags, node_flags, note
+
+
 def cmd_up(args: argparse.Namespace) -> int:
     from simecs.nodes.supervisor import Child, Supervisor, node_argv
 
     hub = args.hub
     data = os.path.abspath(args.data_dir)
     common = ["--connect", hub]
+    hub_flags, note = ["--listen", hub], ""
+    if args.secure:
+        hub, hub_flags, common, note = secure_setup(args)
     children = [
-        Child("hub", node_argv(NODES["hub"], ["--listen", hub])),
+        Child("hub", node_argv(NODES["hub"], hub_flags)),
         Child(
             "proxy",
             node_argv(
@@ -71,9 +101,41 @@ def cmd_up(args: argparse.Namespace) -> int:
         roles.append("viewer")
         url = f"http://{'127.0.0.1' if args.host in ('0.0.0.0', '') else args.host}:{args.port}"
     banner = f"simecs is up ({', '.join(roles)}) on hub {hub}"
+    if note:
+        banner += f"\n{note}"
     if url:
         banner += f"\nOpen the viewer: {url}"
-    return Supervisor(children, hub).run_forever(roles, banner)
+    config = MeshConfig(mode="client", connect=[hub])
+    if args.secure:
+        config = load(common[1])  # the supervisor checks readiness as the service does
+    return Supervisor(children, config).run_forever(roles, banner)
+
+
+def cmd_users(args: argparse.Namespace) -> int:
+    from simecs.nodes.secure import HUB_PORT, SecureFolder, SecurityError
+
+    folder = SecureFolder(args.secure_dir)
+    try:
+        if args.action == "add":
+            password = folder.add_user(args.name, "watcher" if args.watcher else "user", args.password)
+            role = "watcher (reads every session, commands nothing)" if args.watcher else "user"
+            print(f"{args.name}: {role}, password {password}")
+            print("The hub reads its users when it starts: restart `simecs up --secure`.")
+        elif args.action == "remove":
+            folder.remove_user(args.name)
+            print(f"{args.name} removed; the hub forgets them when it restarts")
+        elif args.action == "list":
+            for name, user in sorted(folder.users().items()):
+                print(f"{name:32} {user.role}")
+        else:  # config
+            hub = args.hub or f"tls/127.0.0.1:{HUB_PORT}"
+            print(json.dumps(folder.user_config(args.name, hub), indent=1))
+            hint = f"save as {args.name}.json5 on their machine, with a copy of {folder.ca_file} at that path"
+            print(hint, file=sys.stderr)
+    except SecurityError as exc:
+        print(f"simecs users: {exc}", file=sys.stderr)
+        return 2
+    return 0
 
 
 def cmd_node(args: argparse.Namespace, rest: list[str]) -> int:
@@ -175,6 +237,25 @@ def build_parser() -> argparse.ArgumentParser:
     up.add_argument("--max-running", type=int, default=None, help="simultaneous runs (default: cores)")
     up.add_argument("--no-viewer", action="store_true", help="headless: no web viewer")
     up.add_argument("--no-recorder", action="store_true", help="do not record runs")
+    up.add_argument(
+        "--secure",
+        action="store_true",
+        help="for a LAN: TLS, users with passwords (simecs users), per-user access rules at the hub",
+    )
+    up.add_argument(
+        "--hub-host",
+        default="127.0.0.1",
+        help="with --secure: the address (or name) users reach the hub at; it listens there, TLS",
+    )
+    up.add_argument("--secure-dir", default=SECURE_DIR, help="with --secure: users, certificates, keys")
+
+    users = sub.add_parser("users", help="the users of a secured mesh (simecs up --secure)")
+    users.add_argument("action", choices=["add", "remove", "list", "config"])
+    users.add_argument("name", nargs="?", default="", help="user name (add, remove, config)")
+    users.add_argument("--watcher", action="store_true", help="add: may read every session, command none")
+    users.add_argument("--password", default="", help="add: this password (default: a random one)")
+    users.add_argument("--hub", default="", help="config: the hub endpoint the user connects to")
+    users.add_argument("--secure-dir", default=SECURE_DIR)
 
     node = sub.add_parser(
         "node", help="run one node (for a LAN: --connect tcp/HUB:7447); NAME --help for its flags"
@@ -221,6 +302,10 @@ def main(argv: list[str] | None = None) -> None:
         sys.exit(cmd_up(args))
     if args.command == "ls":
         sys.exit(cmd_ls(args))
+    if args.command == "users":
+        if args.action != "list" and not args.name:
+            parser.error(f"users {args.action} needs a user name")
+        sys.exit(cmd_users(args))
     if args.command == "bench":
         sys.exit(cmd_bench(args))
     parser.error(f"unknown command {args.command}")

@@ -39,9 +39,9 @@ def node_argv(module: str, args: list[str]) -> list[str]:
 
 
 class Supervisor:
-    def __init__(self, children: list[Child], hub: str) -> None:
+    def __init__(self, children: list[Child], hub: MeshConfig) -> None:
         self.children = children
-        self.hub = hub
+        self.hub = hub  # how to join the hub to see which nodes are ready
         self.stopping = threading.Event()
 
     @staticmethod
@@ -80,7 +80,7 @@ class Supervisor:
 
     def wait_ready(self, roles: list[str], timeout: float = 60.0) -> bool:
         """Wait until every role has a liveliness token on the hub."""
-        cfg = MeshConfig(mode="client", connect=[self.hub])
+        cfg = self.hub
         end = time.monotonic() + timeout
         z = None
         try:

@@ -31,11 +31,13 @@ def clean_env() -> dict[str, str]:
 class LocalMesh:
     """A hub and the nodes started on it; `close()` stops them all (SIGTERM, then SIGKILL)."""
 
-    def __init__(self, folder: str | os.PathLike[str] | None = None) -> None:
+    def __init__(self, folder: str | os.PathLike[str] | None = None, endpoint: str = "") -> None:
         # Short path: unix socket paths are limited to 108 bytes.
         self.folder = Path(folder) if folder else Path(tempfile.mkdtemp(prefix="smx"))
         self._owns_folder = folder is None
-        self.endpoint = f"unixsock-stream/{self.folder}/hub.sock"
+        self.endpoint = endpoint or f"unixsock-stream/{self.folder}/hub.sock"
+        #: How this harness joins the hub (a secured hub: as the service); default a plain client.
+        self.client_config: MeshConfig | None = None
         self.key_file = self.folder / "service.key"  # this mesh's service secret (mesh/seal.py)
         self.seal = seals.load(self.key_file, create=True)
         self.procs: dict[str, subprocess.Popen[bytes]] = {}
@@ -44,6 +46,8 @@ class LocalMesh:
     @property
     def config(self) -> MeshConfig:
         """A client of this mesh that checks the service's seals, as the viewer does."""
+        if self.client_config is not None:
+            return self.client_config
         return MeshConfig(mode="client", connect=[self.endpoint], service_key_file=str(self.key_file))
 
     def spawn(

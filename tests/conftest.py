@@ -7,6 +7,7 @@ is bounded; every process is stopped (SIGTERM, then SIGKILL) when the test ends.
 
 from __future__ import annotations
 
+import socket
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
@@ -15,12 +16,60 @@ from typing import Any
 
 import pytest
 from simecs.mesh.client import MeshClient
+from simecs.mesh.config import load
+from simecs.nodes.secure import SecureFolder
 from simecs.testing.launch import LocalMesh, clean_env
 
 ARTIFACTS = Path(__file__).resolve().parent.parent / "artifacts"
 
 Mesh = LocalMesh
 mesh_env = clean_env
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+@dataclass
+class Secured:
+    """A secured mesh as `simecs up --secure` makes it: TLS hub on loopback, users ann and bob, the
+    watcher eve, the generated access rules, the service nodes joined as the service."""
+
+    mesh: LocalMesh
+    folder: SecureFolder
+    passwords: dict[str, str]
+    node_config: str
+
+    def login(self, user: str, password: str | None = None) -> MeshClient:
+        cfg = self.mesh.config.as_user(user, self.passwords[user] if password is None else password, 800)
+        client = MeshClient.open(cfg, timeout=3.0)
+        self.mesh.clients.append(client)
+        return client
+
+
+@pytest.fixture
+def secured() -> Iterator[Secured]:
+    mesh = LocalMesh(endpoint=f"tls/127.0.0.1:{free_port()}")
+    folder = SecureFolder(mesh.folder / "secure")
+    passwords = {"ann": folder.add_user("ann"), "bob": folder.add_user("bob")}
+    passwords["eve"] = folder.add_user("eve", "watcher")
+    folder.ensure_certificates([])
+    hub = folder.hub_config([mesh.endpoint])
+    nodes = str(folder.node_config(mesh.endpoint, str(mesh.key_file)))
+    mesh.client_config = load(nodes)  # the harness joins as the service
+    try:
+        mesh.spawn("hub", "simecs.nodes.hub", "--mesh-config", str(hub), node_id="hub")
+        mesh.client()
+        data = mesh.folder / "data"
+        mesh.start("proxy", "--data-dir", str(data), "--mesh-config", nodes)
+        mesh.start("simulator", "--results-dir", str(data / "results"), "--mesh-config", nodes)
+        mesh.start("hotfeedback", "--mesh-config", nodes)
+        mesh.start("recorder", "--dir", str(mesh.folder / "rec"), "--mesh-config", nodes)
+        yield Secured(mesh, folder, passwords, nodes)
+    finally:
+        mesh.close()
 
 
 @pytest.fixture
