@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import importlib.util
 import math
-import socket
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -20,7 +19,7 @@ from simecs.mesh import keys
 from simecs.mesh.client import MeshClient
 from simecs.testing import browser as chromium
 
-from .conftest import ARTIFACTS, Mesh, start_service, wait_until
+from .conftest import ARTIFACTS, Mesh, Secured, free_port, start_service, wait_until
 
 MISSING = chromium.browser_missing()
 
@@ -28,13 +27,7 @@ SPIDER = "Load Spider arm (joint-independent control)"
 USER = "tester"
 
 
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
-
-
-def start_viewer(mesh: Mesh) -> str:
+def start_viewer(mesh: Mesh, *flags: str) -> str:
     port = free_port()
     mesh.spawn(
         "viewer",
@@ -45,6 +38,7 @@ def start_viewer(mesh: Mesh) -> str:
         str(port),
         "--user",
         USER,
+        *flags,
         node_id="viewer-t",
     )
     mesh.wait_node("viewer", "viewer-t", timeout=60)
@@ -285,3 +279,34 @@ def two_tabs(mesh: Mesh, browser: Any) -> None:
     b.screenshot(path=str(ARTIFACTS / "viewer_two_tabs.png"))
     context.close()
     time.sleep(0.2)
+
+
+def text_field(page: Any, label: str) -> Any:
+    """A viser text input by its label (viser's label is not tied to its text input)."""
+    return page.locator(f"div:has(> div > p > label:text-is('{label}')) input").first
+
+
+def test_a_secured_viewer_asks_for_the_password_and_acts_as_that_user(secured: Secured, browser: Any) -> None:
+    """On a secured mesh the page does nothing before the password; then everything the tab does is
+    done as that user (the hub's rules apply), and the password is masked on screen."""
+    mesh = secured.mesh
+    with logs_on_failure(mesh, "viewer", "proxy"):
+        url = start_viewer(mesh, "--mesh-config", secured.node_config)
+        page = new_page(browser.new_context(viewport=chromium.VIEWPORT), url)
+        text_appears(page, "log in with your password")
+        user = text_field(page, "User")
+        chromium.set_field(page, user, "ann")
+        password = text_field(page, "Password")
+        assert password.evaluate("e => getComputedStyle(e).webkitTextSecurity") == "disc"
+        assert user.evaluate("e => getComputedStyle(e).webkitTextSecurity") == "none"
+        password.fill("not-her-password")
+        page.get_by_role("button", name="Log in").click()
+        text_appears(page, "did not let ann in")
+        password.fill(secured.passwords["ann"])
+        page.get_by_role("button", name="Log in").click()
+        text_appears(page, "Logged in")
+        page.get_by_role("button", name=SPIDER).click()
+        text_appears(page, "Spider arm (joint-independent control)")
+        ann = secured.login("ann")
+        sessions = wait_until(lambda: ann.list_sessions("ann"), timeout=20, what="ann's session")
+        assert len(sessions) == 1 and secured.login("bob").list_sessions("bob") == []

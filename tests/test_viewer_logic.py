@@ -31,6 +31,7 @@ from simecs.viewer import (
     docs,
     events,
     export,
+    identity,
     joints,
     library,
     params,
@@ -60,6 +61,7 @@ HEADLESS = (
     "events",
     "errors",
     "host",
+    "identity",
     "stream",
     "series",
     "path",
@@ -275,15 +277,59 @@ class FakeMesh:
 
 
 class FakeHost:
-    """The viewer node as a tab sees it (`host.Host`)."""
+    """The viewer node as a tab sees it (`host.Host`); `passwords` make it a secured one."""
 
-    def __init__(self, mc: FakeMesh) -> None:
-        self.mc = mc
+    def __init__(self, mc: FakeMesh, passwords: dict[str, str] | None = None) -> None:
+        self.secured = passwords is not None
+        self.passwords = passwords or {}
+        self.mc: Any = LibraryOnly(mc) if self.secured else mc
         self.default_user = "tester"
         self.claims = Claims(lambda claimant: not claimant.closed)
+        self.logins: list[AsUser] = []
 
     def describe(self, model_id: str) -> ModelDescription:
         return self.mc.describe(model_id)
+
+    def login(self, user: str, password: str) -> Any:
+        if self.passwords.get(user) != password:
+            raise ValueError(f"the hub did not let {user} in: wrong user name or password?")
+        client = AsUser(self.mc.mesh, user)
+        self.logins.append(client)
+        return client
+
+
+class LibraryOnly:
+    """The viewer's own client on a secured mesh: the library, and nothing of any user."""
+
+    def __init__(self, mesh: FakeMesh) -> None:
+        self.mesh = mesh
+        self.list_models, self.describe, self.doc = mesh.list_models, mesh.describe, mesh.doc
+
+
+class AsUser:
+    """A client joined as one user: the hub lets nothing of another user's keys through."""
+
+    def __init__(self, mesh: FakeMesh, user: str) -> None:
+        self.mesh, self.user, self.closed = mesh, user, False
+
+    def _own(self, user: str) -> None:
+        if user != self.user or self.closed:
+            raise NoReply(f"no node answered simecs/u/{user}/...")
+
+    def create_session(self, user: str, model_id: str) -> FakeSession:
+        self._own(user)
+        return self.mesh.create_session(user, model_id)
+
+    def list_sessions(self, user: str) -> list[m.SessionEntry]:
+        self._own(user)
+        return self.mesh.list_sessions(user)
+
+    def session(self, user: str, sid: str) -> FakeSession:
+        self._own(user)
+        return self.mesh.session(user, sid)
+
+    def close(self) -> None:
+        self.closed = True
 
 
 class Recorder(list):
@@ -899,10 +945,10 @@ def test_errors_read_as_sentences() -> None:
 
 
 def test_user_names_and_model_summaries() -> None:
-    assert session.valid_user(" ada ") == "ada"
+    assert identity.valid_user(" ada ") == "ada"
     with pytest.raises(ValueError):
-        session.valid_user("no spaces")
-    assert session.valid_user(session.new_user_name())
+        identity.valid_user("no spaces")
+    assert identity.valid_user(identity.new_user_name())
     text = library.model_markdown(arm().summary_entry())
     assert "3 joints" in text and "joint path" in text
     entry = m.SessionEntry("abcdefghijklmnopqrstuv", "arm3", "finished")
@@ -962,6 +1008,40 @@ def test_controller_starts_with_the_library_then_attaches_a_new_session() -> Non
     assert ctl.values == arm().default_values() and ctl.streamed == {v.name for v in arm().variables}
     assert got.of(events.ParamSetsChanged)[-1].names == ["light"]
     assert got.of(events.StateShown)[-1].state.phase == "created"
+
+
+def test_on_a_secured_mesh_a_tab_logs_in_first_and_acts_as_its_user_only() -> None:
+    mesh = FakeMesh(arm())
+    host = FakeHost(mesh, passwords={"ann": "ann-password", "bob": "bob-password"})
+    kept = mesh.create_session("ann", "arm3")  # from an earlier visit of this browser
+    ctl = session.SessionController(host, tab_id=3, sync_delay_s=0.05)
+    got = Recorder()
+    ctl.subscribe(got)
+    ctl.start(remembered_session=kept.id, remembered_user="ann")
+    ctl.drain()
+    listed = got.of(events.LibraryListed)[-1]
+    assert listed.login and listed.sessions == [] and ctl.session is None  # nothing before the password
+    ctl.load_model("arm3")
+    ctl.drain()
+    assert "log in first" in got.of(events.Notice)[-1].body and ctl.session is None
+    ctl.login("not-her-password")
+    ctl.drain()
+    assert "did not let ann in" in got.of(events.Notice)[-1].body and host.logins == []
+    ctl.login("ann-password")
+    ctl.drain()
+    assert [c.user for c in host.logins] == ["ann"]
+    assert ctl.session is not None and ctl.session.id == kept.id  # the remembered session, reopened
+    ctl.load_model("arm3")
+    ctl.drain()
+    assert mesh.sessions[ctl.session.id].snap.user == "ann"
+    # Another name logs ann out: her client is closed, nothing is asked as her any more.
+    ctl.set_user("bob")
+    ctl.drain()
+    assert host.logins[0].closed and not ctl.identity.logged_in
+    ctl.open_library()
+    ctl.drain()
+    assert got.of(events.LibraryListed)[-1].login and got.of(events.LibraryListed)[-1].sessions == []
+    ctl.close()
 
 
 def test_controller_reopens_the_remembered_session_and_forgets_a_vanished_one() -> None:

@@ -16,6 +16,7 @@ from typing import Any
 
 import viser
 from simecs.mesh.client import MeshClient
+from simecs.mesh.config import open_session
 from simecs.mesh.model import ModelDescription
 from simecs.mesh.runtime import Node, main_for, mesh_from_args
 
@@ -115,6 +116,21 @@ class Viewer(Node):
         tab = self.tabs.pop(client.client_id, None)
         if tab is not None:
             tab.close()
+
+    @property
+    def secured(self) -> bool:
+        return self.mesh.secured
+
+    def login(self, user: str, password: str) -> MeshClient:
+        """A client joined as `user` (a secured mesh: the hub checks the password and applies that
+        user's rules); ValueError when the hub refuses."""
+        try:
+            z = open_session(self.mesh.as_user(user, password), deadline_s=0.0)
+        except RuntimeError:
+            self.log.info("login of %s refused", user)
+            raise ValueError(f"the hub did not let {user} in: wrong user name or password?") from None
+        self.log.info("%s logged in", user)
+        return MeshClient(z, timeout=10.0, owns_session=True, seal=self.seal)
 
     def describe(self, model_id: str) -> ModelDescription:
         """A model's description, asked once per viewer (it only changes with a server restart)."""

@@ -43,6 +43,7 @@ class LibraryListed:
     sessions: list[m.SessionEntry]
     current: str
     can_dismiss: bool
+    login: bool = False  # a secured mesh: the user must log in (password) before anything else
 
 
 @dataclass

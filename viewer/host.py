@@ -66,7 +66,18 @@ class Host(Protocol):
     """The viewer node as its tabs see it."""
 
     @property
-    def mc(self) -> MeshClient: ...
+    def mc(self) -> MeshClient:
+        """The viewer's own client: the library, and every tab's requests on an open mesh."""
+        ...
+
+    @property
+    def secured(self) -> bool:
+        """Users log in (name and password) and each tab acts as its user (identity.py)."""
+        ...
+
+    def login(self, user: str, password: str) -> MeshClient:
+        """A client joined as `user`; ValueError saying so when the hub refuses."""
+        ...
 
     @property
     def default_user(self) -> str: ...

@@ -44,6 +44,7 @@ class LibraryWindow:
         on_close_session: Callable[[str], None],
         on_user: Callable[[str], None],
         can_dismiss: bool,
+        on_login: Callable[[str], None] | None = None,
     ) -> None:
         self.modal = gui.add_modal("Models")
         with self.modal:
@@ -52,6 +53,18 @@ class LibraryWindow:
             )
             self.on_user = on_user
             self.user.on_update(self._user_edited)
+            if on_login is not None:  # a secured server: nothing before the password
+                gui.add_markdown("This server knows its users: log in with your password.")
+                password = gui.add_text("Password", "", hint="the password your administrator gave you")
+                # viser has no password input: the browser masks this one (CSS). docs/LAN.md: serve the
+                # viewer over TLS on a LAN, the password goes to the viewer as typed.
+                field = f"label[for='{password._impl.uuid}']"
+                gui.add_html(
+                    f"<style>div:has(> div > p > {field}) input {{-webkit-text-security: disc;}}</style>"
+                )
+                login = gui.add_button("Log in", color="green")
+                login.on_click(lambda _e: on_login(str(password.value)))
+                return
             gui.add_markdown("**Library**: load a model to start a new session with its default values.")
             if not models:
                 gui.add_markdown("_The server offers no model (is the proxy node running?)._")

@@ -129,7 +129,7 @@ class ResultsIO:
         def job() -> None:
             name = self.recording_of(run_id)
             try:
-                payload = self.c.host.mc.download_recording(self.c.user, name)
+                payload = self.c.mc.download_recording(self.c.user, name)
             except NoReply:
                 self.c.notify(
                     "No recording",
@@ -150,7 +150,7 @@ class ResultsIO:
         def job() -> None:
             name = upload_name(filename)
             try:
-                info = self.c.host.mc.upload_recording(self.c.user, name, content)
+                info = self.c.mc.upload_recording(self.c.user, name, content)
             except NoReply:
                 self.c.notify(
                     "Upload unavailable",

@@ -16,19 +16,19 @@ recorded parameter values.
 from __future__ import annotations
 
 import logging
-import secrets
 import threading
 from functools import partial
 
 from simecs.mesh import frames, keys, phases
 from simecs.mesh import messages as m
-from simecs.mesh.client import NoReply, RemoteError, SessionClient, Watch
+from simecs.mesh.client import MeshClient, NoReply, RemoteError, SessionClient, Watch
 from simecs.mesh.model import DocPage, ModelDescription
 
 from . import events as ev
 from .edits import SYNC_DELAY_S, Edits
 from .errors import describe_error
 from .host import Host
+from .identity import Identity, NotLoggedIn, new_user_name
 from .path import JointPathEditor, clamp_to_limits
 from .results_io import ResultsIO
 from .runs import RunControl
@@ -36,15 +36,6 @@ from .stream import RunStream
 from .workers import Dispatcher
 
 log = logging.getLogger("simecs.viewer")
-
-
-def new_user_name() -> str:
-    return f"user-{secrets.token_hex(3)}"
-
-
-def valid_user(name: str) -> str:
-    """The name if it can be a user name on the mesh; ValueError with the rule otherwise."""
-    return keys.check_name(name.strip(), "user name")
 
 
 class SessionController(Dispatcher):
@@ -55,7 +46,8 @@ class SessionController(Dispatcher):
     def __init__(self, host: Host, tab_id: int = 0, sync_delay_s: float = SYNC_DELAY_S) -> None:
         super().__init__(tab_id)
         self.host = host
-        self.user = ""
+        self.identity = Identity(host)
+        self._remembered = ""  # the session the tab had, reopened once its user logged in
         self.session: SessionClient | None = None
         self.model: ModelDescription | None = None
         self.values: dict[str, float] = {}
@@ -78,6 +70,15 @@ class SessionController(Dispatcher):
         self._lock = threading.RLock()
 
     @property
+    def user(self) -> str:
+        return self.identity.user
+
+    @property
+    def mc(self) -> MeshClient:
+        """The client this tab acts for its user with (identity.py)."""
+        return self.identity.mc
+
+    @property
     def phase(self) -> str:
         return self.state.phase if self.state is not None else "created"
 
@@ -96,20 +97,35 @@ class SessionController(Dispatcher):
 
     # == lifecycle ================================================================================
     def start(self, remembered_session: str = "", remembered_user: str = "") -> None:
-        """Find out who this is and reopen the session the tab had, or offer the models window."""
+        """Find out who this is and reopen the session the tab had, or offer the models window (on a
+        secured mesh: once the user has logged in there)."""
         try:
-            self.user = valid_user(remembered_user or self.host.default_user or new_user_name())
+            self.identity.choose(remembered_user or self.host.default_user or new_user_name())
         except ValueError:
-            self.user = new_user_name()
+            self.identity.choose(new_user_name())
         if self.user != remembered_user:
             self.emit(ev.UserChanged(self.user))
+        self._remembered = remembered_session
+        self.submit("Open your session", self._reopen)
+
+    def _reopen(self) -> None:
+        sid, self._remembered = self._remembered, ""
+        if not self.identity.logged_in:
+            self._remembered = sid
+            self._list_library(can_dismiss=False)
+            return
+        if not (sid and keys.is_session_id(sid) and self._attach(sid, quiet_missing=True)):
+            self._list_library(can_dismiss=False)
+
+    def login(self, password: str) -> None:
+        """Log the tab's user in (secured mesh), then reopen the tab's session or list theirs."""
 
         def job() -> None:
-            sid = remembered_session
-            if not (sid and keys.is_session_id(sid) and self._attach(sid, quiet_missing=True)):
-                self._list_library(can_dismiss=False)
+            self.identity.login(password)
+            self.notify("Logged in", f"You are **{self.user}** on this server.", "ok")
+            self._reopen()
 
-        self.submit("Open your session", job)
+        self.submit("Log in", job)
 
     def close(self) -> None:
         """The tab went away (closed or reloading): keep the session, drop the subscriptions."""
@@ -119,6 +135,7 @@ class SessionController(Dispatcher):
                 self.host.claims.release(self.session.id, self)
         self._stop_watch()
         self.shutdown()
+        self.identity.logout()
 
     def _stop_watch(self) -> None:
         """Never under the lock: a watch worker may wait for it while its watch is being closed."""
@@ -135,27 +152,36 @@ class SessionController(Dispatcher):
         self.submit("Models", lambda: self._list_library(can_dismiss))
 
     def _list_library(self, can_dismiss: bool) -> None:
-        mc = self.host.mc
         try:
-            models = mc.list_models()
+            models = self.host.mc.list_models()  # the library is everyone's
         except (RemoteError, NoReply) as exc:
             self.fail("Cannot list the models", exc)
             models = []
         try:
-            sessions = mc.list_sessions(self.user)
-        except (RemoteError, NoReply):
+            sessions = self.mc.list_sessions(self.user)
+        except (RemoteError, NoReply, NotLoggedIn):
             sessions = []
         current = self.session.id if self.session is not None else ""
-        self.emit(ev.LibraryListed(self.user, models, sessions, current, can_dismiss and bool(current)))
+        login = not self.identity.logged_in
+        self.emit(
+            ev.LibraryListed(self.user, models, sessions, current, can_dismiss and bool(current), login)
+        )
 
     def set_user(self, name: str) -> None:
         try:
-            self.user = valid_user(name)
+            changed = self.identity.choose(name)
         except ValueError as exc:
             self.notify("User name refused", str(exc), "error")
             return
+        if not changed:
+            return
         self.emit(ev.UserChanged(self.user))
-        self.notify("User", f"You are now **{self.user}**; reopen Models to see this user's sessions.", "ok")
+        if self.identity.secured:
+            self.notify("User", f"Log in as **{self.user}** with your password.", "info")
+        else:
+            self.notify(
+                "User", f"You are now **{self.user}**; reopen Models to see this user's sessions.", "ok"
+            )
 
     def load_model(self, model_id: str) -> None:
         """A new session on `model_id` with its defaults, shown in this tab."""
@@ -163,7 +189,7 @@ class SessionController(Dispatcher):
 
     def open_new_now(self, model_id: str) -> bool:
         """Create a session on `model_id` and show it (on a worker: it waits for the server)."""
-        sc = self.host.mc.create_session(self.user, model_id)
+        sc = self.mc.create_session(self.user, model_id)
         return self._open(sc.id, sc.created)
 
     def open_session(self, sid: str) -> None:
@@ -181,7 +207,7 @@ class SessionController(Dispatcher):
         def job() -> None:
             if self.host.claims.held_by_other(sid, self):
                 raise ValueError("that session is open in another tab: close it there")
-            self.host.mc.session(self.user, sid).close()
+            self.mc.session(self.user, sid).close()
             self.notify("Session closed", f"Session {sid[:8]}… is closed.", "ok")
             self._list_library(can_dismiss=True)
 
@@ -200,7 +226,7 @@ class SessionController(Dispatcher):
                 "warning",
             )
             return False
-        sc = self.host.mc.session(self.user, sid)
+        sc = self.mc.session(self.user, sid)
         try:
             snap = snapshot or sc.snapshot()
             model = self.host.describe(snap.model_id)

@@ -121,6 +121,7 @@ class Tab:
             on_close_session=c.close_session,
             on_user=c.set_user,
             can_dismiss=event.can_dismiss,
+            on_login=c.login if event.login else None,
         )
 
     def _close_library(self) -> None:
