@@ -53,10 +53,13 @@ class Admission:
         self.pending: dict[str, m.RunRequest] = {}  # session -> the request of its queued run
         self._rr = 0
         self.hub: HubLink | None = None  # set once the proxy's session is open
+        #: Runs of closed sessions still ending (the run tracker's): they hold a slot until then.
+        self.orphans: dict[str, tuple[str, str]] = {}
 
     def occupied(self) -> int:
-        """Simulation slots in use: runs going, and runs being handed to a simulator."""
-        return sum(1 for s in self.store if s.phase in phases.GOING or s.starting)
+        """Simulation slots in use: runs going, runs being handed to a simulator, and runs of closed
+        sessions that were told to abort and have not ended yet."""
+        return sum(1 for s in self.store if s.phase in phases.GOING or s.starting) + len(self.orphans)
 
     def enqueue(self, rec: SessionRecord, request: m.RunRequest) -> None:
         """Queue a run, or refuse it with `busy` when every slot and the whole queue are taken."""

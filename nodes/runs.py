@@ -50,8 +50,10 @@ class RunTracker:
         self.seal = seal
         self.lock = lock
         self.log = log
-        #: Runs of closed sessions that were told to abort: session id -> (user, run id).
+        #: Runs of closed sessions that were told to abort: session id -> (user, run id). They hold
+        #: their simulator slot until their worker ends, so admission counts them.
         self.orphans: dict[str, tuple[str, str]] = {}
+        self.admission.orphans = self.orphans
         #: Runs whose token disappeared with the hub: (user, session) -> run id, checked when it is back.
         self.suspended: dict[tuple[str, str], str] = {}
         self.hub: HubLink | None = None  # set once the proxy's session is open
@@ -230,6 +232,7 @@ class RunTracker:
                 self.send_control(user, sid, st.run_id, "abort")  # in case the first was missed
             if st.phase in phases.ENDED and self.orphans.get(sid) == (user, st.run_id):
                 del self.orphans[sid]
+                self.admission.update()
             if rec is None or rec.state.run_id != st.run_id or rec.phase not in phases.UNDER_WAY:
                 return
             progress = min(1.0, st.sim_time / st.stop_time) if st.stop_time > 0 else 0.0
@@ -277,6 +280,9 @@ class RunTracker:
         # give it a moment before calling the run lost. Still well within the 1 s promise.
         time.sleep(LAST_REPORT_GRACE_S)
         with self.lock:
+            if self.orphans.get(sid) == (user, run_id):  # a closed session's run: its slot is free
+                del self.orphans[sid]
+                self.admission.update()
             rec = self.store.owned(user, sid)
             if rec is None or rec.state.run_id != run_id or rec.phase not in phases.GOING:
                 return
