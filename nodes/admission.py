@@ -26,6 +26,11 @@ from .sessions import SessionRecord, SessionStore
 
 HANDOVER_TIMEOUT_S = 10.0
 HUB_WAIT_S = 60.0  # a hand-over that met a hub restart waits this long for the hub, then tries again
+#: Every host answered busy: offer again this often, this long (a run that reported its end may still
+#: be leaving its process), before the run fails.
+BUSY_RETRY_S = 0.2
+BUSY_WAIT_S = 5.0
+BUSY = '"code":"busy"'
 
 #: (request, host that took it or "", hosts tried, their refusals), called with the proxy's lock held.
 Outcome = Callable[[m.RunRequest, str, list[str], list[str]], None]
@@ -124,7 +129,9 @@ class Admission:
         accepted = ""
         try:
             payload = codec.dumps(request)
-            for _attempt in range(3):
+            busy_until = time.monotonic() + BUSY_WAIT_S
+            attempt = 0
+            while attempt < 3:
                 began = time.monotonic()
                 hosts, errors = self.simulators(), []
                 for i in range(len(hosts)):
@@ -132,6 +139,11 @@ class Admission:
                     accepted = self._offer(host, payload, errors)
                     if accepted:
                         break
+                if not accepted and hosts and all(BUSY in e for e in errors) and began < busy_until:
+                    # Every host is full: a run that just ended may not have left its process yet.
+                    time.sleep(BUSY_RETRY_S)
+                    continue
+                attempt += 1
                 if accepted or self.hub is None or not self.hub.lost_since(began):
                     break
                 if not self.hub.wait_back(HUB_WAIT_S):
