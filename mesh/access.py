@@ -56,7 +56,7 @@ def _client_keys(kind: str, per_user: bool, read_only: bool = False) -> list[Key
     for spec in KEYS.values():
         if spec.writer != "client" or spec.kind != kind or ("user" in spec.chunks) != per_user:
             continue
-        if read_only and spec.payload:
+        if read_only and (spec.payload or spec.changes):
             continue
         out.append(spec)
     return out

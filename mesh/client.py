@@ -155,6 +155,9 @@ class MeshClient:
     def upload_recording(self, user: str, name: str, data: bytes, timeout: float = 60.0) -> m.RecordingInfo:
         return self.request(keys.recording(user, name), data, timeout, reply=m.RecordingInfo)
 
+    def delete_recording(self, user: str, name: str) -> m.RecordingInfo:
+        return self.request(keys.recording_delete(user, name), reply=m.RecordingInfo)
+
     def live_nodes(self, timeout: float = 1.0) -> list[tuple[str, str]]:
         """(role, node id) of every node whose liveliness token is up."""
         out = []

@@ -19,12 +19,13 @@ from typing import Any, TypeVar, Union, get_args, get_origin
 
 import msgspec
 
+from .limits import limit
 from .primitives import NAME_PATTERN, SESSION_ID_PATTERN, FieldProblem
 
 T = TypeVar("T")
 
 #: Largest JSON message a node decodes: a hostile message costs at most this much.
-MAX_MESSAGE_BYTES = 4 * 1024 * 1024
+MAX_MESSAGE_BYTES = limit("message_bytes")
 
 
 class DecodeError(ValueError):

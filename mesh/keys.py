@@ -48,6 +48,8 @@ class KeySpec:
     payload: str = ""
     reply: str = ""
     meaning: str
+    #: A query without payload that still changes something (a watcher may not send it).
+    changes: bool = False
 
     @property
     def chunks(self) -> list[str]:
@@ -121,6 +123,16 @@ _TABLE = (
         answerer="recorder",
         reply="RecordingInfo",
         meaning="what one recording holds",
+    ),
+    KeySpec(
+        name="recording_delete",
+        pattern="simecs/u/<user>/recordings/<name>/delete",
+        kind="query",
+        writer="client",
+        answerer="recorder",
+        reply="RecordingInfo",
+        meaning="delete one recording (not while its run is being recorded); the reply says what it was",
+        changes=True,
     ),
     KeySpec(
         name="simulator_run",
@@ -289,6 +301,7 @@ ALL_MODELS = wildcard("model")
 ALL_RECORDING_LISTS = wildcard("recordings")
 ALL_RECORDINGS = wildcard("recording")
 ALL_RECORDING_INFOS = wildcard("recording_info")
+ALL_RECORDING_DELETES = wildcard("recording_delete")
 
 
 def user_space(user: str) -> str:
@@ -376,6 +389,10 @@ def recording(user: str, name: str) -> str:
 
 def recording_info(user: str, name: str) -> str:
     return build("recording_info", user=user, name=name)
+
+
+def recording_delete(user: str, name: str) -> str:
+    return build("recording_delete", user=user, name=name)
 
 
 def recording_name(session: str, run_id: str) -> str:

@@ -16,6 +16,7 @@ from typing import Annotated, Any, Literal
 
 from msgspec import Meta
 
+from .limits import limit
 from .model import ModelSummary
 from .phases import Phase, WorkerPhase
 from .primitives import FieldProblem, Message, Name, Numbers, Record, SessionId, Text
@@ -121,6 +122,7 @@ class Mission(RobotCommandBase, tag="mission"):
 
 
 RobotCommand = JointPath | CartesianPath | DirectInput | Action | Task | Mission
+MAX_SAMPLES = limit("samples_per_run")
 COMMAND_LEVELS = ("direct_input", "joint_path", "cartesian_path", "action", "task", "mission")
 
 
@@ -144,8 +146,8 @@ class RunSettings(Record):
     def __post_init__(self) -> None:
         if self.output_interval > self.stop_time:
             raise FieldProblem("output_interval", f"{self.output_interval:g} s is above stop_time")
-        if self.stop_time / self.output_interval > 2_000_000:
-            raise FieldProblem("output_interval", "more than 2,000,000 output samples per run")
+        if self.stop_time / self.output_interval > MAX_SAMPLES:
+            raise FieldProblem("output_interval", f"more than {MAX_SAMPLES:,} output samples per run")
         if 0.0 < self.step < 1e-5:
             raise FieldProblem("step", f"{self.step:g} s is outside [1e-5, 0.01] s (0 = model default)")
 
@@ -463,6 +465,10 @@ class RecordingInfo(Record):
 
 class RecordingList(Message, tag="recordings"):
     recordings: list[RecordingInfo]
+    used_bytes: Annotated[int, Meta(ge=0, description="what the user's recordings take on the server")] = 0
+    quota_bytes: Annotated[
+        int, Meta(ge=0, description="the most they may take (recordings_bytes_per_user)")
+    ] = 0
 
 
 class ResultsAttachment(Record):

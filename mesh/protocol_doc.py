@@ -10,7 +10,7 @@ from __future__ import annotations
 import re
 from typing import Any
 
-from . import keys, phases
+from . import keys, limits, phases
 from .primitives import NAME_PATTERN, SESSION_ID_PATTERN
 from .schema import protocol_schema
 
@@ -172,6 +172,16 @@ def _frame_table(schema: dict[str, Any]) -> str:
     return "\n".join(rows) + "\n"
 
 
+def _limits_table() -> str:
+    rows = ["| bound | value | enforced by | when exceeded | what it bounds | option |", "|---" * 6 + "|"]
+    for lim in limits.LIMITS.values():
+        rows.append(
+            f"| `{lim.name}` | {limits.human(lim.value, lim.unit)} | {lim.enforcer} | {_cell(lim.refusal)} "
+            f"| {_cell(lim.meaning)} | {f'`{lim.flag}`' if lim.flag else ''} |"
+        )
+    return "\n".join(rows) + "\n"
+
+
 def sections() -> dict[str, str]:
     """Every generated section of PROTOCOL.md, by marker name."""
     schema = protocol_schema()
@@ -181,6 +191,7 @@ def sections() -> dict[str, str]:
         "commands": _command_table(schema),
         "phases": _phase_table(),
         "frame": _frame_table(schema),
+        "limits": _limits_table(),
     }
     for group, names in GROUPS:
         out[f"messages:{group}"] = "\n".join(message_table(n, defs[n]) for n in names)

@@ -4,6 +4,7 @@ files). Every error names the file and what is wrong with it.
 
 from __future__ import annotations
 
+import dataclasses
 import io
 import json
 import os
@@ -16,6 +17,7 @@ from typing import IO, Any
 
 import msgspec
 import numpy as np
+import zstandard
 from mcap.exceptions import McapError
 from mcap.reader import SeekingReader
 from mcap.records import (
@@ -31,7 +33,7 @@ from mcap.records import (
     Statistics,
 )
 from mcap.stream_reader import StreamReader, breakup_chunk
-from simecs.mesh import codec
+from simecs.mesh import codec, limits
 from simecs.mesh import messages as m
 
 from . import mcapfmt as fmt
@@ -87,6 +89,7 @@ class Scan:
     bad_chunks: int = 0
     problem: str = ""  # why reading stopped before the footer ("" when it did not)
     size: int = 0
+    unpacked: int = 0  # bytes of chunks decompressed so far (bounded: mesh/limits.py)
 
 
 def scan(source: str | os.PathLike[str] | bytes, strict: bool = False, keep_messages: bool = True) -> Scan:
@@ -102,13 +105,18 @@ def scan(source: str | os.PathLike[str] | bytes, strict: bool = False, keep_mess
         if out.size < len(MAGIC) or stream.read(len(MAGIC)) != MAGIC:
             raise RecordingError(f"{name}: not an MCAP file (it does not start with the MCAP magic bytes)")
         stream.seek(0)
-        reader = StreamReader(stream, emit_chunks=True, validate_crcs=True, record_size_limit=1 << 31)
+        reader = StreamReader(
+            stream, emit_chunks=True, validate_crcs=True, record_size_limit=limits.limit("upload_bytes")
+        )
         records = reader.records
         while True:
             try:
                 record = next(records)
             except StopIteration:
                 out.complete = True
+                if stream.tell() != out.size:
+                    out.complete = False
+                    out.problem = f"{out.size - stream.tell()} bytes after the footer's magic (not MCAP)"
                 break
             except McapError as exc:
                 what = (
@@ -125,8 +133,8 @@ def scan(source: str | os.PathLike[str] | bytes, strict: bool = False, keep_mess
                 break
             if isinstance(record, Chunk):
                 try:
-                    inner = breakup_chunk(record, validate_crc=True)
-                except (McapError, ValueError, zlib.error, struct.error) as exc:
+                    inner = _chunk_records(record, out)
+                except (McapError, ValueError, zlib.error, struct.error, zstandard.ZstdError) as exc:
                     out.bad_chunks += 1
                     msg = f"chunk ending near byte {stream.tell()} is damaged: {exc}"
                     if strict:
@@ -142,6 +150,41 @@ def scan(source: str | os.PathLike[str] | bytes, strict: bool = False, keep_mess
     if strict and not out.complete:
         raise RecordingError(f"{name}: incomplete MCAP: {out.problem or 'no footer'}")
     return out
+
+
+def _chunk_records(chunk: Chunk, out: Scan) -> list[Any]:
+    """A chunk's records, decompressed within the bounds of mesh/limits.py (a few KB of zstd can claim
+    gigabytes): the chunk's size as declared and as it comes out, and the whole file's so far."""
+    cap = min(limits.limit("upload_chunk_bytes"), limits.limit("upload_decompressed_bytes") - out.unpacked)
+    if chunk.uncompressed_size > cap:
+        raise ValueError(
+            f"a chunk declares {chunk.uncompressed_size} bytes decompressed; the bound is "
+            f"{limits.limit('upload_chunk_bytes')} per chunk and "
+            f"{limits.limit('upload_decompressed_bytes')} per file (mesh/limits.py)"
+        )
+    if chunk.compression == "zstd":
+        reader = zstandard.ZstdDecompressor().stream_reader(chunk.data)
+        data = reader.read(chunk.uncompressed_size + 1)
+        while len(data) <= chunk.uncompressed_size:
+            more = reader.read(chunk.uncompressed_size + 1 - len(data))
+            if not more:
+                break
+            data += more
+    elif chunk.compression == "lz4":
+        import lz4.frame
+
+        data = lz4.frame.LZ4FrameDecompressor().decompress(chunk.data, max_length=chunk.uncompressed_size + 1)
+    elif chunk.compression == "":
+        data = chunk.data
+    else:
+        raise ValueError(f"unknown chunk compression {chunk.compression!r}")
+    if len(data) != chunk.uncompressed_size:
+        raise ValueError(
+            f"a chunk declares {chunk.uncompressed_size} bytes decompressed and holds {len(data)}"
+        )
+    out.unpacked += len(data)
+    plain = dataclasses.replace(chunk, compression="", data=data)
+    return breakup_chunk(plain, validate_crc=True)
 
 
 def _take(out: Scan, rec: Any, keep_messages: bool) -> None:

@@ -46,6 +46,14 @@ class ParamSetStore:
             raise RequestError("not_found", f"no parameter set {name!r}", "name")
         path.unlink()
 
+    def exists(self, user: str, model_id: str, name: str) -> bool:
+        return self._path(user, model_id, name).is_file()
+
+    def count(self, user: str) -> int:
+        """Every set of `user`, all models together (their quota counts them so)."""
+        folder = self.folder / user
+        return sum(1 for _ in folder.glob("*/*.json")) if folder.is_dir() else 0
+
     def names(self, user: str, model_id: str) -> list[str]:
         folder = self.folder / user / model_id
         return sorted(p.stem for p in folder.glob("*.json")) if folder.is_dir() else []

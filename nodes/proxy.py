@@ -13,12 +13,13 @@ from __future__ import annotations
 import argparse
 import os
 import threading
+import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import msgspec
-from simecs.mesh import codec, keys, phases
+from simecs.mesh import codec, columns, keys, limits, phases
 from simecs.mesh import messages as m
 from simecs.mesh.client import MeshClient, NoReply, RemoteError
 from simecs.mesh.hublink import HubLink
@@ -27,6 +28,7 @@ from simecs.mesh.runtime import Node, NotMine, Request, RequestError, main_for, 
 
 from .library import ModelLibrary
 from .paramsets import ParamSetStore
+from .quotas import QuotaCheck, Quotas
 from .runs import RunTracker
 from .sessions import SessionRecord, SessionStore
 
@@ -42,12 +44,14 @@ class Proxy(Node):
         node_id: str | None = None,
         data_dir: str = ".simecs",
         max_running: int | None = None,
-        max_queue: int = 16,
-        max_sessions: int = 256,
+        max_queue: int = limits.limit("run_queue"),
+        quotas: Quotas | None = None,
+        session_idle_s: float = limits.limit("session_idle_s"),
     ) -> None:
         super().__init__(mesh, node_id)
         data = Path(data_dir)
-        self.max_sessions = max_sessions
+        self.session_idle_s = session_idle_s
+        self._expiry_checked = 0.0
         self.lock = threading.RLock()
         self.library: ModelLibrary | None = None
         self.store = SessionStore(
@@ -58,6 +62,7 @@ class Proxy(Node):
             self.store, lambda: self.z, lambda: self.seal, self.lock, max_running, max_queue
         )
         self.admission = self.runs.admission
+        self.quota = QuotaCheck(quotas or Quotas(), self.store, self._columns)
         self.commands: dict[type, Callable[[SessionRecord, Any], Any]] = {
             m.SetParams: self._set_params,
             m.ResetParams: self._reset_params,
@@ -85,11 +90,40 @@ class Proxy(Node):
         parser.add_argument(
             "--max-running", type=int, default=None, help="simultaneous runs (default: cores)"
         )
-        parser.add_argument("--max-queue", type=int, default=16, help="runs waiting beyond max-running")
+        parser.add_argument(
+            "--max-queue", type=int, default=limits.limit("run_queue"), help="runs waiting beyond max-running"
+        )
+        q = Quotas()
+        parser.add_argument("--max-sessions", type=int, default=q.sessions, help="open sessions, all users")
+        parser.add_argument("--max-sessions-per-user", type=int, default=q.sessions_per_user)
+        parser.add_argument("--max-runs-per-user", type=int, default=q.runs_per_user, help="runs going")
+        parser.add_argument(
+            "--max-results-mb-per-user", type=float, default=q.results_bytes_per_user / limits.MiB
+        )
+        parser.add_argument(
+            "--session-idle-s",
+            type=float,
+            default=float(limits.limit("session_idle_s")),
+            help="close a session idle this long (its results go with it)",
+        )
 
     @classmethod
     def from_args(cls, args: argparse.Namespace) -> Proxy:
-        return cls(mesh_from_args(args), args.node_id, args.data_dir, args.max_running, args.max_queue)
+        quotas = Quotas(
+            sessions=args.max_sessions,
+            sessions_per_user=args.max_sessions_per_user,
+            runs_per_user=args.max_runs_per_user,
+            results_bytes_per_user=int(args.max_results_mb_per_user * limits.MiB),
+        )
+        return cls(
+            mesh_from_args(args),
+            args.node_id,
+            args.data_dir,
+            args.max_running,
+            args.max_queue,
+            quotas,
+            args.session_idle_s,
+        )
 
     def status_detail(self) -> dict[str, Any]:
         with self.lock:
@@ -132,6 +166,9 @@ class Proxy(Node):
     def _model(self, rec: SessionRecord) -> ModelDescription:
         return self.models.describe(rec.model_id)
 
+    def _columns(self, model_id: str) -> int:
+        return len(columns.run_columns(self.models.describe(model_id))[0])
+
     # -- library -----------------------------------------------------------------------------------
     def _on_model(self, req: Request) -> ModelDescription:
         return self.models.describe(keys.parse("model", req.key)["model"])
@@ -149,8 +186,7 @@ class Proxy(Node):
                 return self.store.of_user(user)
         desc = self.models.describe(msg.model_id)
         with self.lock:
-            if len(self.store) >= self.max_sessions:
-                raise RequestError("busy", f"the server holds its maximum of {self.max_sessions} sessions")
+            self.quota.new_session(user)
             rec = self.store.create(user, desc)
             self.log.info("session %s created for %s on model %s", rec.id, user, desc.id)
             return rec.snapshot()
@@ -163,6 +199,7 @@ class Proxy(Node):
         recording = self._recording(user, cmd.recording) if isinstance(cmd, m.Replay) else None
         with self.lock:
             rec = self.store.get(req.key)
+            rec.active_at = time.time()
             why = phases.refusal(cmd.op, rec.phase)
             if why:
                 raise RequestError("conflict", why)
@@ -223,6 +260,8 @@ class Proxy(Node):
 
     # -- parameter sets ----------------------------------------------------------------------------
     def _save_param_set(self, rec: SessionRecord, cmd: m.SaveParamSet) -> str:
+        replacing = self.paramsets.exists(rec.user, rec.model_id, cmd.name)
+        self.quota.new_param_set(rec.user, self.paramsets.count(rec.user), replacing)
         self.paramsets.save(rec.user, rec.model_id, cmd.name, rec.values)
         return cmd.name
 
@@ -257,10 +296,24 @@ class Proxy(Node):
         self.admission.update()
         return rec.id
 
+    def tick(self) -> None:
+        """Close every session idle for longer than `session_idle_s` (its results go with it)."""
+        now = time.monotonic()
+        if now - self._expiry_checked < min(60.0, self.session_idle_s / 4):
+            return
+        self._expiry_checked = now
+        with self.lock:
+            for rec in self.store.idle(self.session_idle_s):
+                self.log.info(
+                    "session %s of %s idle for %.0f s: closed", rec.id, rec.user, self.session_idle_s
+                )
+                self._close_session(rec, m.CloseSession())
+
     # -- runs ----------------------------------------------------------------------------------------
     def _run(self, rec: SessionRecord, cmd: m.Run) -> m.RunStarted:
         if rec.command is None:
             raise RequestError("bad_request", "no command assigned: set a joint path first", "command")
+        self.quota.new_run(rec, rec.settings, rec.settings.stop_time)
         request = self.runs.request(rec, f"r{rec.run_counter + 1}")
         return self.runs.begin(rec, request, rec.settings.stop_time)
 
@@ -284,6 +337,7 @@ class Proxy(Node):
             )
         pacing = {"pacing": "fast"} if cmd.speed == 0 else {"pacing": "scaled", "factor": cmd.speed}
         settings = msgspec.structs.replace(rec.settings, **pacing)
+        self.quota.new_run(rec, settings, info.stop_time, replay=True)
         request = self.runs.request(rec, f"r{rec.run_counter + 1}", settings, cmd.recording, cmd.paused)
         return self.runs.begin(rec, request, info.stop_time)
 

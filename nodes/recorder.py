@@ -8,7 +8,7 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
-from simecs.mesh import keys
+from simecs.mesh import keys, limits
 from simecs.mesh.runtime import Node, Request, main_for, mesh_from_args
 
 from .recording_files import VIZ_RATE_HZ
@@ -29,11 +29,12 @@ class Recorder(Node):
         directory: str = "recordings",
         viz_rate_hz: float = VIZ_RATE_HZ,
         queue_frames: int = 4096,
-        queue_mb: float = 256.0,
+        queue_mb: float = limits.limit("recorder_queue_bytes") / limits.MiB,
         idle_timeout_s: float = 30.0,
+        mb_per_user: float = limits.limit("recordings_bytes_per_user") / limits.MiB,
     ) -> None:
         super().__init__(mesh, node_id)
-        self.library = RecordingsLibrary(directory)
+        self.library = RecordingsLibrary(directory, int(mb_per_user * limits.MiB))
         self.pipeline = RecordingPipeline(
             self.library,
             self.node_id,
@@ -58,7 +59,16 @@ class Recorder(Node):
         )
         parser.add_argument("--queue-frames", type=int, default=4096, help="frames buffered before dropping")
         parser.add_argument(
-            "--queue-mb", type=float, default=256.0, help="frame bytes buffered before dropping"
+            "--queue-mb",
+            type=float,
+            default=limits.limit("recorder_queue_bytes") / limits.MiB,
+            help="frame bytes buffered before dropping",
+        )
+        parser.add_argument(
+            "--max-mb-per-user",
+            type=float,
+            default=limits.limit("recordings_bytes_per_user") / limits.MiB,
+            help="recordings kept per user",
         )
         parser.add_argument(
             "--idle-timeout",
@@ -77,6 +87,7 @@ class Recorder(Node):
             args.queue_frames,
             args.queue_mb,
             args.idle_timeout,
+            args.max_mb_per_user,
         )
 
     def status_detail(self) -> dict[str, Any]:
@@ -98,6 +109,7 @@ class Recorder(Node):
         self.serve(keys.ALL_RECORDING_LISTS, self._on_list, threaded=True)
         self.serve(keys.ALL_RECORDINGS, self._on_file, threaded=True)
         self.serve(keys.ALL_RECORDING_INFOS, self._on_info, threaded=True)
+        self.serve(keys.ALL_RECORDING_DELETES, self._on_delete, threaded=True)
 
     def _on_list(self, req: Request) -> Any:
         return self.library.listing(keys.parse("recordings", req.key)["user"])
@@ -111,6 +123,10 @@ class Recorder(Node):
     def _on_info(self, req: Request) -> Any:
         where = keys.parse("recording_info", req.key)
         return self.library.info(where["user"], where["name"])
+
+    def _on_delete(self, req: Request) -> Any:
+        where = keys.parse("recording_delete", req.key)
+        return self.library.delete(where["user"], where["name"])
 
     def stop(self) -> None:
         self.pipeline.stop()

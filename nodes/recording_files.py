@@ -120,7 +120,7 @@ class RunFiles:
         self.filling: dict[tuple[Owner, str], Active] = {}  # ended runs waiting for their gaps' samples
         self.pending: dict[Owner, collections.deque[bytes]] = {}
         self.done: collections.OrderedDict[tuple[Owner, str], None] = collections.OrderedDict()
-        self.ignored: set[Owner] = set()  # sessions whose current run is a replay
+        self.ignored: set[Owner] = set()  # sessions whose current run is not recorded (replay, quota)
         self.models: dict[str, tuple[ModelDescription, bytes]] = {}
         self.stats = {"rows": 0, "messages": 0, "files": 0, "dropped_frames": 0, "filled_rows": 0}
         self._last_drop_status = 0.0
@@ -154,6 +154,17 @@ class RunFiles:
             self.log.info("session %s of %s: run %s is a replay: not recorded", sid[1], sid[0], layout.run_id)
             return
         self.ignored.discard(sid)
+        full = self.library.over_quota(owner[0])
+        if full:
+            self.ignored.add(sid)
+            self.pending.pop(sid, None)
+            self.log.warning("run %s of %s not recorded: %s", layout.run_id, layout.session, full)
+            notice = f"run {layout.run_id} is not recorded: {full}"
+            self.mesh.notify(
+                owner[0],
+                m.Notice(session=layout.session, run_id=layout.run_id, source="recorder", message=notice),
+            )
+            return
         self._open(owner[0], layout)
 
     def _open(self, user: str, layout: m.RunLayout) -> None:

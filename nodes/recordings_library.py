@@ -16,7 +16,7 @@ import time
 from pathlib import Path
 
 import msgspec
-from simecs.mesh import files, keys
+from simecs.mesh import files, keys, limits
 from simecs.mesh import messages as m
 from simecs.mesh.runtime import Binary, RequestError
 
@@ -25,14 +25,17 @@ from . import mcapread, mcaprepair
 log = logging.getLogger("simecs.recorder")
 
 DOWNLOAD_WAIT_S = 5.0  # a download of a run that is just ending waits this long for its file
-MAX_FILE_BYTES = 1 << 30  # largest recording served or accepted over the mesh
+MAX_FILE_BYTES = limits.limit("upload_bytes")  # largest recording served or accepted over the mesh
 
 
 class RecordingsLibrary:
     """`<folder>/<user>/<name>.mcap`: each user's recordings, in a folder of their own."""
 
-    def __init__(self, folder: str | os.PathLike[str]) -> None:
+    def __init__(
+        self, folder: str | os.PathLike[str], quota_bytes: int = limits.limit("recordings_bytes_per_user")
+    ) -> None:
         self.dir = Path(folder).resolve()
+        self.quota_bytes = quota_bytes
         self.lock = threading.Condition()  # guards open_files and info_cache
         self.open_files: dict[Path, m.RecordingInfo] = {}
         self.info_cache: dict[Path, tuple[tuple[int, int], m.RecordingInfo | None]] = {}
@@ -111,6 +114,43 @@ class RecordingsLibrary:
             self.info_cache[path] = (stamp, info)
         return info
 
+    def usage(self, user: str) -> int:
+        """Bytes of every file in `user`'s folder (what their quota counts)."""
+        folder = self.path_of(user, "x").parent
+        total = 0
+        for p in folder.glob("*.mcap") if folder.is_dir() else ():
+            try:
+                total += p.stat().st_size
+            except FileNotFoundError:
+                pass
+        return total
+
+    def over_quota(self, user: str, adding: int = 0) -> str:
+        """Why `user` may not store `adding` more bytes ("" when they may)."""
+        used = self.usage(user)
+        if used + adding <= self.quota_bytes:
+            return ""
+        mib = limits.MiB
+        return (
+            f"{user}'s recordings use {used / mib:.1f} MiB of {self.quota_bytes / mib:.0f} MiB "
+            f"(recordings_bytes_per_user): delete some first"
+        )
+
+    def delete(self, user: str, name: str) -> m.RecordingInfo:
+        path = self.path_of(user, name)
+        with self.lock:
+            if path in self.open_files:
+                raise RequestError(
+                    "conflict", f"recording {name} is being written (its run is going on)", "name"
+                )
+            if not path.is_file():
+                raise RequestError("not_found", f"{user} has no recording {name!r}", "name")
+            info = self._info(path) or m.RecordingInfo(name, "", "", "", path.stat().st_size)
+            path.unlink()
+            self.info_cache.pop(path, None)
+        log.info("deleted recording %s of %s", name, user)
+        return info
+
     def listing(self, user: str) -> m.RecordingList:
         folder = self.path_of(user, "x").parent
         paths = sorted(folder.glob("*.mcap"), key=lambda p: p.stat().st_mtime_ns, reverse=True)
@@ -122,7 +162,7 @@ class RecordingsLibrary:
                 continue
             if info is not None:
                 out.append(info)
-        return m.RecordingList(out)
+        return m.RecordingList(out, used_bytes=self.usage(user), quota_bytes=self.quota_bytes)
 
     def info(self, user: str, name: str) -> m.RecordingInfo:
         path = self.path_of(user, name)
@@ -167,8 +207,13 @@ class RecordingsLibrary:
             )
         if len(data) > MAX_FILE_BYTES:
             raise RequestError(
-                "bad_request", f"upload {name}: {len(data)} bytes is more than {MAX_FILE_BYTES}"
+                "bad_request",
+                f"upload {name}: {len(data)} bytes is more than upload_bytes = {MAX_FILE_BYTES}",
+                "payload",
             )
+        full = self.over_quota(user, len(data))
+        if full:
+            raise RequestError("busy", f"upload {name} refused: {full}")
         try:
             mcapread.validate(data)
             rec = mcapread.load(data, strict=True)

@@ -6,6 +6,7 @@ a run writes it; the simulator node serves it, to the session's user only.
 from __future__ import annotations
 
 import os
+import shutil
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -63,6 +64,14 @@ class ResultsStore:
         for meta in sorted(metas, key=lambda p: _run_number(p.stem))[:-RUNS_KEPT]:
             meta.unlink(missing_ok=True)
             meta.with_suffix(".npy").unlink(missing_ok=True)
+
+    def remove(self, user: str, session: str) -> bool:
+        """Forget every run of a session (it was closed); whether there was any."""
+        folder = self._folder(user, session)
+        if not folder.is_dir():
+            return False
+        shutil.rmtree(folder, ignore_errors=True)
+        return True
 
     def load(self, user: str, session: str, run_id: str) -> tuple[StoredRun, np.ndarray] | None:
         """A run's description and rows (memory-mapped), or None when this host does not hold it."""

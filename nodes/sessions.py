@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import logging
 import os
+import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -39,6 +40,8 @@ class SessionRecord:
     #: The run the user aborted: asked again on each of its status reports until it ends (a worker
     #: that was just starting may not have been listening yet).
     abort_run: str = ""
+    #: Wall time of the user's last command or the last run's end: idle sessions expire from it.
+    active_at: float = field(default_factory=time.time)
 
     def snapshot(self) -> m.SessionSnapshot:
         return m.SessionSnapshot(
@@ -92,6 +95,7 @@ class SessionStore:
     def persist(self, rec: SessionRecord) -> None:
         data = codec.to_obj(rec.snapshot())
         data["run_counter"] = rec.run_counter
+        data["active_at"] = rec.active_at
         files.write_json(self._path(rec.id), data)
 
     def load(self, library: dict[str, ModelDescription]) -> None:
@@ -102,6 +106,7 @@ class SessionStore:
             try:
                 data = files.read_json(path)
                 counter = int(data.pop("run_counter", 0))
+                active_at = float(data.pop("active_at", time.time()))
                 snap = codec.from_obj(m.SessionSnapshot, data)
                 if snap.model_id not in library:
                     raise ValueError(f"model {snap.model_id} is no longer in the library")
@@ -121,6 +126,7 @@ class SessionStore:
                 snap.state,
                 snap.runs,
                 counter,
+                active_at=active_at,
             )
             self._add(rec)
         log.info("restored %d sessions from %s", len(self.records), self.folder)
@@ -163,8 +169,18 @@ class SessionStore:
         rec = self.records.get(sid)
         return rec if rec is not None and rec.user == user else None
 
+    def idle(self, older_than_s: float, now: float | None = None) -> list[SessionRecord]:
+        """Sessions with no run under way and nothing done for `older_than_s`."""
+        now = time.time() if now is None else now
+        return [
+            r
+            for r in self
+            if r.phase not in phases.UNDER_WAY and not r.starting and now - r.active_at > older_than_s
+        ]
+
     def close(self, rec: SessionRecord) -> None:
-        """The user's explicit end of a session: its file goes (parameter sets and results stay)."""
+        """The end of a session (the user's, or its idle expiry): its file goes, and the `closed` state
+        tells the simulators to remove its results (parameter sets and recordings stay)."""
         self.move(rec, "closed", persist=False)
         for pub in rec.pubs.values():
             self._release(pub)

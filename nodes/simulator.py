@@ -27,6 +27,7 @@ from simecs.mesh.runtime import Binary, Node, NotMine, Request, RequestError, ma
 from .results_store import ResultsStore
 from .worker import READY
 
+CLOSED_KEPT = 4096
 WARM_TIMEOUT_S = 600.0  # a first start compiles the drives (tens of seconds on a cold cache)
 
 
@@ -50,6 +51,8 @@ class Simulator(Node):
         self.warm_target = warm
         self.lock = threading.Lock()
         self.idle: list[subprocess.Popen[str]] = []
+        #: Sessions closed lately: an aborted run's worker may store results after the close.
+        self.closed: dict[tuple[str, str], None] = {}
         self.busy: dict[str, subprocess.Popen[str]] = {}
         self.fast: set[str] = set()  # busy runs paced as fast as possible (CPU-bound)
         self.mesh_config_path = ""
@@ -78,6 +81,8 @@ class Simulator(Node):
         self.store.folder.mkdir(parents=True, exist_ok=True)
         self.serve(keys.simulator_run(self.node_id), self._on_run)
         self.serve(keys.ALL_RESULTS, self._on_results, threaded=True)
+        # A closed session (by its user, or expired) takes its results with it (mesh/limits.py).
+        self.subscribe_messages(keys.ALL_STATE, m.SessionState, self._on_state, maxlen=1024, sealed=True)
         self._refill()
         if self.warm_target:
             self._wait_warm(self.idle[0])
@@ -127,6 +132,9 @@ class Simulator(Node):
                 if code is not None:
                     del self.busy[key]
                     self.fast.discard(key)
+                    user, session, _run = key.split(" ")
+                    if (user, session) in self.closed:  # its worker stored results after the close
+                        self.store.remove(user, session)
                     if code not in (0, 3):
                         self.log.warning("worker of %s exited with code %s", key, code)
                         self._report_lost(key, code)
@@ -190,6 +198,19 @@ class Simulator(Node):
                 p.kill()
 
     # -- results -------------------------------------------------------------------------------
+    def _on_state(self, state: m.SessionState, key: str) -> None:
+        if state.phase != "closed":
+            return
+        user, sid = keys.owner_of(key)
+        if state.session != sid:
+            return
+        with self.lock:
+            self.closed[(user, sid)] = None
+            while len(self.closed) > CLOSED_KEPT:
+                del self.closed[next(iter(self.closed))]
+        if self.store.remove(user, sid):
+            self.log.info("session %s of %s closed: its results removed", sid, user)
+
     def _on_results(self, req: Request) -> Binary:
         """A run's results if this host holds them; other hosts (and the proxy, for runs it knows)
         leave the query to the one that does."""

@@ -35,7 +35,8 @@ def test_sessions_leave_nothing_behind(service: Service) -> None:
         wait_until(lambda: seen, what="proxy status")
         base = seen[-1].detail["declared"]
         for _ in range(3):
-            sessions = [service.client.create_session("ann", "spider") for _ in range(20)]
+            # 20 users (one user may hold only sessions_per_user sessions)
+            sessions = [service.client.create_session(f"u{i}", "spider") for i in range(20)]
             wait_until(lambda: seen[-1].detail["sessions"] == 20, timeout=10, what="20 sessions")
             assert seen[-1].detail["declared"] == base + 2 * 20  # state and params per session
             for s in sessions:

@@ -1,0 +1,121 @@
+"""Bounded resources (mesh/limits.py, PROTOCOL.md §4.1): one user's sessions, runs, results, parameter
+sets and recordings are bounded and refused `busy` naming the bound; idle sessions expire and take their
+results along; uploads are read in full, bombs and trailing bytes included, before anything is stored."""
+
+from __future__ import annotations
+
+import io
+
+import pytest
+from mcap.writer import CompressionType, Writer
+from simecs.mesh import keys
+from simecs.mesh.client import RemoteError
+from simecs.nodes import mcapread
+
+from .conftest import Mesh, wait_until
+from .test_service import prepare
+
+
+def start_bounded_service(mesh: Mesh, *proxy_flags: str) -> None:
+    data = mesh.folder / "data"
+    mesh.start("proxy", "--data-dir", str(data), "--max-running", "2", *proxy_flags)
+    mesh.start("simulator", "--results-dir", str(data / "results"))
+    mesh.start("hotfeedback")
+
+
+def test_a_user_holds_at_most_their_quota_and_idle_sessions_expire_with_their_results(mesh: Mesh) -> None:
+    start_bounded_service(
+        mesh, "--max-sessions-per-user", "2", "--max-runs-per-user", "1", "--session-idle-s", "3"
+    )
+    client = mesh.client()
+    a1, a2 = client.create_session("ann", "spider"), client.create_session("ann", "spider")
+    with pytest.raises(RemoteError, match="sessions_per_user = 2") as err:
+        client.create_session("ann", "spider")
+    assert err.value.code == "busy"
+    b1 = client.create_session("bob", "spider")  # another user's quota is their own
+
+    prepare(a1, stop_time=1.0, pacing="realtime")
+    prepare(a2, stop_time=0.2)
+    run = a1.run()
+    with pytest.raises(RemoteError, match="runs_per_user = 1") as err:
+        a2.run()
+    assert err.value.code == "busy" and a2.snapshot().state.phase == "configured"
+    assert a1.wait_for(["finished", "failed", "aborted"], 60, run).phase == "finished"
+
+    a2.set_settings(stop_time=3000.0, output_interval=0.002)
+    with pytest.raises(RemoteError, match="results_bytes_per_run") as err:
+        a2.run()
+    assert err.value.code == "bad_request" and err.value.field == "settings.output_interval"
+
+    results = mesh.folder / "data" / "results" / "ann" / a1.id
+    assert (results / f"{run}.npy").is_file()
+    # a1 ran last but nobody touches it any more: it expires (3 s), and its results go with it.
+    wait_until(lambda: a1.id not in {e.session for e in client.list_sessions("ann")}, 20, what="expiry")
+    wait_until(lambda: not results.exists(), 10, what="results removed")
+    with pytest.raises(RemoteError) as err:
+        a1.snapshot()
+    assert err.value.code == "not_found"
+    assert b1.id not in {e.session for e in client.list_sessions("ann")}
+
+
+def mcap_bytes(payload: bytes, compression: CompressionType = CompressionType.ZSTD) -> bytes:
+    buf = io.BytesIO()
+    w = Writer(buf, compression=compression, chunk_size=len(payload) + 1024)
+    w.start()
+    sid = w.register_schema("x", "jsonschema", b"{}")
+    cid = w.register_channel("/x", "json", sid)
+    w.add_message(cid, 0, payload, 0)
+    w.finish()
+    return buf.getvalue()
+
+
+def test_uploads_are_read_in_full_within_bounds_and_count_against_the_quota(mesh: Mesh) -> None:
+    rec_dir = mesh.folder / "rec"
+    bomb = mcap_bytes(b"\0" * (80 << 20))  # 80 MiB of zeros: a few KB of zstd
+    assert len(bomb) < 100_000
+    with pytest.raises(mcapread.RecordingError, match="upload_chunk_bytes|bound"):
+        mcapread.validate(bomb)
+    small = mcap_bytes(b"{}")
+    mcapread.validate(small)
+    with pytest.raises(mcapread.RecordingError, match="after the footer"):
+        mcapread.validate(small + b"trailing garbage")
+
+    mesh.start("recorder", "--dir", str(rec_dir), "--max-mb-per-user", "0.5")
+    client = mesh.client()
+    for data, what in ((bomb, "bound"), (small + b"junk", "after the footer")):
+        with pytest.raises(RemoteError, match=what) as err:
+            client.request(keys.recording("ann", "x"), data)
+        assert err.value.code == "bad_request"
+    assert not (rec_dir / "ann" / "x.mcap").exists()
+
+    # A real recording would be refused as not a simecs recording: fill the quota with bytes on disk.
+    (rec_dir / "ann").mkdir(parents=True)
+    (rec_dir / "ann" / "big.mcap").write_bytes(b"\0" * 600_000)
+    with pytest.raises(RemoteError, match="recordings_bytes_per_user") as err:
+        client.request(keys.recording("ann", "y"), small)
+    assert err.value.code == "busy"
+    listing = client.request(keys.recordings("ann"))
+    assert listing["used_bytes"] == 600_000 and listing["quota_bytes"] == 512 * 1024
+    assert client.delete_recording("ann", "big").name == "big"  # an unreadable file deletes too
+    assert not (rec_dir / "ann" / "big.mcap").exists()
+    with pytest.raises(RemoteError) as err:
+        client.delete_recording("ann", "big")
+    assert err.value.code == "not_found"
+
+
+def test_a_closed_sessions_run_keeps_its_slot_until_its_worker_ends(mesh: Mesh) -> None:
+    """Closing a session whose run goes on must not let admission hand a simulator more runs than it
+    takes: the next user's run waits in the queue and then runs."""
+    data = mesh.folder / "data"
+    mesh.start("proxy", "--data-dir", str(data), "--max-running", "1")
+    mesh.start("simulator", "--results-dir", str(data / "results"), "--max-runs", "1")
+    client = mesh.client()
+    a, b = client.create_session("ann", "spider"), client.create_session("bob", "spider")
+    prepare(a, stop_time=5.0, pacing="realtime")
+    prepare(b, stop_time=0.2)
+    a.run()
+    wait_until(lambda: a.snapshot().state.sim_time > 0.1, 30, what="ann's run under way")
+    a.close()
+    run = b.run()
+    end = b.wait_for(["finished", "failed", "aborted"], 60, run)
+    assert end.phase == "finished", end
