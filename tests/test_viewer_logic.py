@@ -1213,6 +1213,22 @@ def test_live_frames_pose_the_arm_and_teach_knows_the_pose() -> None:
     assert ctl.path.nodes[0].q == pytest.approx([0.3, -0.2, 0.1])
 
 
+def test_skipped_live_frames_are_counted_and_said_once_per_run() -> None:
+    """The hub drops live frames for a tab that cannot keep up: the tab says so once, and counts them."""
+    model = arm()
+    ctl, sc, got = attached(model)
+    lay = layout(sc, model, "r1")
+    sc.watched["on_layout"](lay)
+    rows = live_frame(lay, model, [0.1, 0.1, 0.1]).rows
+    for seq in (0, 1, 4, 5, 9):  # 2, 3, 6, 7, 8 never came
+        sc.watched["on_live"](frames.Frame(lay.run_index, seq, 0, rows))
+    assert ctl.stream.missed == 5 and len(got.of(events.LiveSamples)) == 5
+    said = [n for n in got.of(events.Notice) if n.title == "Live view behind"]
+    assert len(said) == 1 and said[0].kind == "warning"
+    sc.watched["on_layout"](layout(sc, model, "r2"))  # a new run counts afresh
+    assert ctl.stream.missed == 0
+
+
 def test_a_replay_is_a_run_of_the_session_shaped_by_the_recorded_values() -> None:
     model = arm()
     ctl, sc, got = attached(model)

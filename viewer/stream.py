@@ -41,10 +41,15 @@ class RunStream:
         # The scene draws the link frames: the poses of pose_frames() up to the tool.
         self._frames = columns.pose_frames(model)[: len(model.links)]
         self._joints = columns.joint_position_columns(model)
+        #: Live frames of the shown run that never reached this tab (gaps in their numbers): the hub
+        #: drops them for a link that cannot keep up (PROTOCOL.md §1), so a slow tab slows only itself.
+        self.missed = 0
+        self._next_seq: int | None = None
 
     def take_layout(self, layout: m.RunLayout) -> None:
         """A run announced its columns: start its live window, find its poses and joint positions."""
         self.layout = layout
+        self.missed, self._next_seq = 0, None
         self.live.reset(layout.live_columns)
         self._poses = columns.pose_indices(layout.live_columns, self._frames)
         where = {c: i for i, c in enumerate(layout.live_columns)}
@@ -61,6 +66,9 @@ class RunStream:
         rows = frame.rows
         if rows.ndim != 2 or rows.shape[0] == 0 or rows.shape[1] != len(layout.live_columns):
             return None
+        if self._next_seq is not None and frame.seq > self._next_seq:
+            self.missed += frame.seq - self._next_seq
+        self._next_seq = max(frame.seq + 1, self._next_seq or 0)
         self.live.append(rows)
         last = rows[-1]
         poses = last[self._poses] if self._poses is not None else None
