@@ -112,7 +112,8 @@ _TABLE = (
         answerer="recorder",
         payload="mcap",
         reply="mcap | RecordingInfo",
-        meaning="without payload: download the recording (binary reply, attachment RecordingInfo); with an "
+        meaning="without payload: download the recording (binary reply, attachment RecordingInfo; one still "
+        "being written is answered when its run ends, after at most 3 s, else `conflict`); with an "
         "MCAP file as payload: upload it under <name> (reply RecordingInfo)",
     ),
     KeySpec(

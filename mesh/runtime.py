@@ -55,15 +55,29 @@ class NotMine(Exception):
     answer per query, from the node that owns the thing asked)."""
 
 
+#: An error reply quotes at most this much of its message and field: a refusal may echo the input
+#: (an unknown op, a name), and a hostile input must not make the reply itself too large to decode.
+MAX_ERROR_MESSAGE = 2000
+MAX_ERROR_FIELD = 200
+
+
+def _shortened(text: str, most: int) -> str:
+    return text if len(text) <= most else text[: most - 1] + "…"
+
+
 def error_of(exc: BaseException) -> Error:
     """The Error reply for an exception raised while handling a request."""
     if isinstance(exc, RequestError):
-        return exc.to_error()
-    if isinstance(exc, codec.DecodeError):
-        return Error(code="bad_request", message=str(exc), field=exc.field)
-    if isinstance(exc, keys.KeyProblem):
-        return Error(code="bad_request", message=str(exc), field=exc.chunk)
-    return Error(code="internal", message=f"{type(exc).__name__}: {exc}")
+        err = exc.to_error()
+    elif isinstance(exc, codec.DecodeError):
+        err = Error(code="bad_request", message=str(exc), field=exc.field)
+    elif isinstance(exc, keys.KeyProblem):
+        err = Error(code="bad_request", message=str(exc), field=exc.chunk)
+    else:
+        err = Error(code="internal", message=f"{type(exc).__name__}: {exc}")
+    err.message = _shortened(err.message, MAX_ERROR_MESSAGE)
+    err.field = _shortened(err.field, MAX_ERROR_FIELD)
+    return err
 
 
 @dataclass

@@ -24,7 +24,7 @@ from . import mcapread, mcaprepair
 
 log = logging.getLogger("simecs.recorder")
 
-DOWNLOAD_WAIT_S = 5.0  # a download of a run that is just ending waits this long for its file
+DOWNLOAD_WAIT_S = 3.0  # a download of a run that is just ending waits this long for its file
 MAX_FILE_BYTES = limits.limit("upload_bytes")  # largest recording served or accepted over the mesh
 
 
