@@ -113,6 +113,8 @@ def test_every_standalone_message_carries_its_tag_and_version() -> None:
         (b'{"op":"save_param_set","name":"a b","v":1}', "name", "letters, digits"),
         (b'{"op":"set_params","values":{"-x":1},"v":1}', "values.-x", "letters, digits"),
         (b'{"op":"save_param_set","name":"\\ud800","v":1}', "", "lone UTF-16 surrogate"),
+        (b'{"op":"set_initial","joints":[1' + b"0" * 5000 + b'],"v":1}', "joints[0]", "number out of range"),
+        (b'{"op":"set_initial","joints":[1e99999],"v":1}', "joints[0]", "number out of range"),
         (b"\xff\xfe", "", "not UTF-8"),
         (b"[]", "", "must be an object"),
         (b"{", "", "not valid JSON"),
