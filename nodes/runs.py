@@ -25,6 +25,7 @@ from .sessions import SessionRecord, SessionStore
 MAX_WARNINGS = 20
 #: How long a lost run token waits for the worker's own last report (it travels another way).
 LAST_REPORT_GRACE_S = 0.3
+TOKEN_QUERY_S = 1.0  # asking whether a run's token is still up
 #: How long runs whose tokens went with the hub wait for it to come back before they are settled.
 HUB_AWAY_S = 120.0
 
@@ -236,6 +237,7 @@ class RunTracker:
                 self.admission.update()
             if rec is None or rec.state.run_id != st.run_id or rec.phase not in phases.UNDER_WAY:
                 return
+            rec.reported = st.run_id
             progress = min(1.0, st.sim_time / st.stop_time) if st.stop_time > 0 else 0.0
             self.run_info(rec, st.run_id, sim_time=st.sim_time, samples=st.samples)
             if st.stop_time > 0:
@@ -287,6 +289,24 @@ class RunTracker:
             rec = self.store.owned(user, sid)
             if rec is None or rec.state.run_id != run_id or rec.phase not in phases.GOING:
                 return
+            if rec.reported != run_id:
+                # Tokens carry no seal: any peer may declare and drop one under a predictable name.
+                # Before its worker's first (sealed) report a run is the simulator's to report lost.
+                self.log.warning(
+                    "session %s run %s: a token vanished before the worker reported: ignored", sid, run_id
+                )
+                return
+        if self._token_up(user, sid, run_id):
+            self.log.warning(
+                "session %s run %s: a token vanished while the worker's is up (another peer's): ignored",
+                sid,
+                run_id,
+            )
+            return
+        with self.lock:
+            rec = self.store.owned(user, sid)
+            if rec is None or rec.state.run_id != run_id or rec.phase not in phases.GOING:
+                return
             if self.hub is not None and self.hub.lost_since(gone_at - 0.05):
                 # Every token went with the hub: the worker most likely runs on. Decide when it is back.
                 self.suspended[(user, sid)] = run_id
@@ -297,6 +317,14 @@ class RunTracker:
                 rec, "failed", f"the simulator process of run {run_id} disappeared (crashed or killed)"
             )
             self.admission.update()
+
+    def _token_up(self, user: str, sid: str, run_id: str) -> bool:
+        """Whether a token of the run is still declared (asked without the lock: it takes a round trip)."""
+        try:
+            replies = self.z().liveliness().get(keys.run_token(user, sid, run_id), timeout=TOKEN_QUERY_S)
+            return any(r.ok is not None for r in replies)
+        except zenoh.ZError:
+            return False
 
     def _check_when_hub_back(self) -> None:
         """Once the hub is back and every node had time to reconnect: runs whose worker is back go on;

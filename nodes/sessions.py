@@ -40,6 +40,8 @@ class SessionRecord:
     #: The run the user aborted: asked again on each of its status reports until it ends (a worker
     #: that was just starting may not have been listening yet).
     abort_run: str = ""
+    #: The run whose worker has reported (a sealed status): only then may the loss of its token fail it.
+    reported: str = ""
     #: Wall time of the user's last command or the last run's end: idle sessions expire from it.
     active_at: float = field(default_factory=time.time)
 

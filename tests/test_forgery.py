@@ -7,7 +7,7 @@ from __future__ import annotations
 import time
 
 import numpy as np
-from simecs.mesh import codec
+from simecs.mesh import codec, keys
 from simecs.mesh import messages as m
 from simecs.mesh.client import MeshClient
 from simecs.mesh.config import MeshConfig
@@ -61,3 +61,20 @@ def test_forged_messages_change_nothing(mesh: Mesh) -> None:
     assert s.snapshot().values["joint1.ctrl.kp_pos"] != 1.0
     assert [r.run_id for r in s.runs()] == runs  # the direct request started nothing
     assert "without a valid service seal" in mesh.log("proxy")
+
+
+def test_a_peers_run_token_does_not_fail_another_users_run(mesh: Mesh) -> None:
+    """Liveliness tokens carry no seal: a peer that declares and drops a run's token (before its worker
+    is up, and while it runs) changes nothing; the run finishes."""
+    start_service(mesh)
+    client = mesh.client()
+    with MeshClient.open(MeshConfig(connect=[mesh.endpoint])) as attacker:
+        s = prepared(client, "ann", 1.5, "realtime")
+        for run_id in ("r1", "r2", "r3"):  # predictable names, dropped before their run starts
+            attacker.z.liveliness().declare_token(keys.run_token("ann", s.id, run_id)).undeclare()
+        run = s.run()
+        attacker.z.liveliness().declare_token(keys.run_token("ann", s.id, run)).undeclare()
+        wait_until(lambda: s.snapshot().state.sim_time > 0.3, timeout=30, what="run under way")
+        attacker.z.liveliness().declare_token(keys.run_token("ann", s.id, run)).undeclare()
+        end = s.wait_for(["finished", "failed", "aborted"], 60, run)
+    assert end.phase == "finished", end
