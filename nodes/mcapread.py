@@ -152,6 +152,15 @@ def scan(source: str | os.PathLike[str] | bytes, strict: bool = False, keep_mess
     return out
 
 
+def _json(text: str | bytes) -> Any:
+    """JSON of a file's metadata or log: any defect is a ValueError (deep nesting too, which json
+    reports as RecursionError), so a hostile upload is refused, never a crash of its reader."""
+    try:
+        return json.loads(text)
+    except RecursionError:
+        raise ValueError("JSON nested too deeply") from None
+
+
 def _chunk_records(chunk: Chunk, out: Scan) -> list[Any]:
     """A chunk's records, decompressed within the bounds of mesh/limits.py (a few KB of zstd can claim
     gigabytes): the chunk's size as declared and as it comes out, and the whole file's so far."""
@@ -318,7 +327,7 @@ def _layout_of(name: str, metadata: dict[str, dict[str, str]]) -> m.RunLayout:
         )
     try:
         if version == "1":  # the context lived in other metadata records then
-            layout = json.loads(run["layout"])
+            layout = _json(run["layout"])
             layout["context"] = codec.to_obj(_context_of_metadata(metadata))
             return codec.from_obj(m.RunLayout, layout)
         return codec.loads(m.RunLayout, run["layout"])
@@ -330,13 +339,13 @@ def _context_of_metadata(metadata: dict[str, dict[str, str]]) -> m.RunContext:
     """The run's context from `simecs.params` and `simecs.session` (how format 1 kept it)."""
     session = metadata.get(fmt.META_SESSION, {})
     values = {k: float(v) for k, v in metadata.get(fmt.META_PARAMS, {}).items()}
-    command = json.loads(session["command"]) if session.get("command") not in (None, "", "null") else None
+    command = _json(session["command"]) if session.get("command") not in (None, "", "null") else None
     return m.RunContext(
         user=session.get("user") or "unknown",
         values=values,
-        initial=[float(q) for q in json.loads(session.get("initial") or "[]")],
+        initial=[float(q) for q in _json(session.get("initial") or "[]")],
         command=codec.from_obj(m.RobotCommand, command) if command is not None else None,  # type: ignore[arg-type]
-        settings=codec.from_obj(m.RunSettings, json.loads(session["settings"]))
+        settings=codec.from_obj(m.RunSettings, _json(session["settings"]))
         if session.get("settings")
         else m.RunSettings(),
     )
@@ -354,7 +363,7 @@ def load(source: str | os.PathLike[str] | bytes, strict: bool = False) -> Record
     order = np.arange(ncols)
     if vars_ch is not None:
         try:
-            msg_cols = json.loads(vars_ch.metadata.get("columns", "null")) or list(layout.columns)
+            msg_cols = _json(vars_ch.metadata.get("columns", "null")) or list(layout.columns)
             index = {c: i for i, c in enumerate(layout.columns)}
             order = np.array([index[c] for c in msg_cols], dtype=np.int64)
         except (ValueError, KeyError, TypeError) as exc:
@@ -382,7 +391,7 @@ def load(source: str | os.PathLike[str] | bytes, strict: bool = False) -> Record
     for msg in sc.messages:
         if msg.channel_id == log_ch:
             try:
-                logs.append(json.loads(msg.data))
+                logs.append(_json(msg.data))
             except ValueError:
                 logs.append({"message": "<unreadable log message>", "level": 0})
     return Recording(
