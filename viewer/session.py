@@ -32,7 +32,7 @@ from .identity import Identity, NotLoggedIn, new_user_name
 from .path import JointPathEditor, clamp_to_limits
 from .results_io import ResultsIO
 from .runs import RunControl
-from .stream import RunStream
+from .stream import LIVE_BEHIND, RunStream
 from .workers import Dispatcher
 
 log = logging.getLogger("simecs.viewer")
@@ -407,17 +407,11 @@ class SessionController(Dispatcher):
         stream = self.stream
         if self.closed or stream is None:
             return
-        missed = stream.missed
         sample = stream.take_frame(frame)
         if sample is None:
             return
-        if stream.missed and not missed:  # said once per run: the first gap
-            self.notify(
-                "Live view behind",
-                "This tab could not keep up with the run: some live samples were skipped (the run and "
-                "its full results are not affected; reload them when it ends).",
-                "warning",
-            )
+        if sample.first_gap:  # said once per run
+            self.notify(*LIVE_BEHIND)
         if sample.q is not None:
             self.shown_q = sample.q
         self.emit(ev.LiveSamples(sample.rows, sample.poses))

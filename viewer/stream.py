@@ -25,6 +25,16 @@ class Sample:
     rows: np.ndarray
     poses: np.ndarray | None
     q: list[float] | None
+    first_gap: bool = False  # the first live frames of this run that never came were before this one
+
+
+#: What a tab says (title, text, kind) when its first live frame of a run is missing.
+LIVE_BEHIND = (
+    "Live view behind",
+    "This tab could not keep up with the run: some live samples were skipped (the run and its full "
+    "results are not affected; reload them when it ends).",
+    "warning",
+)
 
 
 class RunStream:
@@ -66,11 +76,13 @@ class RunStream:
         rows = frame.rows
         if rows.ndim != 2 or rows.shape[0] == 0 or rows.shape[1] != len(layout.live_columns):
             return None
+        first_gap = False
         if self._next_seq is not None and frame.seq > self._next_seq:
+            first_gap = self.missed == 0
             self.missed += frame.seq - self._next_seq
         self._next_seq = max(frame.seq + 1, self._next_seq or 0)
         self.live.append(rows)
         last = rows[-1]
         poses = last[self._poses] if self._poses is not None else None
         q = [float(last[i]) for i in self._q] if self._q is not None else None
-        return Sample(rows, poses, q)
+        return Sample(rows, poses, q, first_gap)
