@@ -68,6 +68,7 @@ bench: $(STAMP) warm
 	$(BIN)/simecs bench model
 	$(BIN)/simecs bench service
 	$(BIN)/simecs bench recorder
+	$(BIN)/simecs bench lan
 	$(BIN)/simecs bench viewer
 
 clean:

@@ -30,6 +30,7 @@ BENCHES = {
     "service": "simecs.benchmarks.service:run_service_bench",
     "viewer": "simecs.benchmarks.viewer:run_viewer_bench",
     "recorder": "simecs.benchmarks.recorder:run_recorder_bench",
+    "lan": "simecs.benchmarks.lan:run_lan_bench",
 }
 
 
