@@ -62,7 +62,7 @@ from simecs.mesh import messages as m
 from simecs.mesh.client import MeshClient, SessionClient
 from simecs.mesh.config import MeshConfig, load, open_session
 from simecs.testing import netns
-from simecs.testing.launch import LocalMesh, clean_env
+from simecs.testing.launch import LocalMesh, clean_env, wait_until
 
 HOSTS = ("hub", "sim", "client", "slow")
 HUB = "simecs.nodes.hub"
@@ -86,16 +86,6 @@ FUZZ_BYSTANDER_STOP = 15.0
 
 def log(text: str) -> None:
     print(f"bench lan: {text}", file=sys.stderr, flush=True)
-
-
-def wait_until(predicate: Callable[[], Any], timeout: float, what: str, interval: float = 0.05) -> Any:
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        value = predicate()
-        if value:
-            return value
-        time.sleep(interval)
-    raise TimeoutError(f"{what} not within {timeout} s")
 
 
 # -- where things run --------------------------------------------------------------------------------
@@ -132,23 +122,8 @@ class LanMesh(LocalMesh):
         self.hosts = hosts
         self.name = name
 
-    def spawn(
-        self, name: str, module: str, *args: str, node_id: str | None = None
-    ) -> subprocess.Popen[bytes]:
-        host = "hub" if module == HUB else "sim"
-        argv = [*self.hosts.prefixes[host], sys.executable, "-m", module, *args]
-        if module != HUB:
-            argv += ["--connect", self.endpoint]
-        if node_id:
-            argv += ["--node-id", node_id]
-        env = clean_env()
-        env["SIMECS_SERVICE_KEY_FILE"] = str(self.key_file)
-        with open(self.folder / f"{name}.log", "ab") as out:
-            proc = subprocess.Popen(
-                argv, stdout=out, stderr=subprocess.STDOUT, env=env, start_new_session=True
-            )
-        self.procs[name] = proc
-        return proc
+    def argv_prefix(self, module: str) -> list[str]:
+        return self.hosts.prefixes["hub" if module == HUB else "sim"]
 
     def keep_logs(self, logs: Path) -> None:
         target = logs / self.name
@@ -212,7 +187,7 @@ def closed_recordings(
         paths = recording_files(mesh, s, run_id)
         return paths if len(paths) >= parts and all(mcapread.has_footer(p) for p in paths) else []
 
-    return list(wait_until(done, timeout, f"{parts} closed recording(s) of {run_id}", 0.1))
+    return list(wait_until(done, timeout, 0.1, f"{parts} closed recording(s) of {run_id}"))
 
 
 def recording_matches(mesh: LocalMesh, s: SessionClient, run_id: str) -> bool:
@@ -326,7 +301,9 @@ def forgery_trial(mesh: LanMesh) -> dict[str, Any]:
         status_sub = client.z.declare_subscriber(keys.wildcard("node_status"), on_status)
         try:
             wait_until(
-                lambda: ("simulator", forgery.FAKE_SIMULATOR) in client.live_nodes(), 10, "fake simulator"
+                lambda: ("simulator", forgery.FAKE_SIMULATOR) in client.live_nodes(),
+                10,
+                what="fake simulator",
             )
             s = prepared(client, "ann", stop, "realtime")
             states: list[m.SessionState] = []
@@ -338,7 +315,7 @@ def forgery_trial(mesh: LanMesh) -> dict[str, Any]:
                 on_params=params.append,
             ):
                 run = s.run()
-                wait_until(sim_time_above(s, 0.2), 30, "run under way")
+                wait_until(sim_time_above(s, 0.2), 30, what="run under way")
                 width = len(client.describe("spider").variables) + 1
                 sent: list[tuple[str, bytes]] = []
                 for _ in range(FORGERY_ROUNDS):
@@ -526,7 +503,7 @@ def slow_trial(mesh: LanMesh) -> dict[str, Any]:
     with open(mesh.folder / "slow.log", "ab") as out:
         proc = subprocess.Popen(argv, stdout=out, stderr=subprocess.STDOUT, env=clean_env())
     try:
-        wait_until(status.exists, 20, "slow subscriber ready")
+        wait_until(status.exists, 20, what="slow subscriber ready")
         time.sleep(0.3)
         client = mesh.client()
         mine = prepared(client, "slowpoke", SLOW_STOP, "fast")  # floods the slow subscriber's link
@@ -561,7 +538,7 @@ def recorder_crash_trial(mesh: LanMesh) -> dict[str, Any]:
     client = mesh.client()
     s = prepared(client, "carol", CRASH_STOP, "realtime")
     run = s.run()
-    wait_until(sim_time_above(s, CRASH_AT), 30, "run under way")
+    wait_until(sim_time_above(s, CRASH_AT), 30, what="run under way")
     killed_at = s.snapshot().state.sim_time
     t0 = time.monotonic()
     mesh.stop("recorder", signal.SIGKILL)
@@ -602,11 +579,11 @@ def hub_restart_trial(mesh: LanMesh) -> dict[str, Any]:
     ended = prepared(client, "erin", 1.5, "realtime")  # ends while the hub is away
     runs = {through.user: through.run(), ended.user: ended.run()}
     for s in (through, ended):
-        wait_until(sim_time_above(s, 0.3), 30, "runs under way")
+        wait_until(sim_time_above(s, 0.3), 30, what="runs under way")
     mesh.stop("hub", signal.SIGKILL)
     time.sleep(2.0)
     mesh.start_hub()  # this client's session reconnects by itself
-    wait_until(lambda: ("proxy", "proxy-t") in live_nodes(client), 20, "proxy back")
+    wait_until(lambda: ("proxy", "proxy-t") in live_nodes(client), 20, what="proxy back")
     phases = {s.user: s.wait_for(ENDED, 60, runs[s.user]) for s in (through, ended)}
     bad = [s.user for s in (through, ended) if not recording_matches(mesh, s, runs[s.user])]
     return {

@@ -14,11 +14,26 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 from simecs.mesh import seal as seals
 from simecs.mesh.client import MeshClient
 from simecs.mesh.config import MeshConfig
+
+
+def wait_until(
+    predicate: Callable[[], Any], timeout: float = 10.0, interval: float = 0.02, what: str = "condition"
+) -> Any:
+    """`predicate()`'s first true value, asked every `interval` s; TimeoutError after `timeout` s."""
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        value = predicate()
+        if value:
+            return value
+        time.sleep(interval)
+    raise TimeoutError(f"{what} not met within {timeout} s")
 
 
 def clean_env() -> dict[str, str]:
@@ -54,7 +69,7 @@ class LocalMesh:
         self, name: str, module: str, *args: str, node_id: str | None = None
     ) -> subprocess.Popen[bytes]:
         """Start `python -m module args`, logging to `<folder>/<name>.log`."""
-        argv = [sys.executable, "-m", module, *args]
+        argv = [*self.argv_prefix(module), sys.executable, "-m", module, *args]
         if module != "simecs.nodes.hub":
             argv += ["--connect", self.endpoint]
         if node_id:
@@ -67,6 +82,10 @@ class LocalMesh:
             )
         self.procs[name] = proc
         return proc
+
+    def argv_prefix(self, module: str) -> list[str]:
+        """What runs a node's command on its host (a LAN of namespaces overrides it; here: nothing)."""
+        return []
 
     def start_hub(self) -> None:
         self.spawn("hub", "simecs.nodes.hub", "--listen", self.endpoint, node_id="hub")

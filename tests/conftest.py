@@ -8,17 +8,16 @@ is bounded; every process is stopped (SIGTERM, then SIGKILL) when the test ends.
 from __future__ import annotations
 
 import socket
-import time
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import pytest
 from simecs.mesh.client import MeshClient
 from simecs.mesh.config import load
 from simecs.nodes.secure import SecureFolder
 from simecs.testing.launch import LocalMesh, clean_env
+from simecs.testing.launch import wait_until as wait_until  # the tests import it from here
 
 ARTIFACTS = Path(__file__).resolve().parent.parent / "artifacts"
 
@@ -100,15 +99,3 @@ def start_service(mesh: LocalMesh, max_running: int = 4, extra_simulator: tuple[
 def service(mesh: LocalMesh) -> Service:
     """Hub, proxy, simulator and hot-feedback on an isolated mesh."""
     return start_service(mesh)
-
-
-def wait_until(
-    predicate: Callable[[], Any], timeout: float = 10.0, interval: float = 0.02, what: str = "condition"
-) -> Any:
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        value = predicate()
-        if value:
-            return value
-        time.sleep(interval)
-    raise TimeoutError(f"{what} not met within {timeout} s")
