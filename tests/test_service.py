@@ -182,8 +182,12 @@ def test_decimated_rate_holds_from_the_first_frame_and_the_final_frame_goes(
     assert first_second <= rate_hz, f"{first_second} live frames in the run's first second at {rate_hz} Hz"
     for start in times:
         assert np.count_nonzero((times >= start) & (times < start + 1.0)) <= rate_hz + 1
-    gaps = np.diff(times)
-    assert gaps.min() >= 0.5 / rate_hz, f"two live frames {gaps.min() * 1000:.1f} ms apart at {rate_hz} Hz"
+    # One frame late on the wire makes the next gap short (CI saw 17 ms at 20 Hz); a sender that bursts
+    # puts three frames within one period, which no single late arrival can fake.
+    spans = times[2:] - times[:-2]
+    assert spans.min() >= 1.0 / rate_hz, (
+        f"three live frames within {spans.min() * 1000:.1f} ms at {rate_hz} Hz"
+    )
     if rate_hz >= 10:
         steady = times[(times > times[0] + 0.5) & (times < times[-1] - 0.5)]
         rate = (len(steady) - 1) / (steady[-1] - steady[0])
