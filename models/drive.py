@@ -167,6 +167,46 @@ def traj_eval(seg, hold, t, qr, qdr):
         qdr[j] = seg[k, 3 + n + j] * sd
 
 
+# joint modes: what the reference table holds for a joint (models/signals.py writes them)
+JM_POSITION, JM_SPEED, JM_CURRENT, JM_HOLD = 0, 1, 2, 3
+
+
+@njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
+def ref_eval(seg, hold, tab, jmode, t, qr, qdr):
+    """The set points at t: the trapezoid segments when the table is empty, else the table.
+
+    Table rows are [t, r[0..n-1], rd[0..n-1]], linear between the rightmost row at or before t and the
+    next (so two rows at one time make a jump); held before the first row and after the last. A joint
+    in JM_HOLD keeps its initial set point `hold`."""
+    K = tab.shape[0]
+    if K == 0:
+        traj_eval(seg, hold, t, qr, qdr)
+        return
+    n = qr.shape[0]
+    if t < tab[0, 0]:
+        k = 0
+        w = 0.0
+    else:
+        lo = 0
+        hi = K - 1
+        while lo < hi:
+            mid = (lo + hi + 1) // 2
+            if tab[mid, 0] <= t:
+                lo = mid
+            else:
+                hi = mid - 1
+        k = lo
+        w = 0.0 if k >= K - 1 else (t - tab[k, 0]) / (tab[k + 1, 0] - tab[k, 0])
+    k1 = k + 1 if k < K - 1 else k
+    for j in range(n):
+        if jmode[j] == JM_HOLD:
+            qr[j] = hold[j]
+            qdr[j] = 0.0
+        else:
+            qr[j] = tab[k, 1 + j] + w * (tab[k1, 1 + j] - tab[k, 1 + j])
+            qdr[j] = tab[k, 1 + n + j] + w * (tab[k1, 1 + n + j] - tab[k, 1 + n + j])
+
+
 def plan_segment(q0, q1, vmax, amax, t0):
     """Synchronised trapezoid for all joints: one acceleration time, one duration, every limit kept."""
     q0 = np.asarray(q0, float)
@@ -317,8 +357,12 @@ def gear_torque(P, j, theta_m, omega_m, ql, qdl):
 
 
 @njit(cache=_CACHE, inline="always", error_model="numpy", fastmath=_FAST)
-def joint_signals(P, j, x, ql, qdl, qr, qdr, out):
+def joint_signals(P, j, x, ql, qdl, qr, qdr, mode, out):
     """All algebraic signals of joint j; fills out[0..NO) in OUTPUTS order and returns nothing.
+
+    `mode` (JM_*) says what qr, qdr are: position and speed set points (JM_POSITION, JM_HOLD), a
+    speed set point in qdr with the position loop bypassed (JM_SPEED), or the current amplitude set
+    point in qr with the position and speed loops bypassed (JM_CURRENT, the speed integrator frozen).
 
     Extra slots: out[NO] = u_b, out[NO+1] = d x_v/dt, out[NO+2] = d x_a/dt, out[NO+3] = d x_b/dt,
     out[NO+4] = z_dot, out[NO+5] = tau_in (gear reaction at motor shaft), out[NO+6] = tau_detent.
@@ -344,17 +388,24 @@ def joint_signals(P, j, x, ql, qdl, qr, qdr, out):
     el = P[j, P_EL]
     q_meas = ql + el * math.sin(ql) if el != 0.0 else ql
     # cascade joint control: P position (load side), PI motor speed with anti-windup and feed-forward
-    w_ref = n * (P[j, P_KPP] * (qr - q_meas) + P[j, P_FF] * qdr)
-    ev = w_ref - om_meas
-    kpv = P[j, P_KPV]
-    kiv = P[j, P_KIV]
-    iu = kpv * ev + x[S_XV]
-    iref = _sat(iu, P[j, P_IMAX])
-    dxv = 0.0
-    if kiv > 0.0:
-        dxv = kiv * ev
-        if kpv > 0.0:
-            dxv += (kiv / kpv) * (iref - iu)
+    if mode == JM_CURRENT:
+        iref = _sat(qr, P[j, P_IMAX])
+        dxv = 0.0
+    else:
+        if mode == JM_SPEED:
+            w_ref = n * qdr
+        else:
+            w_ref = n * (P[j, P_KPP] * (qr - q_meas) + P[j, P_FF] * qdr)
+        ev = w_ref - om_meas
+        kpv = P[j, P_KPV]
+        kiv = P[j, P_KIV]
+        iu = kpv * ev + x[S_XV]
+        iref = _sat(iu, P[j, P_IMAX])
+        dxv = 0.0
+        if kiv > 0.0:
+            dxv = kiv * ev
+            if kpv > 0.0:
+                dxv += (kiv / kpv) * (iref - iu)
     # commutation from the motor resolver
     ia_s = -iref * sm
     ib_s = iref * cm
@@ -436,15 +487,15 @@ def joint_signals(P, j, x, ql, qdl, qr, qdr, out):
 
 
 @njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
-def drive_rhs(P, seg, hold, Minv, t, X, dX, sig, qr, qdr, tau, new_t=True):
+def drive_rhs(P, seg, hold, tab, jmode, Minv, t, X, dX, sig, qr, qdr, tau, new_t=True):
     """dX = f(t, X); the set points qr, qdr are evaluated at t unless `new_t` is False (same t as the
     previous call: RK4 stages 2 and 3)."""
     n = X.shape[0]
     if new_t:
-        traj_eval(seg, hold, t, qr, qdr)
+        ref_eval(seg, hold, tab, jmode, t, qr, qdr)
     for j in range(n):
         x = X[j]
-        joint_signals(P, j, x, x[S_QL], x[S_QDL], qr[j], qdr[j], sig)
+        joint_signals(P, j, x, x[S_QL], x[S_QDL], qr[j], qdr[j], jmode[j], sig)
         d = dX[j]
         om = x[S_OM]
         d[S_TH] = om
@@ -473,7 +524,9 @@ def drive_rhs(P, seg, hold, Minv, t, X, dX, sig, qr, qdr, tau, new_t=True):
 
 
 @njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
-def drive_step(P, seg, hold, pre_R, pre_p, masses, coms, inertias, X, q, qd, t, h, nsub, tau_out, work):
+def drive_step(
+    P, seg, hold, tab, jmode, pre_R, pre_p, masses, coms, inertias, X, q, qd, t, h, nsub, tau_out, work
+):
     """Integrate all drives over [t, t+h] with nsub RK4 substeps; tau_out = mean gear torque."""
     n = q.shape[0]
     M = np.empty((n, n))
@@ -495,19 +548,19 @@ def drive_step(P, seg, hold, pre_R, pre_p, masses, coms, inertias, X, q, qd, t, 
     hs = h / nsub
     for s in range(nsub):
         ts = t + s * hs
-        drive_rhs(P, seg, hold, Minv, ts, X, k1, sig, qr, qdr, tau)
+        drive_rhs(P, seg, hold, tab, jmode, Minv, ts, X, k1, sig, qr, qdr, tau)
         for j in range(n):
             for k in range(NL):
                 Xt[j, k] = X[j, k] + 0.5 * hs * k1[j, k]
-        drive_rhs(P, seg, hold, Minv, ts + 0.5 * hs, Xt, k2, sig, qr, qdr, tau)
+        drive_rhs(P, seg, hold, tab, jmode, Minv, ts + 0.5 * hs, Xt, k2, sig, qr, qdr, tau)
         for j in range(n):
             for k in range(NL):
                 Xt[j, k] = X[j, k] + 0.5 * hs * k2[j, k]
-        drive_rhs(P, seg, hold, Minv, ts + 0.5 * hs, Xt, k3, sig, qr, qdr, tau, False)
+        drive_rhs(P, seg, hold, tab, jmode, Minv, ts + 0.5 * hs, Xt, k3, sig, qr, qdr, tau, False)
         for j in range(n):
             for k in range(NL):
                 Xt[j, k] = X[j, k] + hs * k3[j, k]
-        drive_rhs(P, seg, hold, Minv, ts + hs, Xt, k4, sig, qr, qdr, tau)
+        drive_rhs(P, seg, hold, tab, jmode, Minv, ts + hs, Xt, k4, sig, qr, qdr, tau)
         for j in range(n):
             for k in range(NL):
                 X[j, k] += hs / 6.0 * (k1[j, k] + 2.0 * k2[j, k] + 2.0 * k3[j, k] + k4[j, k])
@@ -524,7 +577,26 @@ def drive_step(P, seg, hold, pre_R, pre_p, masses, coms, inertias, X, q, qd, t, 
 
 @njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
 def drive_prestep(
-    P, seg, hold, pre_R, pre_p, masses, coms, inertias, X, Xbak, repeat, q, qd, t, h, nsub, tau_out, work
+    P,
+    seg,
+    hold,
+    tab,
+    jmode,
+    pre_R,
+    pre_p,
+    masses,
+    coms,
+    inertias,
+    X,
+    Xbak,
+    repeat,
+    q,
+    qd,
+    t,
+    h,
+    nsub,
+    tau_out,
+    work,
 ):
     """`drive_step` with the drive state kept for a repeated step: `repeat` (the solver takes the same
     step again) restores X from Xbak, else Xbak saves X before the step."""
@@ -532,21 +604,26 @@ def drive_prestep(
         X[:, :] = Xbak
     else:
         Xbak[:, :] = X
-    return drive_step(P, seg, hold, pre_R, pre_p, masses, coms, inertias, X, q, qd, t, h, nsub, tau_out, work)
+    return drive_step(
+        P, seg, hold, tab, jmode, pre_R, pre_p, masses, coms, inertias, X, q, qd, t, h, nsub, tau_out, work
+    )
 
 
 @njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
-def drive_outputs(P, seg, hold, X, q, qd, t, out):
+def drive_outputs(P, seg, hold, tab, jmode, X, q, qd, t, out):
     """Variables of every joint at time t from the drive states and the chain state: out[j, :NO]."""
     n = q.shape[0]
     qr = np.empty(n)
     qdr = np.empty(n)
-    traj_eval(seg, hold, t, qr, qdr)
+    ref_eval(seg, hold, tab, jmode, t, qr, qdr)
     sig = np.empty(NO + 10)
     for j in range(n):
-        joint_signals(P, j, X[j], q[j], qd[j], qr[j], qdr[j], sig)
+        joint_signals(P, j, X[j], q[j], qd[j], qr[j], qdr[j], jmode[j], sig)
         for k in range(NO):
             out[j, k] = sig[k]
+        if jmode[j] == JM_CURRENT:  # q_ref, qd_ref: the position set point the current replaced
+            out[j, 2] = hold[j]
+            out[j, 3] = 0.0
 
 
 # ---- output rows: variables and link poses, no Exudyn call -------------------------------------------
@@ -588,7 +665,7 @@ def pose_rows(pre_R, pre_p, Rrpy, tool_local, q, out):
 
 
 @njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
-def output_row(P, seg, hold, X, q, qd, t, pre_R, pre_p, Rrpy, tool_local, rows, k):
+def output_row(P, seg, hold, tab, jmode, X, q, qd, t, pre_R, pre_p, Rrpy, tool_local, rows, k):
     """One result row into rows[k]: time, the variables of every joint, the link and tool poses.
 
     Returns 0, or 1 when the chain coordinates are not finite (row untouched), 2 when an output is not.
@@ -600,7 +677,7 @@ def output_row(P, seg, hold, X, q, qd, t, pre_R, pre_p, Rrpy, tool_local, rows, 
     row = rows[k]
     row[0] = t
     out = np.empty((n, NO))
-    drive_outputs(P, seg, hold, X, q, qd, t, out)
+    drive_outputs(P, seg, hold, tab, jmode, X, q, qd, t, out)
     for j in range(n):
         for c in range(NO):
             row[1 + j * NO + c] = out[j, c]

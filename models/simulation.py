@@ -41,6 +41,11 @@ class Simulation:
         self.qd0 = np.zeros(self.n)
         self.X, self.hold = init_states(self.P, self.q0)
         self.seg = np.zeros((0, 3 + 2 * self.n))
+        self.tab = np.zeros((0, 1 + 2 * self.n))  # a sampled reference (planner.py), when not a joint path
+        self.jmode = np.zeros(self.n, dtype=np.int64)
+        self._events: list[tuple[float, dict[str, float]]] = []  # (t, parameter changes) during a run
+        self._pending_events: list[tuple[float, dict[str, float]]] = []
+        self._run_values: dict[str, float] | None = None  # the values a run started with
         self._nodes: list[tuple[np.ndarray, float, float]] = []
         self._solver: Any = None
         self._running = False
@@ -80,9 +85,9 @@ class Simulation:
             self._update_mechanics()  # Exudyn item parameters: no rebuild either
         self.X, self.hold = init_states(self.P, self.q0)
 
-    def set_initial(self, q: Sequence[float], qd: Sequence[float] | None = None) -> None:
+    def set_initial(self, q: Sequence[float] | np.ndarray, qd: Sequence[float] | None = None) -> None:
         """Joint positions at rest -> every internal state; `qd` (extension) is for drives-off studies."""
-        qv = vec(q)
+        qv = np.asarray(q, dtype=float)
         if qv.shape != (self.n,) or not np.all(np.isfinite(qv)):
             raise ValueError(f"expected {self.n} finite joint positions")
         for i, lk in enumerate(self._desc.links):
@@ -118,6 +123,30 @@ class Simulation:
         self._nodes = parsed
         t0 = self._time if self._running else 0.0
         self.seg = self._plan(t0)
+        self.tab = np.zeros((0, 1 + 2 * self.n))
+        self.jmode = np.zeros(self.n, dtype=np.int64)
+        self._events = []
+
+    def set_reference(
+        self, tab: np.ndarray, jmode: np.ndarray, events: Sequence[tuple[float, Mapping[str, float]]] = ()
+    ) -> None:
+        """The next run follows a sampled reference (rows [t, r, rd], drive.ref_eval) with each joint in
+        its mode (drive.JM_*), and applies `events` (parameter changes, e.g. a payload) at their times.
+        The planner (planner.py) makes these from a robot command; it has checked them."""
+        tab = np.ascontiguousarray(tab, dtype=float)
+        if tab.ndim != 2 or tab.shape[1] != 1 + 2 * self.n or tab.shape[0] < 1:
+            raise ValueError(f"a reference table has rows of {1 + 2 * self.n} numbers")
+        if not np.all(np.isfinite(tab)) or np.any(np.diff(tab[:, 0]) < 0):
+            raise ValueError("a reference table needs finite numbers and times that do not decrease")
+        for _t, changes in events:
+            self.package.check_values({**self.values, **changes})
+            if any(not k.startswith("payload.") for k in changes):
+                raise ValueError("only payload.* parameters change during a run")
+        self.tab = tab
+        self.jmode = np.ascontiguousarray(jmode, dtype=np.int64)
+        self._events = sorted(((float(t), dict(c)) for t, c in events), key=lambda e: e[0])
+        self._nodes = []
+        self.seg = np.zeros((0, 3 + 2 * self.n))
 
     def _plan(self, t0: float) -> np.ndarray:
         vmax = self.P[:, dr.P_VMAX]
@@ -162,6 +191,11 @@ class Simulation:
             raise ValueError("output_interval must be > 0")
         if self._running:
             self._finalize()
+        if self._run_values is not None and self._run_values != self.values:
+            self.values = self._run_values  # undo the previous run's events
+            self._update_mechanics()
+        self._run_values = dict(self.values)
+        self._pending_events = list(self._events)
         self.h = h
         self.k_out = max(1, int(round(output_interval / h)))
         self.dt_out = self.k_out * h
@@ -235,6 +269,8 @@ class Simulation:
             self.P,
             self.seg,
             self.hold,
+            self.tab,
+            self.jmode,
             m[0],
             m[1],
             m[2],
@@ -272,6 +308,8 @@ class Simulation:
             self.P,
             self.seg,
             self.hold,
+            self.tab,
+            self.jmode,
             self.X,
             q,
             qd,
@@ -308,10 +346,24 @@ class Simulation:
 
     def advance(self, until: float) -> np.ndarray:
         """Simulate up to `until` (on the step grid); the output rows with time in (previous until, until],
-        the t = 0 row on the first call. One solver call per chunk: the rows inside the chunk are taken
-        in the PreStep at the start of the step that begins at their time."""
+        the t = 0 row on the first call. A parameter event due on the way (a payload change) splits the
+        chunk: the chain changes on the step grid point at or just before its time."""
         if not self._running:
             raise SimulationError("advance() before start()")
+        parts = []
+        while self._pending_events and self._pending_events[0][0] <= float(until) and not self.finished:
+            t_event, changes = self._pending_events.pop(0)
+            if t_event > self._time + 0.5 * self.h or self._k_next == 0:
+                parts.append(self._advance_chunk(t_event))
+            self.values.update(changes)
+            self._update_mechanics()
+            self._mech_arrays = self._mech
+        parts.append(self._advance_chunk(until))
+        return parts[0] if len(parts) == 1 else np.concatenate(parts)
+
+    def _advance_chunk(self, until: float) -> np.ndarray:
+        """One solver call up to `until`: the rows inside the chunk are taken in the PreStep at the
+        start of the step that begins at their time."""
         t_wall = _time.perf_counter()
         out_before = self.timing["output"]
         h = self.h
