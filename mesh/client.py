@@ -221,9 +221,13 @@ class SessionClient:
     def set_initial(self, joints: Sequence[float]) -> Any:
         return self.command(m.SetInitial([float(q) for q in joints]))
 
-    def set_joint_path(self, nodes: Sequence[tuple[Sequence[float], float, float]]) -> Any:
+    def set_command(self, command: m.RobotCommand) -> m.CommandPlan:
+        """Assign a robot command of any level; the server's plan of it (duration, steps, tool path)."""
+        return self.command(m.SetCommand(command))
+
+    def set_joint_path(self, nodes: Sequence[tuple[Sequence[float], float, float]]) -> m.CommandPlan:
         path = m.JointPath([m.PathNode([float(x) for x in q], float(s), float(a)) for q, s, a in nodes])
-        return self.command(m.SetCommand(path))
+        return self.set_command(path)
 
     def set_settings(self, **settings: Any) -> Any:
         return self.command(m.SetSettings(m.RunSettings(**settings)))
@@ -262,6 +266,18 @@ class SessionClient:
 
     def list_param_sets(self) -> list[str]:
         return self.command(m.ListParamSets())
+
+    def save_program(self, name: str, program: m.Program) -> str:
+        return self.command(m.SaveProgram(name, program))
+
+    def load_program(self, kind: str, name: str) -> m.Program:
+        return self.command(m.LoadProgram(kind, name))  # type: ignore[arg-type]
+
+    def delete_program(self, kind: str, name: str) -> str:
+        return self.command(m.DeleteProgram(kind, name))  # type: ignore[arg-type]
+
+    def list_programs(self, kind: str = "") -> list[m.ProgramEntry]:
+        return self.command(m.ListPrograms(kind))  # type: ignore[arg-type]
 
     def runs(self) -> list[m.RunInfo]:
         return self.client.request(keys.results(self.user, self.id), reply=list[m.RunInfo])

@@ -49,6 +49,22 @@ _TABLE = (
         "bad_request",
         "full-resolution results of one run: (samples + 1) x columns x 8 bytes",
     ),
+    Limit(
+        "reference_samples",
+        200_000,
+        "count",
+        "proxy",
+        "bad_request",
+        "rows of one run's expanded reference (Cartesian samples at the control period, signal samples)",
+    ),
+    Limit(
+        "programs_per_user",
+        500,
+        "count",
+        "proxy",
+        "busy",
+        "saved actions, tasks and missions of one user, all models together",
+    ),
     Limit("sessions", 256, "count", "proxy", "busy", "open sessions on the server", "--max-sessions"),
     Limit(
         "sessions_per_user",

@@ -20,6 +20,27 @@ from .limits import limit
 from .model import ModelSummary
 from .phases import Phase, WorkerPhase
 from .primitives import FieldProblem, Message, Name, Numbers, Record, SessionId, Text
+from .robot_commands import (  # noqa: F401  (the protocol's one namespace: m.JointPath, ...)
+    COMMAND_LEVELS,
+    Action,
+    CartesianNode,
+    CartesianPath,
+    ChirpSignal,
+    DirectInput,
+    JointPath,
+    Mission,
+    PathNode,
+    Program,
+    ProgramKind,
+    RampSignal,
+    RobotCommand,
+    Seconds,
+    Signal,
+    SineSignal,
+    StepSignal,
+    TableSignal,
+    Task,
+)
 
 VERSION: Literal[1] = 1
 
@@ -33,17 +54,6 @@ class Command(Record, kw_only=True, tag_field="op"):
     def op(self) -> str:
         return str(type(self).__struct_config__.tag)
 
-
-class RobotCommandBase(Record, tag_field="kind"):
-    """One level of the paper's robot commands (§2.1), told apart by `kind`."""
-
-    @property
-    def kind(self) -> str:
-        return str(type(self).__struct_config__.tag)
-
-
-Percent = Annotated[float, Meta(gt=0.0, le=100.0, description="percent of the joints' maxima, (0, 100]")]
-Seconds = Annotated[float, Meta(ge=0.0, le=1e9)]
 
 # -- replies -------------------------------------------------------------------------------------------
 ErrorCode = Literal["bad_request", "not_found", "forbidden", "conflict", "busy", "internal", "unsupported"]
@@ -64,66 +74,7 @@ class Ok(Message, tag="ok"):
     data: Any = None
 
 
-# -- robot commands, one per level of the paper (§2.1) -------------------------------------------------
-class PathNode(Record):
-    """A via point of a joint path (PDL2 MOVE-like): destination, speed and acceleration reductions."""
-
-    q: Annotated[
-        list[float], Meta(min_length=1, max_length=64, description="destination, rad, one per joint")
-    ]
-    speed_pct: Percent = 100.0
-    acc_pct: Percent = 100.0
-
-
-class JointPath(RobotCommandBase, tag="joint_path"):
-    """Every node executed in order, each segment a trapezoidal-speed move."""
-
-    nodes: Annotated[list[PathNode], Meta(min_length=1, max_length=1000)]
-
-
-class CartesianNode(Record):
-    """A straight-line tool move to a pose: position in m, orientation roll-pitch-yaw in rad."""
-
-    position: Annotated[list[float], Meta(min_length=3, max_length=3)]
-    rpy: Annotated[list[float], Meta(min_length=3, max_length=3)]
-    speed_pct: Percent = 100.0
-    acc_pct: Percent = 100.0
-
-
-class CartesianPath(RobotCommandBase, tag="cartesian_path"):
-    nodes: Annotated[list[CartesianNode], Meta(min_length=1, max_length=1000)]
-
-
-Signal = Annotated[list[Annotated[list[float], Meta(min_length=2, max_length=2)]], Meta(max_length=100_000)]
-
-
-class DirectInput(RobotCommandBase, tag="direct_input"):
-    """Open loop: motor currents; closed loop: set points. `signals[name]` is a list of [t, value]."""
-
-    mode: Literal["open_loop", "closed_loop"]
-    signals: Annotated[dict[Name, Signal], Meta(max_length=64)]
-
-
-class Action(RobotCommandBase, tag="action"):
-    """A named, reusable step (e.g. 'reach', 'grasp') with numeric arguments."""
-
-    name: Name
-    args: Annotated[dict[Name, float], Meta(max_length=64)] = {}
-
-
-class Task(RobotCommandBase, tag="task"):
-    name: Name
-    actions: Annotated[list[Action], Meta(max_length=1000)]
-
-
-class Mission(RobotCommandBase, tag="mission"):
-    name: Name
-    tasks: Annotated[list[Task], Meta(max_length=1000)]
-
-
-RobotCommand = JointPath | CartesianPath | DirectInput | Action | Task | Mission
 MAX_SAMPLES = limit("samples_per_run")
-COMMAND_LEVELS = ("direct_input", "joint_path", "cartesian_path", "action", "task", "mission")
 
 
 # -- simulation settings -------------------------------------------------------------------------------
@@ -230,6 +181,68 @@ class ListParamSets(Command, tag="list_param_sets"):
     pass
 
 
+class SaveProgram(Command, tag="save_program"):
+    """Keep an action, task or mission in the user's library of this model, under `name` (replacing
+    one of the same kind and name)."""
+
+    name: Name
+    program: Program
+
+
+class LoadProgram(Command, tag="load_program"):
+    """A saved program, checked against the model's current bounds (not made the session's command)."""
+
+    kind: ProgramKind
+    name: Name
+
+
+class DeleteProgram(Command, tag="delete_program"):
+    kind: ProgramKind
+    name: Name
+
+
+class ListPrograms(Command, tag="list_programs"):
+    kind: Annotated[Literal["", "action", "task", "mission"], Meta(description="'' = every kind")] = ""
+
+
+class ProgramEntry(Record):
+    """One saved program (reply of `list_programs`)."""
+
+    kind: ProgramKind
+    name: Name
+
+
+class PlanStep(Record):
+    """One step of an expanded command: where it sits in the command and when it runs."""
+
+    step: Annotated[Text, Meta(description="its path in the command, e.g. tasks[1].actions[2]; nodes[3]")]
+    what: Annotated[Text, Meta(description="the primitive or move type: move_linear, lin, ptp, joint, ...")]
+    start: Annotated[float, Meta(ge=0.0, description="s of simulated time")]
+    end: Annotated[float, Meta(ge=0.0, description="s")]
+    task: Annotated[str, Meta(max_length=64, description="the task's name ('' outside a task)")] = ""
+    action: Annotated[str, Meta(max_length=64, description="the action's label, else its primitive")] = ""
+
+
+class CommandPlan(Record):
+    """Reply data of `set_command`: the command as the server expanded it for the session's model,
+    values and initial pose."""
+
+    kind: Name
+    duration: Annotated[float, Meta(ge=0.0, description="s until the last step ends")]
+    steps: list[PlanStep]
+    final_q: Annotated[Numbers, Meta(description="rad, the joint set points once the command is done")]
+    tool_path: Annotated[
+        list[Annotated[list[float], Meta(min_length=3, max_length=3)]],
+        Meta(max_length=1000, description="m, the planned tool positions, at most 1000 (movement levels)"),
+    ] = []
+    stop_time_cuts: Annotated[bool, Meta(description="the run's stop_time ends before the command")] = False
+    start_pose: Annotated[
+        list[float],
+        Meta(max_length=6, description="the tool at the initial pose: x, y, z (m), roll, pitch, yaw (rad)"),
+    ] = []
+    end_pose: Annotated[list[float], Meta(max_length=6, description="the tool once the command is done")] = []
+
+
 class GetSession(Command, tag="get_session"):
     pass
 
@@ -254,6 +267,10 @@ SessionCommand = (
     | LoadParamSet
     | DeleteParamSet
     | ListParamSets
+    | SaveProgram
+    | LoadProgram
+    | DeleteProgram
+    | ListPrograms
     | GetSession
     | CloseSession
 )
@@ -287,6 +304,9 @@ class SessionState(Message, tag="state"):
     rtf: Annotated[float, Meta(ge=0.0, description="simulated s per wall s over the run so far")] = 0.0
     reason: Annotated[Text, Meta(description="why failed / aborted")] = ""
     warnings: Annotated[list[Text], Meta(max_length=100, description="notices about the current run")] = []
+    step: Annotated[Text, Meta(description="the running step (PlanStep.step); '' if none")] = ""
+    task: Annotated[str, Meta(max_length=64, description="the running task's name (task, mission)")] = ""
+    action: Annotated[str, Meta(max_length=64, description="the running action's label or primitive")] = ""
 
 
 class ParamValues(Message, tag="params"):
@@ -391,6 +411,9 @@ class RunStatus(Message, tag="run_status"):
     rtf: Annotated[float, Meta(ge=0.0)] = 0.0
     samples: Annotated[int, Meta(ge=0)] = 0
     reason: Text = ""
+    step: Annotated[Text, Meta(description="the running step (PlanStep.step)")] = ""
+    task: Annotated[str, Meta(max_length=64)] = ""
+    action: Annotated[str, Meta(max_length=64)] = ""
 
 
 class RunContext(Record):
@@ -484,7 +507,7 @@ REPLIES: dict[type, Any] = {
     SetParams: dict[str, float],
     ResetParams: dict[str, float],
     SetInitial: list[float],
-    SetCommand: str,
+    SetCommand: CommandPlan,
     SetSettings: RunSettings,
     Run: RunStarted,
     Replay: RunStarted,
@@ -496,6 +519,10 @@ REPLIES: dict[type, Any] = {
     LoadParamSet: dict[str, float],
     DeleteParamSet: str,
     ListParamSets: list[str],
+    SaveProgram: str,
+    LoadProgram: Program,
+    DeleteProgram: str,
+    ListPrograms: list[ProgramEntry],
     GetSession: SessionSnapshot,
     CloseSession: str,
     CreateSession: SessionSnapshot,

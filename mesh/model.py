@@ -137,6 +137,7 @@ class ModelDescription(Message, tag="model"):
     docs: list[DocPage]
     command_levels: Annotated[list[Name], Meta(description="the robot command kinds the model accepts")]
     environment: Annotated[list[Shape], Meta(description="floor, bench, obstacles (link -1)")] = []
+    home: Annotated[list[float], Meta(max_length=64, description="rad: the `home` action's posture")] = []
 
     def summary_entry(self) -> ModelSummary:
         return ModelSummary(self.id, self.name, self.summary, len(self.links), list(self.command_levels))

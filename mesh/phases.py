@@ -58,6 +58,10 @@ ALLOWED: dict[str, tuple[tuple[str, ...], str]] = {
     "save_param_set": (OPEN, ""),
     "delete_param_set": (OPEN, ""),
     "list_param_sets": (OPEN, ""),
+    "save_program": (OPEN, ""),
+    "load_program": (OPEN, ""),
+    "delete_program": (OPEN, ""),
+    "list_programs": (OPEN, ""),
     "get_session": (OPEN, ""),
     "close_session": (OPEN, ""),
 }

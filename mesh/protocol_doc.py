@@ -26,12 +26,21 @@ GROUPS: list[tuple[str, list[str]]] = [
         "commands",
         ["SetParams", "ResetParams", "SetInitial", "SetCommand", "SetSettings", "Run", "Replay", "Pause"]
         + ["Resume", "Abort", "Seek", "SaveParamSet", "LoadParamSet", "DeleteParamSet", "ListParamSets"]
-        + ["GetSession", "CloseSession", "SessionCommand", "RunSettings", "RunStarted"],
+        + ["SaveProgram", "LoadProgram", "DeleteProgram", "ListPrograms", "ProgramEntry"]
+        + [
+            "GetSession",
+            "CloseSession",
+            "SessionCommand",
+            "RunSettings",
+            "RunStarted",
+            "CommandPlan",
+            "PlanStep",
+        ],
     ),
     (
         "robot_commands",
         ["RobotCommand", "JointPath", "PathNode", "CartesianPath", "CartesianNode", "DirectInput", "Action"]
-        + ["Task", "Mission"],
+        + ["TableSignal", "StepSignal", "RampSignal", "SineSignal", "ChirpSignal", "Task", "Mission"],
     ),
     (
         "sessions",
@@ -102,7 +111,8 @@ def bounds_text(s: dict[str, Any]) -> str:
 
 
 def _cell(text: str) -> str:
-    return text.replace("|", "\\|").replace("\n", " ")
+    """One table cell: a docstring's line breaks and indentation become single spaces."""
+    return " ".join(text.replace("|", "\\|").split())
 
 
 def message_table(name: str, s: dict[str, Any]) -> str:
@@ -172,6 +182,29 @@ def _frame_table(schema: dict[str, Any]) -> str:
     return "\n".join(rows) + "\n"
 
 
+def _actions_table(schema: dict[str, Any]) -> str:
+    rows = ["| primitive | what it does | argument | size | unit | required / default | bounds | meaning |"]
+    rows.append("|---" * 8 + "|")
+    for name, entry in schema["x-simecs-actions"].items():
+        first = True
+        for arg, a in entry["args"].items():
+            need = (
+                "required"
+                if a["required"]
+                else (f"default `{_json(a['default'])}`" if "default" in a else "optional")
+            )
+            bounds = ", ".join(
+                f"{op} {_json(a[k])}"
+                for k, op in (("exclusiveMinimum", ">"), ("minimum", ">="), ("maximum", "<="))
+                if k in a
+            )
+            head = f"`{name}` | {_cell(entry['does'])}" if first else " | "
+            meaning = _cell(a["description"])
+            rows.append(f"| {head} | `{arg}` | {a['size']} | {a['unit']} | {need} | {bounds} | {meaning} |")
+            first = False
+    return "\n".join(rows) + "\n"
+
+
 def _limits_table() -> str:
     rows = ["| bound | value | enforced by | when exceeded | what it bounds | option |", "|---" * 6 + "|"]
     for lim in limits.LIMITS.values():
@@ -192,6 +225,7 @@ def sections() -> dict[str, str]:
         "phases": _phase_table(),
         "frame": _frame_table(schema),
         "limits": _limits_table(),
+        "actions": _actions_table(schema),
     }
     for group, names in GROUPS:
         out[f"messages:{group}"] = "\n".join(message_table(n, defs[n]) for n in names)

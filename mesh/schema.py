@@ -22,6 +22,7 @@ import msgspec
 from . import frames, keys, phases
 from . import messages as m
 from . import model as md
+from .robot_commands import ACTION_ARGS, ACTION_DOC
 
 #: Named unions: they get a $defs entry of their own, like the Structs.
 UNIONS = {
@@ -138,7 +139,8 @@ def protocol_schema() -> dict[str, Any]:
         "title": "simecs protocol, version 1",
         "description": (
             "Every JSON message of the simecs protocol ($defs), which key carries which (x-simecs-keys), "
-            "each command's reply (x-simecs-commands), the session phases (x-simecs-phases) and the binary "
+            "each command's reply (x-simecs-commands), the session phases (x-simecs-phases), the action "
+            "primitives' arguments (x-simecs-actions) and the binary "
             "frame header (x-simecs-frame). Refusals are Zenoh error replies carrying $defs/Error. "
             "Generated from mesh/ by `python -m simecs.mesh.schema`; docs/PROTOCOL.md explains it."
         ),
@@ -149,6 +151,28 @@ def protocol_schema() -> dict[str, Any]:
             "phases": list(phases.PHASES),
             "worker_phases": list(phases.WORKER_PHASES),
             "transitions": phases.TRANSITIONS,
+        },
+        "x-simecs-actions": {
+            name: {
+                "does": ACTION_DOC[name],
+                "args": {
+                    arg: {
+                        "size": {0: "number", -1: "one per joint"}.get(spec.size, f"{spec.size} numbers"),
+                        "unit": spec.unit,
+                        "description": spec.description,
+                        **({"default": spec.default} if spec.default is not None else {}),
+                        "required": spec.default is None and not spec.optional,
+                        **(
+                            {"exclusiveMinimum" if spec.above_min else "minimum": spec.min}
+                            if spec.min > -1e300
+                            else {}
+                        ),
+                        **({"maximum": spec.max} if spec.max < 1e300 else {}),
+                    }
+                    for arg, spec in args.items()
+                },
+            }
+            for name, args in ACTION_ARGS.items()
         },
         "x-simecs-frame": {
             "byte_order": "little-endian",

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 from simecs.mesh.model import ModelSummary
 
-from .errors import ParameterError, SimulationError
+from .errors import CommandError, ParameterError, SimulationError
 from .package import ModelPackage
 from .simulation import Simulation
 
@@ -23,6 +23,7 @@ __all__ = [
     "get_model",
     "ModelPackage",
     "Simulation",
+    "CommandError",
     "ParameterError",
     "SimulationError",
     "warmup",
@@ -64,4 +65,7 @@ def warmup() -> float:
     sim.start(0.004, 0.002)
     sim.advance(0.004)
     sim.close()
+    from .planner import warmup as warm_planner
+
+    warm_planner()
     return time.perf_counter() - t0

@@ -23,6 +23,7 @@ from simecs.mesh.model import (
     Variable,
 )
 from simecs.mesh.model import check_values as check_bounds
+from simecs.mesh.robot_commands import COMMAND_LEVELS
 
 from . import drive as dr
 from .docs import build_docs
@@ -135,6 +136,23 @@ class ArmDescription:
                 appearance=True,
             )
         )
+        for name, value, unit, what, top in (
+            ("max_speed", s.cart_max_speed, "m/s", "tool point speed", 10.0),
+            ("max_acc", s.cart_max_acc, "m/s^2", "tool point acceleration", 100.0),
+            ("max_rot_speed", s.cart_max_rot_speed, "rad/s", "tool orientation speed", 20.0),
+            ("max_rot_acc", s.cart_max_rot_acc, "rad/s^2", "tool orientation acceleration", 200.0),
+        ):
+            out.append(
+                Parameter(
+                    f"cart.{name}",
+                    value,
+                    unit,
+                    f"{what} of a straight-line (lin) move at 100 %",
+                    1e-3,
+                    top,
+                    "cart",
+                )
+            )
         for i, lk in enumerate(s.links, start=1):
             table = s.drives[lk.drive]
             for name in dr.DRIVE_PARAMS:
@@ -204,10 +222,15 @@ class ArmDescription:
                 init_equations=self.init_equations(),
                 doc_root=f"{s.id}",
                 docs=build_docs(s, self._params, self.init_equations()),
-                command_levels=["joint_path"],
+                command_levels=list(COMMAND_LEVELS),
+                home=list(self.home()),
                 environment=list(s.environment),
             )
         return self._description
+
+    def home(self) -> tuple[float, ...]:
+        """The posture the `home` action goes to."""
+        return tuple(self.spec.home) if self.spec.home else (0.0,) * self.n
 
     def variables(self) -> list[Variable]:
         """The variable catalog: every output column of a run but time and poses, per joint."""

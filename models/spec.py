@@ -67,4 +67,10 @@ class ArmSpec:
     assumptions: str = ""
     chain_doc: str = ""
     standard_target: tuple[float, ...] = ()
+    home: tuple[float, ...] = ()  # the `home` action's posture, rad; () = every joint at 0
+    # Cartesian maxima of a `lin` move at 100 % (the `cart.*` parameters' defaults)
+    cart_max_speed: float = 0.25  # m/s of the tool point
+    cart_max_acc: float = 0.5  # m/s^2
+    cart_max_rot_speed: float = 0.5  # rad/s of the tool orientation
+    cart_max_rot_acc: float = 1.0  # rad/s^2
     environment: list[Shape] = field(default_factory=list)

@@ -3,7 +3,7 @@ parameter values against a model (its bounds, then the model's own cross-checks)
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 from simecs.mesh import messages as m
@@ -16,8 +16,10 @@ class ModelLibrary:
         # The models installed with this server: the proxy uses their descriptions and value checks
         # only; simulations run in simulator nodes, reached over the mesh.
         from simecs import models
+        from simecs.models.planner import warmup
 
         self._packages: dict[str, Any] = {s.id: models.get_model(s.id) for s in models.list_models()}
+        warmup()  # the kinematics kernels, so the first command is planned at once
         self.descriptions: dict[str, ModelDescription] = {
             model_id: pkg.describe() for model_id, pkg in self._packages.items()
         }
@@ -48,3 +50,51 @@ class ModelLibrary:
         except ValueError as exc:  # the model's cross-checks (models.ParameterError)
             name = getattr(exc, "name", "")
             raise RequestError("bad_request", str(exc), f"values.{name}" if name else "values") from None
+
+    def plan(
+        self,
+        model_id: str,
+        values: Mapping[str, float],
+        initial: Sequence[float],
+        command: m.RobotCommand,
+        stop_time: float,
+    ) -> Any:
+        """The command expanded for this model, values and initial pose (models.planner.Plan), or a
+        refusal naming the field inside `command` (a level the model does not accept: unsupported)."""
+        from simecs.models import CommandError
+        from simecs.models.planner import Planner
+
+        desc = self.describe(model_id)
+        if command.kind not in desc.command_levels:
+            raise RequestError(
+                "unsupported",
+                f"model {desc.id} accepts {', '.join(desc.command_levels)} commands, not {command.kind}",
+                "command.kind",
+            )
+        try:
+            return Planner(self._packages[model_id], values, initial, stop_time).plan(command)
+        except CommandError as exc:
+            raise RequestError("bad_request", exc.reason, _join("command", exc.field)) from None
+
+    def check_program(
+        self, model_id: str, values: Mapping[str, float], program: m.Program, where: str
+    ) -> None:
+        """What a saved program must satisfy whatever pose it starts from: its arguments against their
+        primitives, joint targets within range (a reach needs a start pose: checked at set_command)."""
+        from simecs.models import CommandError
+        from simecs.models.planner import Planner
+
+        desc = self.describe(model_id)
+        if program.kind not in desc.command_levels:
+            raise RequestError(
+                "unsupported", f"model {desc.id} does not accept {program.kind} commands", f"{where}.kind"
+            )
+        planner = Planner(self._packages[model_id], values, [0.0] * len(desc.links), 1.0)
+        try:
+            planner.check_arguments(program)
+        except CommandError as exc:
+            raise RequestError("bad_request", exc.reason, _join(where, exc.field)) from None
+
+
+def _join(prefix: str, field: str) -> str:
+    return f"{prefix}.{field}" if field else prefix

@@ -19,7 +19,7 @@ from pathlib import Path
 from typing import Any
 
 import msgspec
-from simecs.mesh import codec, columns, keys, limits, phases
+from simecs.mesh import columns, keys, limits, phases
 from simecs.mesh import messages as m
 from simecs.mesh.client import MeshClient, NoReply, RemoteError
 from simecs.mesh.hublink import HubLink
@@ -27,10 +27,10 @@ from simecs.mesh.model import DocPage, ModelDescription, check_joints
 from simecs.mesh.runtime import Node, NotMine, Request, RequestError, main_for, mesh_from_args
 
 from .library import ModelLibrary
-from .paramsets import ParamSetStore
 from .quotas import QuotaCheck, Quotas
 from .runs import RunTracker
 from .sessions import SessionRecord, SessionStore
+from .user_library import UserLibrary
 
 
 class Proxy(Node):
@@ -57,27 +57,23 @@ class Proxy(Node):
         self.store = SessionStore(
             data / "sessions", lambda key: self.publisher(key, latched=True), self._release
         )
-        self.paramsets = ParamSetStore(data / "paramsets")
         self.runs = RunTracker(
             self.store, lambda: self.z, lambda: self.seal, self.lock, max_running, max_queue
         )
         self.admission = self.runs.admission
         self.quota = QuotaCheck(quotas or Quotas(), self.store, self._columns)
+        self.user_library = UserLibrary(data, lambda: self.models, self.store, self.quota)
         self.commands: dict[type, Callable[[SessionRecord, Any], Any]] = {
             m.SetParams: self._set_params,
             m.ResetParams: self._reset_params,
             m.SetInitial: self._set_initial,
-            m.SetCommand: self._set_command,
             m.SetSettings: self._set_settings,
             m.Run: self._run,
             m.Pause: self.runs.pause,
             m.Resume: self.runs.resume,
             m.Abort: self.runs.abort,
             m.Seek: self.runs.seek,
-            m.SaveParamSet: self._save_param_set,
-            m.LoadParamSet: self._load_param_set,
-            m.DeleteParamSet: self._delete_param_set,
-            m.ListParamSets: self._list_param_sets,
+            **self.user_library.handlers(),
             m.GetSession: lambda rec, _cmd: rec.snapshot(),
             m.CloseSession: self._close_session,
         }
@@ -197,6 +193,8 @@ class Proxy(Node):
         cmd = req.json(m.SessionCommand)
         # Asking the recorder what a recording holds may take a while: not under the lock.
         recording = self._recording(user, cmd.recording) if isinstance(cmd, m.Replay) else None
+        # Expanding a command (inverse kinematics every millisecond of a line) may take a while too.
+        plan = self._plan(req.key, cmd) if isinstance(cmd, m.SetCommand | m.Run) else None
         with self.lock:
             rec = self.store.get(req.key)
             rec.active_at = time.time()
@@ -205,7 +203,28 @@ class Proxy(Node):
                 raise RequestError("conflict", why)
             if isinstance(cmd, m.Replay):
                 return self._replay(rec, cmd, recording)
+            if isinstance(cmd, m.SetCommand):
+                return self._set_command(rec, cmd, plan)
             return self.commands[type(cmd)](rec, cmd)
+
+    def _plan(self, key: str, cmd: m.SetCommand | m.Run) -> Any:
+        """The command (the new one, or the session's for a run) planned from the session's values and
+        initial pose: refused here, naming its field, if the model cannot carry it out."""
+        with self.lock:
+            rec = self.store.get(key)
+            why = phases.refusal(cmd.op, rec.phase)
+            if why:
+                raise RequestError("conflict", why)
+            command = cmd.command if isinstance(cmd, m.SetCommand) else rec.command
+            model_id, values, initial, stop_time = (
+                rec.model_id,
+                dict(rec.values),
+                list(rec.initial),
+                rec.settings.stop_time,
+            )
+        if command is None:
+            return None
+        return self.models.plan(model_id, values, initial, command, stop_time)
 
     def _set_params(self, rec: SessionRecord, cmd: m.SetParams) -> dict[str, float]:
         rec.values = self.models.check(rec.model_id, cmd.values, rec.values)
@@ -230,21 +249,10 @@ class Proxy(Node):
         self.store.edited(rec)
         return rec.initial
 
-    def _set_command(self, rec: SessionRecord, cmd: m.SetCommand) -> str:
-        desc = self._model(rec)
-        level = cmd.command.kind
-        if level not in desc.command_levels:
-            raise RequestError(
-                "unsupported",
-                f"model {desc.id} accepts {', '.join(desc.command_levels)} commands, not {level}",
-                "command.kind",
-            )
-        if isinstance(cmd.command, m.JointPath):
-            for i, node in enumerate(cmd.command.nodes):
-                check_joints(desc, node.q, f"command.nodes[{i}].q")
+    def _set_command(self, rec: SessionRecord, cmd: m.SetCommand, plan: Any) -> m.CommandPlan:
         rec.command = cmd.command
         self.store.edited(rec)
-        return level
+        return plan.summary(rec.settings.stop_time)
 
     def _set_settings(self, rec: SessionRecord, cmd: m.SetSettings) -> m.RunSettings:
         desc = self._model(rec)
@@ -257,35 +265,6 @@ class Proxy(Node):
         rec.settings = cmd.settings
         self.store.edited(rec)
         return rec.settings
-
-    # -- parameter sets ----------------------------------------------------------------------------
-    def _save_param_set(self, rec: SessionRecord, cmd: m.SaveParamSet) -> str:
-        replacing = self.paramsets.exists(rec.user, rec.model_id, cmd.name)
-        self.quota.new_param_set(rec.user, self.paramsets.count(rec.user), replacing)
-        self.paramsets.save(rec.user, rec.model_id, cmd.name, rec.values)
-        return cmd.name
-
-    def _load_param_set(self, rec: SessionRecord, cmd: m.LoadParamSet) -> dict[str, float]:
-        stored = self.paramsets.load(rec.user, rec.model_id, cmd.name)
-        known = self._model(rec).default_values()
-        # Parameters added to the model since the set was saved keep their current values.
-        kept = {k: v for k, v in stored.items() if k in known}
-        try:
-            rec.values = self.models.check(rec.model_id, kept, rec.values)
-        except (RequestError, codec.DecodeError) as exc:
-            raise RequestError(
-                "bad_request", f"parameter set {cmd.name!r} is unusable: {exc}", "name"
-            ) from None
-        self.store.publish_params(rec, sorted(kept))
-        self.store.edited(rec)
-        return rec.values
-
-    def _delete_param_set(self, rec: SessionRecord, cmd: m.DeleteParamSet) -> str:
-        self.paramsets.delete(rec.user, rec.model_id, cmd.name)
-        return cmd.name
-
-    def _list_param_sets(self, rec: SessionRecord, cmd: m.ListParamSets) -> list[str]:
-        return self.paramsets.names(rec.user, rec.model_id)
 
     def _close_session(self, rec: SessionRecord, cmd: m.CloseSession) -> str:
         if rec.phase in phases.GOING:
@@ -312,7 +291,7 @@ class Proxy(Node):
     # -- runs ----------------------------------------------------------------------------------------
     def _run(self, rec: SessionRecord, cmd: m.Run) -> m.RunStarted:
         if rec.command is None:
-            raise RequestError("bad_request", "no command assigned: set a joint path first", "command")
+            raise RequestError("bad_request", "no command assigned: set_command first", "command")
         self.quota.new_run(rec, rec.settings, rec.settings.stop_time)
         request = self.runs.request(rec, f"r{rec.run_counter + 1}")
         return self.runs.begin(rec, request, rec.settings.stop_time)

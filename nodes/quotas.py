@@ -25,6 +25,7 @@ class Quotas:
     runs_per_user: int = limits.limit("runs_per_user")
     results_bytes_per_user: int = limits.limit("results_bytes_per_user")
     param_sets_per_user: int = limits.limit("param_sets_per_user")
+    programs_per_user: int = limits.limit("programs_per_user")
 
 
 def _bytes(n: int) -> str:
@@ -108,5 +109,14 @@ class QuotaCheck:
                 "busy",
                 f"{user} holds {held} parameter sets, the most one user may (param_sets_per_user = "
                 f"{self.q.param_sets_per_user}): delete one first",
+                "name",
+            )
+
+    def new_program(self, user: str, held: int, replacing: bool) -> None:
+        if not replacing and held >= self.q.programs_per_user:
+            raise RequestError(
+                "busy",
+                f"{user} holds {held} saved programs, the most one user may (programs_per_user = "
+                f"{self.q.programs_per_user}): delete one first",
                 "name",
             )

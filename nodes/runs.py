@@ -243,6 +243,7 @@ class RunTracker:
             if st.stop_time > 0:
                 self.run_info(rec, st.run_id, stop_time=st.stop_time)
             rec.state.sim_time, rec.state.progress, rec.state.rtf = st.sim_time, progress, st.rtf
+            rec.state.step, rec.state.task, rec.state.action = st.step, st.task, st.action
             if st.phase in phases.ENDED:
                 self.end_run(rec, st.phase, st.reason)
                 self.admission.update()

@@ -40,6 +40,8 @@ class RunSource(Protocol):
 
     def results(self, played: list[np.ndarray]) -> np.ndarray: ...
 
+    def step_at(self, t: float) -> tuple[str, str, str]: ...
+
     def close(self) -> None: ...
 
 
@@ -50,19 +52,25 @@ class SimulationSource:
 
     def __init__(self, req: m.RunRequest) -> None:
         from simecs import models
+        from simecs.models.planner import Planner
 
-        if not isinstance(req.command, m.JointPath):
-            level = req.command.kind if req.command is not None else "no command"
-            raise ValueError(f"this simulator runs joint paths, not {level}")
+        if req.command is None:
+            raise ValueError("the session has no command")
         self.req = req
         self.model_id = req.model_id
-        self.sim = models.get_model(req.model_id).build(req.values)
+        package = models.get_model(req.model_id)
+        try:
+            self.plan = Planner(package, req.values, req.initial, req.settings.stop_time).plan(req.command)
+        except models.CommandError as exc:
+            field = f"command.{exc.field}" if exc.field else "command"
+            raise ValueError(f"{field}: {exc.reason}") from None
+        self.sim = package.build(req.values)
         self.columns, self.units = list(self.sim.columns), list(self.sim.units)
         self.stop_time = req.settings.stop_time
         self.output_interval = req.settings.output_interval
         self.context = m.RunContext(req.user, dict(req.values), list(req.initial), req.command, req.settings)
         self.sim.set_initial(req.initial)
-        self.sim.set_joint_path([(n.q, n.speed_pct, n.acc_pct) for n in req.command.nodes])
+        self.plan.apply(self.sim)
 
     @property
     def time(self) -> float:
@@ -87,6 +95,11 @@ class SimulationSource:
 
     def results(self, played: list[np.ndarray]) -> np.ndarray:
         return np.concatenate(played) if played else np.empty((0, len(self.columns)))
+
+    def step_at(self, t: float) -> tuple[str, str, str]:
+        """(step, task, action) of the command at simulated time t: what SessionState shows."""
+        step = self.plan.step_at(t)
+        return (step.path, step.task, step.action) if step is not None else ("", "", "")
 
     def close(self) -> None:
         self.sim.close()
@@ -168,6 +181,9 @@ class RecordingSource:
     def results(self, played: list[np.ndarray]) -> np.ndarray:
         """The recording up to the furthest row played (seeks may have played parts twice)."""
         return np.asarray(self.rows[: self._played_to + 1])
+
+    def step_at(self, t: float) -> tuple[str, str, str]:
+        return "", "", ""
 
     def close(self) -> None:
         pass

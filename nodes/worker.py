@@ -130,6 +130,8 @@ class Run:
             samples=self.samples,
             reason=reason,
         )
+        if self.source is not None:
+            msg.step, msg.task, msg.action = self.source.step_at(self.sim_time)
         self.status_pub.put(codec.dumps(msg))
 
     def publish(self, rows: np.ndarray, final: bool = False) -> None:

@@ -26,3 +26,20 @@ def test_plain_client_from_the_protocol_document(service: Service) -> None:
     assert "run r1: finished" in out.stdout
     assert "101 samples of ['time', 'joint1.q', 'joint2.q']" in out.stdout
     assert "replay r2: finished" in out.stdout and "r2 finished (replay)" in out.stdout
+
+
+def test_commands_client_runs_a_line_and_a_saved_task(service: Service) -> None:
+    source = (EXAMPLES / "commands_client.py").read_text()
+    assert "simecs." not in source.replace("simecs/", "")
+    out = subprocess.run(
+        [sys.executable, str(EXAMPLES / "commands_client.py"), service.mesh.endpoint],
+        capture_output=True,
+        text=True,
+        timeout=180,
+        env=mesh_env(),
+    )
+    assert out.returncode == 0, out.stdout + out.stderr
+    line = next(x for x in out.stdout.splitlines() if x.startswith("line r1:"))
+    assert float(line.split("ends ")[1].split(" mm")[0]) < 2.0, line
+    assert "saved: ['back']" in out.stdout
+    assert "task r2: finished; steps seen: retreat, wait, settle" in out.stdout, out.stdout

@@ -288,8 +288,9 @@ def test_bad_values_are_refused_with_the_reason_and_nothing_applied(service: Ser
         s.run()
     assert "no command" in err.value.error.message
     with pytest.raises(RemoteError) as err:
-        s.command(m.SetCommand(m.CartesianPath([m.CartesianNode([1, 0, 0], [0, 0, 0])])))
-    assert err.value.code == "unsupported"
+        s.command(m.SetCommand(m.CartesianPath([m.CartesianNode([9, 0, 0], [0, 0, 0], "ptp")])))
+    assert (err.value.code, err.value.field) == ("bad_request", "command.nodes[0]")
+    assert "reach" in err.value.error.message
     with pytest.raises(RemoteError) as err:
         s.load_param_set("never-saved")
     assert err.value.code == "not_found"
