@@ -66,6 +66,7 @@ test: lint $(CHROMIUM) warm
 
 bench: $(STAMP) warm
 	$(BIN)/simecs bench model
+	$(BIN)/simecs bench commands
 	$(BIN)/simecs bench service
 	$(BIN)/simecs bench recorder
 	$(BIN)/simecs bench lan

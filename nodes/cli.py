@@ -27,6 +27,7 @@ NODES = {
 #: Benchmark name -> "module:function(json_out: bool) -> dict".
 BENCHES = {
     "model": "simecs.benchmarks.model:run_model_bench",
+    "commands": "simecs.benchmarks.commands:run_commands_bench",
     "service": "simecs.benchmarks.service:run_service_bench",
     "viewer": "simecs.benchmarks.viewer:run_viewer_bench",
     "recorder": "simecs.benchmarks.recorder:run_recorder_bench",
