@@ -16,10 +16,12 @@ from simecs.testing.fuzz_targets import FuzzTargets, Message
 from simecs.testing.fuzz_values import UPLOAD_NAMES, to_json
 
 #: Session commands that change nothing: the only ones that decode which the fuzz sends to a victim.
-READ_ONLY = frozenset({"get_session", "list_param_sets"})
+READ_ONLY = frozenset({"get_session", "list_param_sets", "list_programs", "load_program"})
 #: Runs and sessions the fuzz may start in the attacker's name: every one holds a worker or a slot.
 RUN_BUDGET = 8
 CREATE_BUDGET = 4
+#: The robot command levels besides joint paths.
+OTHER_LEVELS = ("cartesian_path", "direct_input", "action", "task", "mission")
 #: Every session command, drawn evenly.
 OPS = (
     "set_params",
@@ -37,6 +39,10 @@ OPS = (
     "load_param_set",
     "delete_param_set",
     "list_param_sets",
+    "save_program",
+    "load_program",
+    "delete_program",
+    "list_programs",
     "get_session",
     "close_session",
 )
@@ -148,11 +154,19 @@ class SessionCommands:
         elif op == "set_initial":
             body["joints"] = self.draw.joints()
         elif op == "set_command":
-            nodes = [
-                {"q": self.draw.joints(), "speed_pct": rng.uniform(1, 100), "acc_pct": rng.uniform(1, 100)}
-                for _ in range(rng.randrange(1, 4))
-            ]
-            body["command"] = {"kind": "joint_path", "nodes": nodes}
+            level = self.draw.pick(["joint_path", "joint_path", *OTHER_LEVELS])
+            if level == "joint_path":
+                nodes = [
+                    {
+                        "q": self.draw.joints(),
+                        "speed_pct": rng.uniform(1, 100),
+                        "acc_pct": rng.uniform(1, 100),
+                    }
+                    for _ in range(rng.randrange(1, 4))
+                ]
+                body["command"] = {"kind": "joint_path", "nodes": nodes}
+            else:
+                body["command"] = self.other_level(level)
         elif op == "set_settings":
             body["settings"] = self.settings()
         elif op == "replay":
@@ -164,6 +178,15 @@ class SessionCommands:
             body["time"] = rng.uniform(0, 2)
         elif op in ("save_param_set", "load_param_set", "delete_param_set"):
             body["name"] = self.draw.pick(["fz1", "fz2", "default"])
+        elif op == "save_program":
+            body["name"] = self.draw.pick(["fz1", "fz2"])
+            body["program"] = self.other_level(self.draw.pick(["action", "task", "mission"]))
+        elif op in ("load_program", "delete_program"):
+            body.update(
+                kind=self.draw.pick(["action", "task", "mission"]), name=self.draw.pick(["fz1", "fz2"])
+            )
+        elif op == "list_programs":
+            body["kind"] = self.draw.pick(["", "action", "task", "mission"])
         elif op == "create":
             body["model_id"] = facts.model_id
         return body
@@ -202,17 +225,35 @@ class SessionCommands:
             body["joints"] = joints
         elif op == "set_command":
             r = rng.random()
-            others = ("cartesian_path", "direct_input", "action", "task", "mission")
-            unsupported = [level for level in others if level not in facts.command_levels]
-            if r < 0.4 and unsupported:
+            unsupported = [level for level in OTHER_LEVELS if level not in facts.command_levels]
+            lo, hi = facts.joints[0]
+            if r < 0.2 and unsupported:
                 body["command"] = self.other_level(self.draw.pick(unsupported))
+            elif r < 0.4:
+                q = self.draw.joints()
+                q[0] = self.draw.pick([hi + 0.5, lo - 0.5])
+                body["command"] = {"kind": "joint_path", "nodes": [{"q": self.draw.pick([q, q[:-1]])}]}
+            elif r < 0.55:
+                far = [self.draw.pick([50.0, -50.0]), 0.0, 0.0]
+                body["command"] = {"kind": "cartesian_path", "nodes": [{"position": far, "rpy": [0, 0, 0]}]}
+            elif r < 0.7:
+                signal = {"type": "step", "amplitude": self.draw.pick([1e6, -1e6])}
+                body["command"] = {"kind": "direct_input", "mode": "open_loop", "signals": {"joint1": signal}}
+            elif r < 0.85:
+                args = self.draw.pick([{"duration": -1.0}, {"nope": 1.0}, {}, {"duration": [1.0, 2.0]}])
+                body["command"] = {"kind": "action", "primitive": "wait", "args": args}
             else:
-                node = body["command"]["nodes"][0]
-                if r < 0.7:
-                    node["q"] = node["q"][:-1]
-                else:
-                    lo, hi = facts.joints[0]
-                    node["q"][0] = self.draw.pick([hi + 0.5, lo - 0.5])
+                bad = {
+                    "kind": "action",
+                    "primitive": "move_joints",
+                    "args": {"q": [hi + 1.0] * len(facts.joints)},
+                }
+                ok = {"kind": "action", "primitive": "wait", "args": {"duration": 0.1}}
+                body["command"] = {
+                    "kind": "mission",
+                    "name": "m",
+                    "tasks": [{"kind": "task", "name": "t", "actions": [ok, bad]}],
+                }
         elif op == "set_settings":
             s = body["settings"]
             r = rng.random()
@@ -226,8 +267,10 @@ class SessionCommands:
                 s["stop_time"], s["output_interval"] = 3600.0, 1e-4  # too many samples
         elif op == "seek":
             pass  # a simulation cannot seek (unsupported), a finished session has no run (conflict)
-        elif op in ("load_param_set", "delete_param_set"):
+        elif op in ("load_param_set", "delete_param_set", "load_program", "delete_program"):
             body["name"] = f"fz-none-{rng.randrange(10**6)}"
+        elif op == "save_program":
+            body["program"] = {"kind": "action", "primitive": "wait", "args": {"duration": 1e9}}
         elif op == "replay":
             body["recording"] = self.draw.pick([f"fz-none-{rng.randrange(10**6)}", "x" * 64])
         elif op == "create":
@@ -237,15 +280,38 @@ class SessionCommands:
         return body
 
     def other_level(self, level: str) -> dict[str, Any]:
-        """A well-formed command of another level than joint paths (the model may not support it)."""
-        action: dict[str, Any] = {"kind": "action", "name": "reach", "args": {"a": 1.0}}
-        task: dict[str, Any] = {"kind": "task", "name": "t", "actions": [action]}
+        """A well-formed command of another level than joint paths (it may still be refused: a pose
+        out of reach, a current above i_max)."""
+        rng = self.rng
+        action: dict[str, Any] = self.draw.pick(
+            [
+                {"kind": "action", "primitive": "wait", "args": {"duration": rng.uniform(0, 0.5)}},
+                {"kind": "action", "primitive": "home", "name": "back", "args": {"speed_pct": 50.0}},
+                {"kind": "action", "primitive": "move_joints", "args": {"q": self.draw.joints()}},
+                {"kind": "action", "primitive": "set_payload", "args": {"mass": rng.uniform(0, 5)}},
+                {"kind": "action", "primitive": "move_to_pose", "args": {"position": [0.5, 0.1, 0.2]}},
+            ]
+        )
+        task: dict[str, Any] = {"kind": "task", "name": "t", "actions": [action, action]}
+        signal = self.draw.pick(
+            [
+                {"type": "step", "amplitude": rng.uniform(-0.5, 0.5), "start": 0.1},
+                {"type": "table", "points": [[0, 0.0], [0.2, rng.uniform(-0.5, 0.5)]]},
+                {"type": "sine", "amplitude": 0.1, "frequency_hz": rng.uniform(0.1, 5)},
+            ]
+        )
         levels: dict[str, dict[str, Any]] = {
             "cartesian_path": {
                 "kind": "cartesian_path",
-                "nodes": [{"position": [0.5, 0.1, 0.2], "rpy": [0.0, 0.0, 0.0]}],
+                "nodes": [
+                    {
+                        "position": [0.5, 0.1, 0.2],
+                        "rpy": [0.0, 0.0, 0.0],
+                        "move": self.draw.pick(["lin", "ptp"]),
+                    }
+                ],
             },
-            "direct_input": {"kind": "direct_input", "mode": "closed_loop", "signals": {"joint1": [[0, 1]]}},
+            "direct_input": {"kind": "direct_input", "mode": "open_loop", "signals": {"joint1": signal}},
             "action": action,
             "task": task,
             "mission": {"kind": "mission", "name": "m", "tasks": [task]},

@@ -9,12 +9,15 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from simecs import models
+from simecs.mesh import keys
 from simecs.mesh import messages as m
 from simecs.mesh.client import RemoteError, SessionClient
 from simecs.mesh.kinematics import rot_rpy
 from simecs.models.ik import ArmKinematics, rpy_of
+from simecs.nodes import mcapread
 
 from tests.conftest import Mesh, Service, start_service
+from tests.test_recorder_support import wait_file_closed
 from tests.test_service import Recorder
 
 # Postures well away from singularities (smallest singular value of the tool Jacobian ~0.3-0.5).
@@ -189,6 +192,7 @@ def test_a_saved_mission_survives_a_restart_of_every_node_and_runs_step_by_step(
     mesh.clients.clear()
     mesh.start_hub()
     start_service(mesh)
+    mesh.start("recorder", "--dir", str(mesh.folder / "rec"))
     c = mesh.client()
     s = c.session(s.user, s.id)
     loaded = s.load_program("mission", "shift")
@@ -211,9 +215,11 @@ def test_a_saved_mission_survives_a_restart_of_every_node_and_runs_step_by_step(
     assert order.index("move_joints") < order.index("home")
     _, rows = s.results(run_id, [f"joint{j}.q" for j in range(1, 8)])
     assert np.allclose(rows[-1, 1:], 0.0, atol=2e-3)  # home is every joint at 0 for the Spider
-    # The recording's metadata keeps the command that produced the run.
-    snap = s.snapshot()
-    assert snap.command == mission
+    assert s.snapshot().command == mission
+    # The recording keeps the command that produced the run (a replay's layout carries it again).
+    path = mesh.folder / "rec" / s.user / f"{keys.recording_name(s.id, run_id)}.mcap"
+    wait_file_closed(path, timeout=40.0)
+    assert mcapread.load(path).context().command == mission
 
 
 def test_every_refusal_names_its_field_and_changes_nothing(service: Service) -> None:
