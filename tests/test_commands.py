@@ -287,3 +287,20 @@ def test_every_refusal_names_its_field_and_changes_nothing(service: Service) -> 
         s.load_program("task", "nothing")
     assert err.value.code == "not_found"
     assert s.snapshot().state.phase == "configured"
+
+
+def test_a_level_the_model_does_not_list_is_unsupported() -> None:
+    """Both shipped models take every level; a model that lists fewer is refused before planning."""
+    import msgspec
+    from simecs.mesh.runtime import RequestError
+    from simecs.nodes.library import ModelLibrary
+
+    library = ModelLibrary()
+    desc = library.describe("puma560")
+    assert desc.command_levels == list(m.COMMAND_LEVELS)
+    library.descriptions["puma560"] = msgspec.structs.replace(desc, command_levels=["joint_path"])
+    mission = m.Mission("m", [m.Task("t", [m.Action("wait", {"duration": 0.1})])])
+    with pytest.raises(RequestError) as err:
+        library.plan("puma560", desc.default_values(), PUMA_Q0, mission, 1.0)
+    assert (err.value.code, err.value.field) == ("unsupported", "command.kind")
+    assert "accepts joint_path commands, not mission" in err.value.message
