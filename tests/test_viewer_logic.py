@@ -169,6 +169,7 @@ class FakeSession:
         self.asked: list[tuple[str, Any]] = []
         self.watched: dict[str, Any] = {}
         self.counter = 0
+        self.plan_duration = 1.0  # what the server's plan of a command says it takes
 
     def command(self, cmd: Any) -> Any:
         self.sent.append(cmd)
@@ -191,6 +192,9 @@ class FakeSession:
             return ["light"]
         if isinstance(cmd, m.GetSession):
             return snap
+        if isinstance(cmd, m.SetCommand):
+            snap.command = cmd.command
+            return m.CommandPlan("joint_path", self.plan_duration, [], [0.0])
         return ""
 
     def snapshot(self) -> m.SessionSnapshot:
@@ -1453,3 +1457,29 @@ def test_the_browser_and_the_recordings_scene_draw_every_solid_alike(
                 assert 2 * handle.radius == pytest.approx(size["x"])
     finally:
         arm_scene.remove()
+
+
+def test_the_path_duration_is_shown_and_a_run_cut_short_by_its_stop_time_says_so() -> None:
+    ctl, sc, got = attached()
+    assert ctl.path is not None
+    sc.plan_duration = 2.5
+    ctl.path.teach([0.1] * len(ctl.path.links))
+    ctl.edits.command_changed()
+    ctl.edits.flush()
+    ctl.drain()
+    plan = got.of(events.PlanChanged)[-1].plan
+    assert plan is not None and plan.duration == 2.5 and ctl.edits.plan is plan
+    assert "ends the run before the path is done (2.50 s)" in path.plan_text(plan, 1.0)
+    assert path.plan_text(plan, 5.0) == "Path duration **2.50 s** (stop time 5 s)."
+    sc.watched["on_state"](state(sc, "finished", sim_time=1.0, rtf=2.0))
+    ctl.drain()
+    told = [n for n in got.of(events.Notice) if n.title == "Run r1 finished"]
+    assert len(told) == 1 and told[0].kind == "warning"
+    assert "stopped before its command was done (the command takes 2.50 s)" in told[0].body
+    sc.plan_duration = 0.5
+    ctl.edits.command_changed()
+    ctl.edits.flush()
+    sc.watched["on_state"](state(sc, "finished", run_id="r2", sim_time=1.0, rtf=2.0))
+    ctl.drain()
+    told = [n for n in got.of(events.Notice) if n.title == "Run r2 finished"]
+    assert told[0].kind == "ok" and "before its command" not in told[0].body

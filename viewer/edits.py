@@ -38,6 +38,7 @@ class Edits:
         self.sync_delay_s = sync_delay_s
         self._due: dict[str, float] = {}
         self._lock = threading.Lock()
+        self.plan: m.CommandPlan | None = None  # the server's plan of the command last sent
 
     def command(self, cmd: Any) -> Any:
         """Send a session command after the local phase check (the server checks again)."""
@@ -197,7 +198,8 @@ class Edits:
             self.command(m.SetInitial(list(c.initial)))
         elif what == "command":
             if c.path is not None and c.path.nodes:
-                self.command(m.SetCommand(c.path.to_command()))
+                self.plan = self.command(m.SetCommand(c.path.to_command()))
+                c.emit(ev.PlanChanged(self.plan))
         elif what == "settings":
             settings = msgspec.structs.replace(c.settings, live_vars=self.live_vars())
             self.command(m.SetSettings(settings))

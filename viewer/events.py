@@ -101,6 +101,13 @@ class SettingsChanged:
 
 
 @dataclass
+class PlanChanged:
+    """The server planned the session's command (its reply to set_command)."""
+
+    plan: m.CommandPlan | None
+
+
+@dataclass
 class RunsChanged:
     """The session's runs, oldest first (queued and running ones too); `newest` to select."""
 
@@ -180,6 +187,7 @@ Event = (
     | ShapesChanged
     | StreamedChanged
     | SettingsChanged
+    | PlanChanged
     | RunsChanged
     | ParamSetsChanged
     | LayoutChanged

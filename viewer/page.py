@@ -107,6 +107,7 @@ class ModelPage:
             ev.PreviousLoaded: self._show_previous,
             ev.DocFetched: self._show_doc,
             ev.SettingsChanged: self._settings_applied,
+            ev.PlanChanged: lambda e: self._show_plan(),
             ev.StateShown: lambda _e: self.show_editable(),
         }
         self.show_editable()
@@ -210,6 +211,11 @@ class ModelPage:
     def _settings_applied(self, _event: ev.SettingsChanged) -> None:
         if self.settings is not None:
             self.settings.close()
+        self._show_plan()
+
+    def _show_plan(self) -> None:
+        if self.pendant is not None:
+            self.pendant.show_plan(self.c.edits.plan, self.c.settings.stop_time)
 
     # -- windows -----------------------------------------------------------------------------------
     def toggle_init(self) -> None:

@@ -146,3 +146,22 @@ class JointPathEditor:
             qs = " | ".join(f"{x * DEG:.1f}" for x in node.q)
             rows.append(f"| {mark} | {qs} | {fmt(node.speed_pct)} | {fmt(node.acc_pct)} |")
         return "\n".join(rows) + "\n\nangles in degrees"
+
+
+def plan_text(plan: m.CommandPlan | None, stop_time: float) -> str:
+    """The command's duration as the server planned it, and a warning when the stop time cuts it."""
+    if plan is None:
+        return "_Path duration: known once the path is sent._"
+    if plan.duration > stop_time + 1e-9:
+        return (
+            f"**Warning:** the stop time ({stop_time:g} s) ends the run before the path is done "
+            f"({plan.duration:.2f} s): raise it in Settings."
+        )
+    return f"Path duration **{plan.duration:.2f} s** (stop time {stop_time:g} s)."
+
+
+def ended_early(plan: m.CommandPlan | None, sim_time: float) -> str:
+    """What to say of a finished run that stopped before its command was done ('' if it did not)."""
+    if plan is None or plan.duration <= sim_time + 1e-6:
+        return ""
+    return f"It stopped before its command was done (the command takes {plan.duration:.2f} s)."

@@ -8,8 +8,10 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any
 
+from simecs.mesh import messages as m
+
 from .joints import JointSliders
-from .path import JointPathEditor, PathError
+from .path import JointPathEditor, PathError, plan_text
 
 
 class PendantPanel:
@@ -33,6 +35,7 @@ class PendantPanel:
         self.on_error = on_error
         self.locked = False
         self.table = gui.add_markdown(editor.table_markdown())
+        self.duration = gui.add_markdown(plan_text(None, 0.0))
         self.buttons = gui.add_button_group(
             "Path",
             ("Teach", "Add", "Remove", "Up", "Down"),
@@ -129,6 +132,10 @@ class PendantPanel:
                 self.speed.value = node.speed_pct
             if self.acc.value != node.acc_pct:
                 self.acc.value = node.acc_pct
+
+    def show_plan(self, plan: m.CommandPlan | None, stop_time: float) -> None:
+        """The path's duration as the server planned it, and whether the stop time cuts it."""
+        self.duration.content = plan_text(plan, stop_time)
 
     def set_disabled(self, disabled: bool) -> None:
         """While a run goes on the command cannot change (the server refuses it anyway)."""

@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING
 
 from simecs.mesh import messages as m
 
-from .path import PathError
+from .path import PathError, ended_early
 
 if TYPE_CHECKING:
     from .session import SessionController
@@ -106,3 +106,21 @@ class RunControl:
         """Replay the recording of a run of this session (of a replay run: the recording it replayed)."""
         if self.c.session is not None:
             self.replay(self.c.results.recording_of(run_id))
+
+    def ended(self, st: m.SessionState) -> None:
+        """Say how a run ended; a run whose stop time came before its command was done says so."""
+        c = self.c
+        recording = c.replay_of(st.run_id)
+        what = f"Replay {st.run_id} of {recording}" if recording else f"Run {st.run_id}"
+        if st.phase == "finished":
+            early = "" if recording else ended_early(c.edits.plan, st.sim_time)
+            done = (
+                f"{st.sim_time:.3f} s replayed."
+                if recording
+                else f"{st.sim_time:.3f} s simulated (RTF {st.rtf:.2f}). Results: full resolution, CSV, MCAP."
+            )
+            c.notify(f"{what} finished", f"{early} {done}" if early else done, "warning" if early else "ok")
+        elif st.phase == "aborted":
+            c.notify(f"{what} aborted", st.reason or "aborted", "warning")
+        else:
+            c.notify(f"{what} failed", st.reason or "the run failed", "error")

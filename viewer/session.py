@@ -352,28 +352,13 @@ class SessionController(Dispatcher):
                 self._notified_end.add(st.run_id)
         self.show_state()
         if ended:
-            self._run_ended(st)
+            self.control.ended(st)
         if moved:
             self.submit("Results", self.refresh_runs, "io")
 
     def show_state(self) -> None:
         st = self.state
         self.emit(ev.StateShown(st, self.replay_of(st.run_id) if st is not None else ""))
-
-    def _run_ended(self, st: m.SessionState) -> None:
-        recording = self.replay_of(st.run_id)
-        what = f"Replay {st.run_id} of {recording}" if recording else f"Run {st.run_id}"
-        if st.phase == "finished":
-            done = (
-                f"{st.sim_time:.3f} s replayed."
-                if recording
-                else f"{st.sim_time:.3f} s simulated (RTF {st.rtf:.2f}). Results: full resolution, CSV, MCAP."
-            )
-            self.notify(f"{what} finished", done, "ok")
-        elif st.phase == "aborted":
-            self.notify(f"{what} aborted", st.reason or "aborted", "warning")
-        else:
-            self.notify(f"{what} failed", st.reason or "the run failed", "error")
 
     def on_params(self, pv: m.ParamValues) -> None:
         if self._mine(pv.session) and pv.values != self.values:
