@@ -278,6 +278,13 @@ def build_parser() -> argparse.ArgumentParser:
         help="placement of the live path, as the nodes' --cpu: auto, none or a CPU number",
     )
 
+    from simecs.nodes import batch
+
+    run = sub.add_parser("run", help="one simulation from files, to a recording or CSV (no browser)")
+    batch.add_arguments(run, sweep=False)
+    sweep = sub.add_parser("sweep", help="parameter variations in parallel, to a table of outcome measures")
+    batch.add_arguments(sweep, sweep=True)
+
     for name, help_text in (
         ("replay", "play a recording back onto the mesh as a run of a session"),
         ("export", "export a recording"),
@@ -310,6 +317,10 @@ def main(argv: list[str] | None = None) -> None:
         sys.exit(cmd_users(args))
     if args.command == "bench":
         sys.exit(cmd_bench(args))
+    if args.command in ("run", "sweep"):
+        from simecs.nodes import batch
+
+        sys.exit(batch.cmd_run(args) if args.command == "run" else batch.cmd_sweep(args))
     parser.error(f"unknown command {args.command}")
 
 

@@ -43,3 +43,16 @@ def test_commands_client_runs_a_line_and_a_saved_task(service: Service) -> None:
     assert float(line.split("ends ")[1].split(" mm")[0]) < 2.0, line
     assert "saved: ['back']" in out.stdout
     assert "task r2: finished; steps seen: retreat, wait, settle" in out.stdout, out.stdout
+
+
+def test_batch_client_runs_and_sweeps_with_the_python_api(service: Service) -> None:
+    out = subprocess.run(
+        [sys.executable, str(EXAMPLES / "batch_client.py"), service.mesh.endpoint],
+        capture_output=True,
+        text=True,
+        timeout=180,
+        env=mesh_env(),
+    )
+    assert out.returncode == 0, out.stdout + out.stderr
+    assert "r1: finished, 1001 samples, joint2 ends at 0.3" in out.stdout, out.stdout
+    assert sum(line.startswith("kp_pos") for line in out.stdout.splitlines()) == 3, out.stdout
