@@ -243,7 +243,7 @@ _TABLE = (
         name="notices",
         pattern="simecs/u/<user>/sessions/<session>/notices",
         kind="put",
-        writer="recorder",
+        writer="recorder, simulator",
         payload="Notice",
         meaning="something the user must know about a run; the proxy lists it in SessionState.warnings",
     ),
@@ -253,7 +253,7 @@ _TABLE = (
         kind="put",
         writer="client",
         payload="JogInput",
-        meaning="live jogging of a real-time run (reserved; not yet obeyed)",
+        meaning="live jogging of a running run: a velocity superposed on its command (§5.4, JogInput)",
     ),
     # -- liveliness tokens: under '@' chunks, so `simecs/**` data subscribers never match them ----------
     KeySpec(

@@ -459,11 +459,28 @@ class Notice(Message, tag="notice"):
     message: Text
 
 
-class JogInput(Message, tag="jog"):
-    """Reserved for live jogging (telemanipulation): joint velocity offsets in rad/s."""
+#: s a jog velocity holds without a new message (the deadman): then the jog stops.
+JOG_DEADMAN_S = 0.25
 
-    run_id: Name
-    qd: Numbers
+
+class JogInput(Message, tag="jog"):
+    """Live jogging of a running run (telemanipulation): a velocity superposed on the command, held
+    until the next message or for JOG_DEADMAN_S; send it every 0.1 s or faster while the user holds a
+    jog button, and a zero velocity (or nothing) to stop."""
+
+    run_id: Annotated[Name, Meta(description="the run to jog; other runs ignore the message")]
+    space: Literal["joint", "cartesian"] = "joint"
+    qd: Annotated[Numbers, Meta(description="joint: rad/s, one per joint (load side)")] = []
+    twist: Annotated[
+        list[float],
+        Meta(
+            max_length=6,
+            description="cartesian: vx, vy, vz (m/s), wx, wy, wz (rad/s) of the tool, world frame",
+        ),
+    ] = []
+    speed_pct: Annotated[
+        float, Meta(gt=0.0, le=100.0, description="cap: percent of each joint's traj.max_speed")
+    ] = 100.0
 
 
 # -- nodes and recordings ------------------------------------------------------------------------------

@@ -172,12 +172,22 @@ JM_POSITION, JM_SPEED, JM_CURRENT, JM_HOLD = 0, 1, 2, 3
 
 
 @njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
-def ref_eval(seg, hold, tab, jmode, t, qr, qdr):
-    """The set points at t: the trapezoid segments when the table is empty, else the table.
+def ref_eval(seg, hold, tab, jmode, jog, t, qr, qdr):
+    """The set points at t: the trapezoid segments when the table is empty, else the table; plus the
+    jog offset of each joint not in current mode (jog[j] = [offset at t0, rate, t0]).
 
     Table rows are [t, r[0..n-1], rd[0..n-1]], linear between the rightmost row at or before t and the
     next (so two rows at one time make a jump); held before the first row and after the last. A joint
     in JM_HOLD keeps its initial set point `hold`."""
+    _ref_base(seg, hold, tab, jmode, t, qr, qdr)
+    for j in range(qr.shape[0]):
+        if jmode[j] != JM_CURRENT:
+            qr[j] += jog[j, 0] + jog[j, 1] * (t - jog[j, 2])
+            qdr[j] += jog[j, 1]
+
+
+@njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
+def _ref_base(seg, hold, tab, jmode, t, qr, qdr):
     K = tab.shape[0]
     if K == 0:
         traj_eval(seg, hold, t, qr, qdr)
@@ -487,12 +497,12 @@ def joint_signals(P, j, x, ql, qdl, qr, qdr, mode, out):
 
 
 @njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
-def drive_rhs(P, seg, hold, tab, jmode, Minv, t, X, dX, sig, qr, qdr, tau, new_t=True):
+def drive_rhs(P, seg, hold, tab, jmode, jog, Minv, t, X, dX, sig, qr, qdr, tau, new_t=True):
     """dX = f(t, X); the set points qr, qdr are evaluated at t unless `new_t` is False (same t as the
     previous call: RK4 stages 2 and 3)."""
     n = X.shape[0]
     if new_t:
-        ref_eval(seg, hold, tab, jmode, t, qr, qdr)
+        ref_eval(seg, hold, tab, jmode, jog, t, qr, qdr)
     for j in range(n):
         x = X[j]
         joint_signals(P, j, x, x[S_QL], x[S_QDL], qr[j], qdr[j], jmode[j], sig)
@@ -525,7 +535,7 @@ def drive_rhs(P, seg, hold, tab, jmode, Minv, t, X, dX, sig, qr, qdr, tau, new_t
 
 @njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
 def drive_step(
-    P, seg, hold, tab, jmode, pre_R, pre_p, masses, coms, inertias, X, q, qd, t, h, nsub, tau_out, work
+    P, seg, hold, tab, jmode, jog, pre_R, pre_p, masses, coms, inertias, X, q, qd, t, h, nsub, tau_out, work
 ):
     """Integrate all drives over [t, t+h] with nsub RK4 substeps; tau_out = mean gear torque."""
     n = q.shape[0]
@@ -548,19 +558,19 @@ def drive_step(
     hs = h / nsub
     for s in range(nsub):
         ts = t + s * hs
-        drive_rhs(P, seg, hold, tab, jmode, Minv, ts, X, k1, sig, qr, qdr, tau)
+        drive_rhs(P, seg, hold, tab, jmode, jog, Minv, ts, X, k1, sig, qr, qdr, tau)
         for j in range(n):
             for k in range(NL):
                 Xt[j, k] = X[j, k] + 0.5 * hs * k1[j, k]
-        drive_rhs(P, seg, hold, tab, jmode, Minv, ts + 0.5 * hs, Xt, k2, sig, qr, qdr, tau)
+        drive_rhs(P, seg, hold, tab, jmode, jog, Minv, ts + 0.5 * hs, Xt, k2, sig, qr, qdr, tau)
         for j in range(n):
             for k in range(NL):
                 Xt[j, k] = X[j, k] + 0.5 * hs * k2[j, k]
-        drive_rhs(P, seg, hold, tab, jmode, Minv, ts + 0.5 * hs, Xt, k3, sig, qr, qdr, tau, False)
+        drive_rhs(P, seg, hold, tab, jmode, jog, Minv, ts + 0.5 * hs, Xt, k3, sig, qr, qdr, tau, False)
         for j in range(n):
             for k in range(NL):
                 Xt[j, k] = X[j, k] + hs * k3[j, k]
-        drive_rhs(P, seg, hold, tab, jmode, Minv, ts + hs, Xt, k4, sig, qr, qdr, tau)
+        drive_rhs(P, seg, hold, tab, jmode, jog, Minv, ts + hs, Xt, k4, sig, qr, qdr, tau)
         for j in range(n):
             for k in range(NL):
                 X[j, k] += hs / 6.0 * (k1[j, k] + 2.0 * k2[j, k] + 2.0 * k3[j, k] + k4[j, k])
@@ -582,6 +592,7 @@ def drive_prestep(
     hold,
     tab,
     jmode,
+    jog,
     pre_R,
     pre_p,
     masses,
@@ -605,17 +616,35 @@ def drive_prestep(
     else:
         Xbak[:, :] = X
     return drive_step(
-        P, seg, hold, tab, jmode, pre_R, pre_p, masses, coms, inertias, X, q, qd, t, h, nsub, tau_out, work
+        P,
+        seg,
+        hold,
+        tab,
+        jmode,
+        jog,
+        pre_R,
+        pre_p,
+        masses,
+        coms,
+        inertias,
+        X,
+        q,
+        qd,
+        t,
+        h,
+        nsub,
+        tau_out,
+        work,
     )
 
 
 @njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
-def drive_outputs(P, seg, hold, tab, jmode, X, q, qd, t, out):
+def drive_outputs(P, seg, hold, tab, jmode, jog, X, q, qd, t, out):
     """Variables of every joint at time t from the drive states and the chain state: out[j, :NO]."""
     n = q.shape[0]
     qr = np.empty(n)
     qdr = np.empty(n)
-    ref_eval(seg, hold, tab, jmode, t, qr, qdr)
+    ref_eval(seg, hold, tab, jmode, jog, t, qr, qdr)
     sig = np.empty(NO + 10)
     for j in range(n):
         joint_signals(P, j, X[j], q[j], qd[j], qr[j], qdr[j], jmode[j], sig)
@@ -665,7 +694,7 @@ def pose_rows(pre_R, pre_p, Rrpy, tool_local, q, out):
 
 
 @njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
-def output_row(P, seg, hold, tab, jmode, X, q, qd, t, pre_R, pre_p, Rrpy, tool_local, rows, k):
+def output_row(P, seg, hold, tab, jmode, jog, X, q, qd, t, pre_R, pre_p, Rrpy, tool_local, rows, k):
     """One result row into rows[k]: time, the variables of every joint, the link and tool poses.
 
     Returns 0, or 1 when the chain coordinates are not finite (row untouched), 2 when an output is not.
@@ -677,7 +706,7 @@ def output_row(P, seg, hold, tab, jmode, X, q, qd, t, pre_R, pre_p, Rrpy, tool_l
     row = rows[k]
     row[0] = t
     out = np.empty((n, NO))
-    drive_outputs(P, seg, hold, tab, jmode, X, q, qd, t, out)
+    drive_outputs(P, seg, hold, tab, jmode, jog, X, q, qd, t, out)
     for j in range(n):
         for c in range(NO):
             row[1 + j * NO + c] = out[j, c]

@@ -43,6 +43,8 @@ class Simulation:
         self.seg = np.zeros((0, 3 + 2 * self.n))
         self.tab = np.zeros((0, 1 + 2 * self.n))  # a sampled reference (planner.py), when not a joint path
         self.jmode = np.zeros(self.n, dtype=np.int64)
+        #: Live jogging (drive.ref_eval): per joint [offset at t0, rate, t0], superposed on the reference.
+        self.jog_state = np.zeros((self.n, 3))
         self._events: list[tuple[float, dict[str, float]]] = []  # (t, parameter changes) during a run
         self._pending_events: list[tuple[float, dict[str, float]]] = []
         self._run_values: dict[str, float] | None = None  # the values a run started with
@@ -170,6 +172,28 @@ class Simulation:
             q = dest_m
         return np.array(rows) if rows else np.zeros((0, 3 + 2 * self.n))
 
+    def jog(self, rates: np.ndarray, horizon: float) -> np.ndarray:
+        """Move the set points at `rates` (rad/s per joint) from now on, on top of the command (live
+        jogging); a rate is cut so its joint's set point stays within the joint's range for `horizon`
+        s. Joints in current mode do not jog. Returns the rates applied."""
+        t = self._time
+        js = self.jog_state
+        js[:, 0] += js[:, 1] * (t - js[:, 2])
+        js[:, 2] = t
+        qr, qdr = np.empty(self.n), np.empty(self.n)
+        dr._ref_base(self.seg, self.hold, self.tab, self.jmode, t, qr, qdr)
+        now = qr + js[:, 0]
+        applied = np.asarray(rates, dtype=float).copy()
+        for j, lk in enumerate(self._desc.links):
+            if self.jmode[j] == dr.JM_CURRENT or not math.isfinite(applied[j]):
+                applied[j] = 0.0
+            elif applied[j] > 0:
+                applied[j] = min(applied[j], max(0.0, (lk.joint_max - now[j]) / horizon))
+            else:
+                applied[j] = max(applied[j], min(0.0, (lk.joint_min - now[j]) / horizon))
+        js[:, 1] = applied
+        return applied
+
     def path_duration(self) -> float:
         """Seconds from the first segment's start to the last one's end (0 without a path)."""
         if self.seg.shape[0] == 0:
@@ -196,6 +220,7 @@ class Simulation:
             self._update_mechanics()
         self._run_values = dict(self.values)
         self._pending_events = list(self._events)
+        self.jog_state[:] = 0.0
         self.h = h
         self.k_out = max(1, int(round(output_interval / h)))
         self.dt_out = self.k_out * h
@@ -271,6 +296,7 @@ class Simulation:
             self.hold,
             self.tab,
             self.jmode,
+            self.jog_state,
             m[0],
             m[1],
             m[2],
@@ -310,6 +336,7 @@ class Simulation:
             self.hold,
             self.tab,
             self.jmode,
+            self.jog_state,
             self.X,
             q,
             qd,

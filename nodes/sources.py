@@ -42,6 +42,8 @@ class RunSource(Protocol):
 
     def step_at(self, t: float) -> tuple[str, str, str]: ...
 
+    def jog(self, msg: m.JogInput | None, horizon: float) -> str: ...
+
     def close(self) -> None: ...
 
 
@@ -60,7 +62,8 @@ class SimulationSource:
         self.model_id = req.model_id
         package = models.get_model(req.model_id)
         try:
-            self.plan = Planner(package, req.values, req.initial, req.settings.stop_time).plan(req.command)
+            planner = Planner(package, req.values, req.initial, req.settings.stop_time)
+            self.plan = planner.plan(req.command)
         except models.CommandError as exc:
             field = f"command.{exc.field}" if exc.field else "command"
             raise ValueError(f"{field}: {exc.reason}") from None
@@ -71,6 +74,7 @@ class SimulationSource:
         self.context = m.RunContext(req.user, dict(req.values), list(req.initial), req.command, req.settings)
         self.sim.set_initial(req.initial)
         self.plan.apply(self.sim)
+        self.kin, self.vmax = planner.kin, planner.vmax
 
     @property
     def time(self) -> float:
@@ -100,6 +104,29 @@ class SimulationSource:
         """(step, task, action) of the command at simulated time t: what SessionState shows."""
         step = self.plan.step_at(t)
         return (step.path, step.task, step.action) if step is not None else ("", "", "")
+
+    def jog(self, msg: m.JogInput | None, horizon: float) -> str:
+        """Obey a jog (None: stop): joint speeds capped at speed_pct of traj.max_speed each, or a tool
+        twist through the Jacobian's damped inverse, scaled down as a whole to keep every cap; ''
+        or what is wrong with the message (the jog then stops)."""
+        n = self.sim.n
+        qd = np.zeros(n)
+        problem = ""
+        if msg is not None:
+            cap = self.vmax * msg.speed_pct / 100.0
+            if msg.space == "joint":
+                if len(msg.qd) == n:
+                    qd = np.clip(np.asarray(msg.qd, dtype=float), -cap, cap)
+                else:
+                    problem = f"qd has {len(msg.qd)} values for a {n}-joint arm"
+            elif len(msg.twist) == 6:
+                J = self.kin.jacobian(self.sim.state()[0])
+                qd = J.T @ np.linalg.solve(J @ J.T + 1e-6 * np.eye(6), np.asarray(msg.twist, dtype=float))
+                qd /= max(1.0, float(np.max(np.abs(qd) / cap)))
+            else:
+                problem = f"twist has {len(msg.twist)} values, not 6 (vx, vy, vz, wx, wy, wz)"
+        self.sim.jog(qd, horizon)
+        return problem
 
     def close(self) -> None:
         self.sim.close()
@@ -184,6 +211,9 @@ class RecordingSource:
 
     def step_at(self, t: float) -> tuple[str, str, str]:
         return "", "", ""
+
+    def jog(self, msg: m.JogInput | None, horizon: float) -> str:
+        return "" if msg is None else "a replay plays its recording: it cannot be jogged"
 
     def close(self) -> None:
         pass

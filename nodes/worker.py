@@ -85,6 +85,54 @@ class Control:
         self.wake.clear()
 
 
+class Jogging:
+    """The session's jog key: the newest message for this run, held for JOG_DEADMAN_S (PROTOCOL.md
+    §5.4). A message that is not usable stops the jog, and the user is told once what was wrong."""
+
+    def __init__(self, z: zenoh.Session, req: m.RunRequest, seal: Seal) -> None:
+        self.req, self.z, self.seal = req, z, seal
+        self.lock = threading.Lock()
+        self.latest: m.JogInput | None = None
+        self.at = 0.0
+        self.active = False
+        self.told: set[str] = set()
+        self.sub = z.declare_subscriber(keys.jog(req.user, req.session), self.on_sample)
+
+    def on_sample(self, sample: zenoh.Sample) -> None:
+        try:
+            msg = codec.loads(m.JogInput, sample.payload.to_bytes())
+        except codec.DecodeError as exc:
+            self.tell(f"jog ignored: {exc}")
+            return
+        if msg.run_id != self.req.run_id:
+            return
+        with self.lock:
+            self.latest, self.at, self.active = msg, time.monotonic(), True
+
+    def apply(self, source: RunSource, horizon: float) -> None:
+        """Before a chunk: the held velocity, or none once the deadman time has passed."""
+        with self.lock:
+            if not self.active:
+                return
+            fresh = time.monotonic() - self.at < m.JOG_DEADMAN_S
+            msg = self.latest if fresh else None
+            self.active = fresh
+        problem = source.jog(msg, horizon)
+        if problem:
+            self.tell(f"jog ignored: {problem}")
+
+    def tell(self, text: str) -> None:
+        if text in self.told or len(self.told) >= 8:
+            return
+        self.told.add(text)
+        notice = m.Notice(self.req.session, self.req.run_id, "simulator", text)
+        key, payload = keys.notices(self.req.user, self.req.session), codec.dumps(notice)
+        try:
+            self.z.put(key, payload, attachment=self.seal.mac(key, payload))
+        except zenoh.ZError:
+            pass
+
+
 class Run:
     def __init__(self, z: zenoh.Session, req: m.RunRequest, store: ResultsStore, seal: Seal) -> None:
         self.z, self.req, self.store = z, req, store
@@ -111,6 +159,7 @@ class Run:
             seal,
         )
         self.control_sub = z.declare_subscriber(keys.control(u, s), self.control.on_sample)
+        self.jogging = Jogging(z, req, seal)
         self.token = z.liveliness().declare_token(keys.run_token(u, s, req.run_id))
         self.seq = 0
         self.final_sent = False
@@ -195,6 +244,8 @@ class Run:
             if moved:  # pacing starts again from here
                 wall0, t0 = time.monotonic(), source.time
             step_wall, step_t = time.monotonic(), source.time
+            if math.isfinite(speed):  # jogging is telemanipulation: runs paced in wall time only
+                self.jogging.apply(source, chunk)
             until = min(source.time + chunk, source.stop_time)
             rows = source.advance(until)
             t = source.time
@@ -247,7 +298,14 @@ class Run:
         self.samples = run.samples
 
     def close(self) -> None:
-        for e in (self.control_sub, self.layout_pub, self.full, self.status_pub, self.token):
+        for e in (
+            self.control_sub,
+            self.jogging.sub,
+            self.layout_pub,
+            self.full,
+            self.status_pub,
+            self.token,
+        ):
             try:
                 e.undeclare()
             except Exception:
