@@ -279,6 +279,10 @@ class SessionClient:
     def list_programs(self, kind: str = "") -> list[m.ProgramEntry]:
         return self.command(m.ListPrograms(kind))  # type: ignore[arg-type]
 
+    def jog(self, jog: m.JogInput) -> None:
+        """Put a jog velocity for a running run (held by the worker for JOG_DEADMAN_S)."""
+        self.client.z.put(keys.jog(self.user, self.id), codec.dumps(jog))
+
     def runs(self) -> list[m.RunInfo]:
         return self.client.request(keys.results(self.user, self.id), reply=list[m.RunInfo])
 

@@ -27,6 +27,7 @@ from simecs.mesh.client import NoReply, RemoteError
 from simecs.mesh.codec import DecodeError
 from simecs.mesh.kinematics import link_poses
 from simecs.mesh.model import DocPage, InitEquation, Link, ModelDescription, Parameter, Shape, Variable
+from simecs.testing.launch import wait_until
 from simecs.viewer import (
     docs,
     events,
@@ -67,6 +68,7 @@ HEADLESS = (
     "path",
     "export",
     "tree",
+    "jog",
 )
 
 
@@ -170,6 +172,7 @@ class FakeSession:
         self.watched: dict[str, Any] = {}
         self.counter = 0
         self.plan_duration = 1.0  # what the server's plan of a command says it takes
+        self.jogs: list[m.JogInput] = []
 
     def command(self, cmd: Any) -> Any:
         self.sent.append(cmd)
@@ -196,6 +199,9 @@ class FakeSession:
             snap.command = cmd.command
             return m.CommandPlan("joint_path", self.plan_duration, [], [0.0])
         return ""
+
+    def jog(self, jog: m.JogInput) -> None:
+        self.jogs.append(jog)
 
     def snapshot(self) -> m.SessionSnapshot:
         if self.snap is None:
@@ -1483,3 +1489,31 @@ def test_the_path_duration_is_shown_and_a_run_cut_short_by_its_stop_time_says_so
     ctl.drain()
     told = [n for n in got.of(events.Notice) if n.title == "Run r2 finished"]
     assert told[0].kind == "ok" and "before its command" not in told[0].body
+
+
+def test_the_jog_panel_resends_a_held_jog_and_stops_it() -> None:
+    ctl, sc, got = attached()
+    assert "running" in ctl.jog.start("joint", "joint1", 1.0)  # nothing runs yet
+    sc.watched["on_state"](state(sc, "running", sim_time=0.1))
+    ctl.drain()
+    ctl.settings = m.RunSettings(pacing="fast")
+    assert "wall time" in ctl.jog.start("joint", "joint1", 1.0)
+    ctl.settings = m.RunSettings(pacing="realtime")
+    ctl.jog.speed_pct = 40.0
+    assert ctl.jog.start("joint", "joint2", -1.0) == ""
+    wait_until(lambda: len(sc.jogs) >= 3, timeout=2.0, what="three jog messages")
+    first = sc.jogs[0]
+    assert first.run_id == "r1" and first.space == "joint" and first.speed_pct == 40.0
+    assert first.qd[1] < 0 and all(v == 0 for k, v in enumerate(first.qd) if k != 1)
+    ctl.jog.stop()
+    sent = len(sc.jogs)
+    assert not any(sc.jogs[-1].qd) and ctl.jog.label == ""
+    time.sleep(0.3)
+    assert len(sc.jogs) == sent  # nothing after Stop
+    assert ctl.jog.start("cartesian", "z", -1.0) == ""
+    wait_until(lambda: len(sc.jogs) > sent, timeout=2.0, what="a Cartesian jog")
+    assert sc.jogs[-1].twist[2] < 0 and sc.jogs[-1].space == "cartesian"
+    sc.watched["on_state"](state(sc, "finished", seq=11, sim_time=1.0))  # the run ended: the jog ends
+    ctl.drain()
+    wait_until(lambda: ctl.jog.active is None, timeout=2.0, what="jog ended with its run")
+    ctl.close()

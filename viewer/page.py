@@ -16,6 +16,7 @@ from simecs.mesh.codec import DecodeError
 
 from . import events as ev
 from .docs import DocsWindow
+from .jog_panel import JogPanel
 from .joints import InitPanel
 from .params import ParamPanel, VariablePanel
 from .path import clamp_to_limits
@@ -82,6 +83,8 @@ class ModelPage:
             else:
                 levels = ", ".join(model.command_levels) or "none"
                 gui.add_markdown(f"_This model accepts {levels} commands; this viewer edits joint paths._")
+        with command.add_tab("Jog"):
+            self.jog = JogPanel(gui, c.jog, self._warn("Jog"))
         command.float(x=12, y=-12, width=620, height=360)
 
         actions = PlotActions(

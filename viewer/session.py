@@ -29,6 +29,7 @@ from .edits import SYNC_DELAY_S, Edits
 from .errors import describe_error
 from .host import Host
 from .identity import Identity, NotLoggedIn, new_user_name
+from .jog import JogControl
 from .path import JointPathEditor, clamp_to_limits
 from .results_io import ResultsIO
 from .runs import RunControl
@@ -63,6 +64,7 @@ class SessionController(Dispatcher):
         self.edits = Edits(self, sync_delay_s)
         self.results = ResultsIO(self)
         self.control = RunControl(self)
+        self.jog = JogControl(self)
         self.live_frames = 0  # frames shown (diagnostics)
         self._recordings: dict[str, str] = {}  # run id -> the recording it replays
         self._notified_end: set[str] = set()
@@ -129,6 +131,7 @@ class SessionController(Dispatcher):
 
     def close(self) -> None:
         """The tab went away (closed or reloading): keep the session, drop the subscriptions."""
+        self.jog.stop()
         with self._lock:
             self.closed = True
             if self.session is not None:
