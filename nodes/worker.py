@@ -41,6 +41,7 @@ CHUNK_S = 0.025
 MAX_CHUNK_S = 0.1  # faster pacing: bigger chunks (fewer, larger frames), still a few ms of wall time
 STATUS_PERIOD_S = 0.1  # at most 10 progress reports per wall second
 READY = "ready"  # the line a warm worker writes on stdout
+log = logging.getLogger("simecs.worker")
 
 
 def chunk_length(speed: float, output_interval: float) -> float:
@@ -87,7 +88,8 @@ class Control:
 
 class Jogging:
     """The session's jog key: the newest message for this run, held for JOG_DEADMAN_S (PROTOCOL.md
-    §5.4). A message that is not usable stops the jog, and the user is told once what was wrong."""
+    §5.4). A message for this run that is not usable stops the jog, and the user is told once what was
+    wrong; one that does not decode names no run, so it is only logged."""
 
     def __init__(self, z: zenoh.Session, req: m.RunRequest, seal: Seal) -> None:
         self.req, self.z, self.seal = req, z, seal
@@ -101,8 +103,8 @@ class Jogging:
     def on_sample(self, sample: zenoh.Sample) -> None:
         try:
             msg = codec.loads(m.JogInput, sample.payload.to_bytes())
-        except codec.DecodeError as exc:
-            self.tell(f"jog ignored: {exc}")
+        except codec.DecodeError as exc:  # not known to be for this run: logged, nothing changes
+            log.warning("jog for session %s ignored: %s", self.req.session, exc)
             return
         if msg.run_id != self.req.run_id:
             return
@@ -341,7 +343,6 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--results-dir", required=True)
     args = parser.parse_args(argv)
     setup_logging("worker", args.log_level)
-    log = logging.getLogger("simecs.worker")
     code = 0
     # Warming up (imports, compiling) is background work: it must not slow the runs going on.
     # Once a run is ours we take normal priority back (possible as root or within RLIMIT_NICE).
