@@ -7,6 +7,7 @@ from __future__ import annotations
 import dataclasses
 import io
 import json
+import math
 import os
 import struct
 import zlib
@@ -349,6 +350,30 @@ def _context_of_metadata(metadata: dict[str, dict[str, str]]) -> m.RunContext:
         if session.get("settings")
         else m.RunSettings(),
     )
+
+
+#: The longest run a recording can hold (RunSettings.stop_time's bound), s.
+MAX_RUN_S = 3600.0
+
+
+def playable_problem(rec: Recording) -> str:
+    """What keeps a recording from being replayed as a run ('' if nothing): every value finite, times
+    from 0 on, never decreasing, within a run's longest stop time."""
+    rows, columns = rec.rows, rec.layout.columns
+    if rows.size and not np.all(np.isfinite(rows)):
+        r, c = (int(x[0]) for x in np.nonzero(~np.isfinite(rows)))
+        return f"sample {r}: {columns[c]} is not a finite number"
+    times = rows[:, 0] if rows.size else np.zeros(0)
+    if times.size and (times[0] < 0 or times[-1] > MAX_RUN_S):
+        return f"sample times run from {times[0]:g} to {times[-1]:g} s, outside [0, {MAX_RUN_S:g}] s"
+    back = np.nonzero(np.diff(times) < 0)[0]
+    if back.size:
+        k = int(back[0]) + 1
+        return f"sample {k}: time {times[k]:g} s goes back from {times[k - 1]:g} s"
+    stop = rec.layout.stop_time
+    if not (math.isfinite(stop) and 0 <= stop <= MAX_RUN_S):
+        return f"stop_time {stop:g} s is outside [0, {MAX_RUN_S:g}] s"
+    return ""
 
 
 def load(source: str | os.PathLike[str] | bytes, strict: bool = False) -> Recording:

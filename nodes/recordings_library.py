@@ -217,6 +217,9 @@ class RecordingsLibrary:
         try:
             mcapread.validate(data)
             rec = mcapread.load(data, strict=True)
+            problem = mcapread.playable_problem(rec)
+            if problem:
+                raise mcapread.RecordingError(f"it cannot be replayed: {problem}")
         except mcapread.RecordingError as exc:
             raise RequestError(
                 "bad_request",

@@ -154,6 +154,9 @@ class RecordingSource:
             )
         if len(rec.rows) == 0:
             raise ValueError(f"recording {req.recording} holds no samples")
+        problem = mcapread.playable_problem(rec)
+        if problem:
+            raise ValueError(f"recording {req.recording} cannot be replayed: {problem}")
         self.rec = rec
         self.model_id = rec.layout.model_id
         self.columns, self.units = list(rec.layout.columns), list(rec.layout.units)

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import signal
+import struct
 import time
 
 import numpy as np
@@ -16,6 +17,7 @@ from simecs.mesh import messages as m
 from simecs.mesh.client import RemoteError
 from simecs.nodes import mcapfmt as fmt
 from simecs.nodes import mcapread
+from simecs.testing.fuzz_recordings import McapTemplate
 
 from .conftest import Mesh, start_service, wait_until
 from .test_recorder_support import (
@@ -82,6 +84,19 @@ def test_published_run_is_recorded_listed_downloaded_uploaded(mesh: Mesh) -> Non
     assert err.value.code == "bad_request"
     with pytest.raises(RemoteError, match="incomplete MCAP"):
         client.request(keys.recording(USER, "torn"), data[: len(data) // 2])
+    # Well-formed files whose samples cannot be replayed (the fuzzer made these) are refused too.
+    template = McapTemplate(data)
+    for how, words in ((float("nan"), "time is not a finite number"), (1e9, r"outside \[0, 3600\] s")):
+
+        def edit(i: int, payload: bytes, value: float = how) -> bytes:
+            values = list(struct.unpack(f"<{(len(payload) - 4) // 8}d", payload[4:]))
+            if i == 2:
+                values[0] = value
+            return payload[:4] + struct.pack(f"<{len(values)}d", *values)
+
+        with pytest.raises(RemoteError, match=words) as err:
+            client.upload_recording(USER, "lying", template.write(template.metadata, edits={"/vars": edit}))
+        assert err.value.code == "bad_request" and not (rec_dir / USER / "lying.mcap").exists()
     with pytest.raises(RemoteError) as err:
         client.request_binary(keys.recording(USER, "nosuch"), m.RecordingInfo)
     assert err.value.code == "not_found"
