@@ -29,6 +29,7 @@ from simecs.mesh.kinematics import link_poses
 from simecs.mesh.model import DocPage, InitEquation, Link, ModelDescription, Parameter, Shape, Variable
 from simecs.testing.launch import wait_until
 from simecs.viewer import (
+    browser,
     docs,
     events,
     export,
@@ -1517,3 +1518,10 @@ def test_the_jog_panel_resends_a_held_jog_and_stops_it() -> None:
     ctl.drain()
     wait_until(lambda: ctl.jog.active is None, timeout=2.0, what="jog ended with its run")
     ctl.close()
+
+
+def test_notifications_show_plain_text_not_markdown_marks() -> None:
+    assert browser.plain("Run **r1** assigned; see `joint2.q` and **both** marks.") == (
+        "Run r1 assigned; see joint2.q and both marks."
+    )
+    assert browser.plain("2 * 3 ** 2") == "2 * 3 ** 2"

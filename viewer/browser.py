@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import json
 import logging
+import re
 import secrets
 import time
 from dataclasses import dataclass
@@ -96,12 +97,19 @@ def set_title(client: Any, title: str) -> None:
     run_js(client, f"document.title = {json.dumps(title)};")
 
 
+def plain(text: str) -> str:
+    """Markdown emphasis and code marks taken out: viser shows a notification's text as it is."""
+    return re.sub(r"\*\*(.+?)\*\*|`([^`]+)`", lambda mt: mt.group(1) or mt.group(2), text)
+
+
 def notify(client: Any, title: str, body: str, kind: str = "info", seconds: float | None = None) -> None:
     """A notification in one tab; errors stay until closed, the rest close by themselves."""
     color = {"error": "red", "warning": "yellow", "ok": "green", "info": "blue"}.get(kind, "blue")
     if seconds is None:
         seconds = None if kind == "error" else (8.0 if kind == "warning" else 4.0)
     try:
-        client.add_notification(title, body, auto_close_seconds=seconds, color=color, with_close_button=True)
+        client.add_notification(
+            plain(title), plain(body), auto_close_seconds=seconds, color=color, with_close_button=True
+        )
     except Exception as exc:  # the tab may be gone
         log.debug("notification to a closed tab dropped: %s", exc)
