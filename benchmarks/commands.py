@@ -38,15 +38,13 @@ POSTURES = {
 DIRECTIONS = [(0, 0, -1), (0, 0, 1), (1, 0, 0), (-1, 0, 0), (0, 1, 0), (0, -1, 0), (1, 1, 0), (1, -1, 0)]
 
 
-def _quat_matrix(q: np.ndarray) -> np.ndarray:
-    w, x, y, z = q / np.linalg.norm(q)
-    return np.array(
-        [
-            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-        ]
-    )
+def _planner(model_id: str, stop_time: float) -> tuple[Any, Any]:
+    """(the model, a Planner of it at its default values from its standard posture)."""
+    from simecs import models
+    from simecs.models.planner import Planner
+
+    pkg = models.get_model(model_id)
+    return pkg, Planner(pkg, pkg.check_values({}), POSTURES[model_id], stop_time)
 
 
 def _angle(Ra: np.ndarray, Rb: np.ndarray) -> float:
@@ -56,14 +54,12 @@ def _angle(Ra: np.ndarray, Rb: np.ndarray) -> float:
 def _lin(model_id: str) -> dict[str, float]:
     from simecs import models
     from simecs.mesh import messages as m
-    from simecs.models.planner import Planner
-
-    pkg = models.get_model(model_id)
-    values = pkg.check_values({})
-    q0 = np.array(POSTURES[model_id])
-    planner = Planner(pkg, values, q0, 60.0)
-    p0, R0 = planner.kin.tool_pose(q0)
+    from simecs.mesh.kinematics import matrix_from_quat
     from simecs.models.ik import rpy_of
+
+    pkg, planner = _planner(model_id, 60.0)
+    values, q0 = planner.values, planner.q0
+    p0, R0 = planner.kin.tool_pose(q0)
 
     rpy0 = list(rpy_of(R0))
     plan = target = None
@@ -98,7 +94,8 @@ def _lin(model_id: str) -> dict[str, float]:
     rel = tool[:, :3] - p0
     deviation = np.linalg.norm(rel - np.outer(rel @ d, d), axis=1)
     orientation = [
-        _angle(_quat_matrix(tool[k, 3:]), planner.kin.tool_pose(qref[k])[1]) for k in range(0, len(data), 5)
+        _angle(matrix_from_quat(tool[k, 3:]), planner.kin.tool_pose(qref[k])[1])
+        for k in range(0, len(data), 5)
     ]
     return {
         "lin_max_deviation_mm": float(deviation.max() * 1000),
@@ -137,14 +134,10 @@ def _ik(model_id: str, count: int = 200) -> dict[str, float]:
 
 
 def _mission(model_id: str) -> dict[str, float]:
-    from simecs import models
     from simecs.mesh import messages as m
-    from simecs.models.planner import Planner
 
-    pkg = models.get_model(model_id)
-    values = pkg.check_values({})
-    q0 = np.array(POSTURES[model_id])
-    planner = Planner(pkg, values, q0, 600.0)
+    _pkg, planner = _planner(model_id, 600.0)
+    q0 = planner.q0
     p0, _ = planner.kin.tool_pose(q0)
     tasks = []
     for k in range(4):
@@ -172,16 +165,12 @@ def _mission(model_id: str) -> dict[str, float]:
 
 
 def _open_loop(model_id: str) -> dict[str, float]:
-    from simecs import models
     from simecs.mesh import messages as m
-    from simecs.models.planner import Planner
 
-    pkg = models.get_model(model_id)
-    values = pkg.check_values({})
-    q0 = np.array(POSTURES[model_id])
+    pkg, planner = _planner(model_id, 0.3)
+    values, q0 = planner.values, planner.q0
     amps = 1.0
-    command = m.DirectInput("open_loop", {"joint3": m.StepSignal(amplitude=amps)})
-    plan = Planner(pkg, values, q0, 0.3).plan(command)
+    plan = planner.plan(m.DirectInput("open_loop", {"joint3": m.StepSignal(amplitude=amps)}))
     sim = pkg.build(values)
     sim.set_initial(q0)
     plan.apply(sim)

@@ -140,7 +140,7 @@ def run_simulation(
                 ended.set()
             if not ended.wait(timeout):
                 raise TimeoutError(f"run {run_id} of session {session.id} did not end within {timeout:g} s")
-        st = session.snapshot().state if not latest or latest[-1].phase not in phases.ENDED else latest[-1]
+        st = latest[-1] if latest and latest[-1].phase in phases.ENDED else session.snapshot().state
         outcome = RunOutcome(session.id, run_id, st.phase, st.reason, st.sim_time, st.rtf, plan)
         if any(r.run_id == run_id and r.samples for r in session.runs()):
             outcome.columns, outcome.rows = session.results(run_id, variables)

@@ -48,6 +48,18 @@ def quat_from_matrix(m: np.ndarray) -> np.ndarray:
     return -q if q[0] < 0 else q
 
 
+def matrix_from_quat(q: Sequence[float] | np.ndarray) -> np.ndarray:
+    """The rotation matrix of a quaternion (w, x, y, z), normalised first: a `pose.*` row's turn."""
+    w, x, y, z = np.asarray(q, dtype=float) / np.linalg.norm(q)
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+        ]
+    )
+
+
 def link_frames(
     model: ModelDescription, values: Mapping[str, float], q: Sequence[float]
 ) -> list[tuple[np.ndarray, np.ndarray]]:

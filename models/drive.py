@@ -179,7 +179,7 @@ def ref_eval(seg, hold, tab, jmode, jog, t, qr, qdr):
     Table rows are [t, r[0..n-1], rd[0..n-1]], linear between the rightmost row at or before t and the
     next (so two rows at one time make a jump); held before the first row and after the last. A joint
     in JM_HOLD keeps its initial set point `hold`."""
-    _ref_base(seg, hold, tab, jmode, t, qr, qdr)
+    ref_nominal(seg, hold, tab, jmode, t, qr, qdr)
     for j in range(qr.shape[0]):
         if jmode[j] != JM_CURRENT:
             qr[j] += jog[j, 0] + jog[j, 1] * (t - jog[j, 2])
@@ -187,7 +187,8 @@ def ref_eval(seg, hold, tab, jmode, jog, t, qr, qdr):
 
 
 @njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
-def _ref_base(seg, hold, tab, jmode, t, qr, qdr):
+def ref_nominal(seg, hold, tab, jmode, t, qr, qdr):
+    """The command's set points at t, without the jog (what a jog's range check starts from)."""
     K = tab.shape[0]
     if K == 0:
         traj_eval(seg, hold, t, qr, qdr)

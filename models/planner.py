@@ -21,8 +21,10 @@ from typing import Any
 
 import numpy as np
 from simecs.mesh import messages as m
+from simecs.mesh.codec import DecodeError
 from simecs.mesh.kinematics import rot_rpy
 from simecs.mesh.limits import limit
+from simecs.mesh.model import check_joints
 from simecs.mesh.robot_commands import ACTION_ARGS
 
 from . import drive as dr
@@ -225,17 +227,8 @@ class Planner:
                         ref, path, np.asarray(node.position, float), target, node.speed_pct, node.acc_pct
                     )
                 steps.append(PlanStep(path, node.move, t0, ref.t))
-        elif isinstance(command, m.Action):
-            steps.append(self._action(ref, command, "", ""))
-        elif isinstance(command, m.Task):
-            for i, act in enumerate(command.actions):
-                steps.append(self._action(ref, act, f"actions[{i}]", command.name))
-        elif isinstance(command, m.Mission):
-            for i, task in enumerate(command.tasks):
-                for k, act in enumerate(task.actions):
-                    steps.append(self._action(ref, act, f"tasks[{i}].actions[{k}]", task.name))
-        else:  # pragma: no cover - the codec admits only the kinds above
-            raise CommandError("kind", f"unknown command kind {command.kind}")
+        else:
+            steps.extend(self._action(ref, act, path, task) for path, task, act in _actions_of(command))
         tab = ref.table()
         return Plan(
             kind=command.kind,
@@ -251,17 +244,7 @@ class Planner:
     def check_arguments(self, program: m.Action | m.Task | m.Mission) -> None:
         """The checks that need no start pose: every action's arguments against its primitive, joint
         targets within their ranges (CommandError naming the field)."""
-        if isinstance(program, m.Action):
-            located = [("", program)]
-        elif isinstance(program, m.Task):
-            located = [(f"actions[{i}]", a) for i, a in enumerate(program.actions)]
-        else:
-            located = [
-                (f"tasks[{i}].actions[{k}]", a)
-                for i, t in enumerate(program.tasks)
-                for k, a in enumerate(t.actions)
-            ]
-        for path, act in located:
+        for path, _task, act in _actions_of(program):
             args = self._args(act, _where(path, "args"))
             if act.primitive == "move_joints":
                 self._joints(args["q"], _where(path, "args.q"))
@@ -309,17 +292,11 @@ class Planner:
 
     # ---- moves ----
     def _joints(self, q: Sequence[float], where: str) -> np.ndarray:
-        if len(q) != self.n:
-            raise CommandError(where, f"{len(q)} joint positions for a {self.n}-joint arm")
-        v = np.asarray(q, dtype=float)
-        for j in range(self.n):
-            if not self.lower[j] <= v[j] <= self.upper[j]:
-                raise CommandError(
-                    f"{where}[{j}]",
-                    f"{self.names[j]} = {v[j]:.4g} rad is outside its range "
-                    f"[{self.lower[j]:.4g}, {self.upper[j]:.4g}] rad",
-                )
-        return v
+        try:
+            check_joints(self.model.describe(), q, where)  # the protocol's one rule for joint vectors
+        except DecodeError as exc:
+            raise CommandError(exc.field, exc.problem) from None
+        return np.asarray(q, dtype=float)
 
     def _ptp(self, ref: _Reference, path: str, p1: np.ndarray, R1: np.ndarray, sp: float, ac: float) -> None:
         res = self.kin.solve_near(p1, R1, ref.q)
@@ -411,26 +388,25 @@ class Planner:
 
     # ---- actions ----
     def _action(self, ref: _Reference, act: m.Action, path: str, task: str) -> PlanStep:
-        where = path or ""
-        args = self._args(act, _where(where, "args"))
+        args = self._args(act, _where(path, "args"))
         t0 = ref.t
         sp = float(args.get("speed_pct", 100.0))
         ac = float(args.get("acc_pct", 100.0))
         if act.primitive == "move_joints":
-            dest = self._joints(list(args["q"]), _where(where, "args.q"))
-            ref.joint_move(where, dest, self.vmax * sp / 100, self.amax * ac / 100)
+            dest = self._joints(list(args["q"]), _where(path, "args.q"))
+            ref.joint_move(path, dest, self.vmax * sp / 100, self.amax * ac / 100)
         elif act.primitive in ("move_linear", "move_to_pose"):
             position = np.asarray(args["position"], dtype=float)
             R = rot_rpy(args["rpy"]) if "rpy" in args else self.kin.tool_pose(ref.q)[1]
             if act.primitive == "move_linear":
-                self._lin(ref, where, position, R, sp, ac, _where(where, "args.speed_pct"))
+                self._lin(ref, path, position, R, sp, ac, _where(path, "args.speed_pct"))
             else:
-                self._ptp(ref, where, position, R, sp, ac)
+                self._ptp(ref, path, position, R, sp, ac)
         elif act.primitive == "wait":
-            ref.hold(where, float(args["duration"]))
+            ref.hold(path, float(args["duration"]))
         elif act.primitive == "home":
-            home = self._joints(self.model.home(), _where(where, "primitive"))
-            ref.joint_move(where, home, self.vmax * sp / 100, self.amax * ac / 100)
+            home = self._joints(self.model.home(), _where(path, "primitive"))
+            ref.joint_move(path, home, self.vmax * sp / 100, self.amax * ac / 100)
         elif act.primitive == "set_payload":
             changes = {"payload.mass": float(args["mass"])}
             if "size" in args:
@@ -481,6 +457,19 @@ class Planner:
             np.linspace(0, qs.shape[0] - 1, min(TOOL_PATH_POINTS, qs.shape[0])).round().astype(int)
         )
         return np.array([self.kin.tool_pose(qs[i])[0] for i in idx])
+
+
+def _actions_of(program: m.Action | m.Task | m.Mission) -> list[tuple[str, str, m.Action]]:
+    """Every action of a high-level command in order: (its path in the command, its task, it)."""
+    if isinstance(program, m.Action):
+        return [("", "", program)]
+    if isinstance(program, m.Task):
+        return [(f"actions[{i}]", program.name, a) for i, a in enumerate(program.actions)]
+    return [
+        (f"tasks[{i}].actions[{k}]", t.name, a)
+        for i, t in enumerate(program.tasks)
+        for k, a in enumerate(t.actions)
+    ]
 
 
 def _rotvec_matrix(r: np.ndarray) -> np.ndarray:

@@ -181,7 +181,7 @@ class Simulation:
         js[:, 0] += js[:, 1] * (t - js[:, 2])
         js[:, 2] = t
         qr, qdr = np.empty(self.n), np.empty(self.n)
-        dr._ref_base(self.seg, self.hold, self.tab, self.jmode, t, qr, qdr)
+        dr.ref_nominal(self.seg, self.hold, self.tab, self.jmode, t, qr, qdr)
         now = qr + js[:, 0]
         applied = np.asarray(rates, dtype=float).copy()
         for j, lk in enumerate(self._desc.links):

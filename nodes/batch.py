@@ -28,6 +28,8 @@ from simecs.mesh import messages as m
 from simecs.mesh.client import MeshClient, NoReply, RemoteError
 from simecs.mesh.config import load
 
+from . import export
+
 EXIT_OK, EXIT_RUN_FAILED, EXIT_BAD_INPUT, EXIT_NO_SERVICE = 0, 1, 2, 3
 
 
@@ -164,9 +166,7 @@ def save_recording(client: MeshClient, user: str, session: str, run_id: str, pat
 def write_csv(path: Path, columns: list[str], rows: Any) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     with path.open("w", newline="") as fh:
-        out = csv.writer(fh)
-        out.writerow(columns)
-        out.writerows([repr(float(x)) for x in row] for row in rows)
+        export.write_table(fh, columns, rows)
 
 
 class Progress:

@@ -53,13 +53,19 @@ def write_csv(
         rows = rows[rows[:, 0] >= t0]
     if t1 is not None:
         rows = rows[rows[:, 0] <= t1]
-    out.write(",".join(_cell(rec.columns[i]) for i in idx) + "\n")
-    if units:
-        out.write(
-            ",".join(_cell(rec.layout.units[i] if i < len(rec.layout.units) else "") for i in idx) + "\n"
-        )
-    line = ",".join(["%r"] * len(idx)) + "\n"
-    for row in np.asarray(rows[:, idx]).tolist():
+    unit_row = [rec.layout.units[i] if i < len(rec.layout.units) else "" for i in idx] if units else None
+    return write_table(out, [rec.columns[i] for i in idx], rows[:, idx], unit_row)
+
+
+def write_table(
+    out: io.TextIOBase, columns: Sequence[str], rows: np.ndarray, units: Sequence[str] | None = None
+) -> int:
+    """Columns as a CSV header (then their units if given), every value at full precision."""
+    out.write(",".join(_cell(c) for c in columns) + "\n")
+    if units is not None:
+        out.write(",".join(_cell(u) for u in units) + "\n")
+    line = ",".join(["%r"] * len(columns)) + "\n"
+    for row in np.asarray(rows).tolist():
         out.write(line % tuple(row))
     return len(rows)
 

@@ -3,7 +3,8 @@ parameter values against a model (its bounds, then the model's own cross-checks)
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
+from contextlib import contextmanager
 from typing import Any
 
 from simecs.mesh import messages as m
@@ -61,39 +62,51 @@ class ModelLibrary:
     ) -> Any:
         """The command expanded for this model, values and initial pose (models.planner.Plan), or a
         refusal naming the field inside `command` (a level the model does not accept: unsupported)."""
-        from simecs.models import CommandError
-        from simecs.models.planner import Planner
-
-        desc = self.describe(model_id)
-        if command.kind not in desc.command_levels:
-            raise RequestError(
-                "unsupported",
-                f"model {desc.id} accepts {', '.join(desc.command_levels)} commands, not {command.kind}",
-                "command.kind",
-            )
-        try:
-            return Planner(self._packages[model_id], values, initial, stop_time).plan(command)
-        except CommandError as exc:
-            raise RequestError("bad_request", exc.reason, _join("command", exc.field)) from None
+        planner = self._planner(model_id, command.kind, "command", values, initial, stop_time)
+        with _refused_as("command"):
+            return planner.plan(command)
 
     def check_program(
         self, model_id: str, values: Mapping[str, float], program: m.Program, where: str
     ) -> None:
         """What a saved program must satisfy whatever pose it starts from: its arguments against their
         primitives, joint targets within range (a reach needs a start pose: checked at set_command)."""
-        from simecs.models import CommandError
+        planner = self._planner(model_id, program.kind, where, values)
+        with _refused_as(where):
+            planner.check_arguments(program)
+
+    def _planner(
+        self,
+        model_id: str,
+        kind: str,
+        where: str,
+        values: Mapping[str, float],
+        initial: Sequence[float] | None = None,
+        stop_time: float = 1.0,
+    ) -> Any:
+        """A planner of the model, once it is known to accept commands of `kind`."""
         from simecs.models.planner import Planner
 
         desc = self.describe(model_id)
-        if program.kind not in desc.command_levels:
+        if kind not in desc.command_levels:
             raise RequestError(
-                "unsupported", f"model {desc.id} does not accept {program.kind} commands", f"{where}.kind"
+                "unsupported",
+                f"model {desc.id} accepts {', '.join(desc.command_levels)} commands, not {kind}",
+                f"{where}.kind",
             )
-        planner = Planner(self._packages[model_id], values, [0.0] * len(desc.links), 1.0)
-        try:
-            planner.check_arguments(program)
-        except CommandError as exc:
-            raise RequestError("bad_request", exc.reason, _join(where, exc.field)) from None
+        start = initial if initial is not None else [0.0] * len(desc.links)
+        return Planner(self._packages[model_id], values, start, stop_time)
+
+
+@contextmanager
+def _refused_as(where: str) -> Iterator[None]:
+    """A command the model cannot carry out, as the refusal naming its field under `where`."""
+    from simecs.models import CommandError
+
+    try:
+        yield
+    except CommandError as exc:
+        raise RequestError("bad_request", exc.reason, _join(where, exc.field)) from None
 
 
 def _join(prefix: str, field: str) -> str:

@@ -104,19 +104,19 @@ class QuotaCheck:
         return total
 
     def new_param_set(self, user: str, held: int, replacing: bool) -> None:
-        if not replacing and held >= self.q.param_sets_per_user:
-            raise RequestError(
-                "busy",
-                f"{user} holds {held} parameter sets, the most one user may (param_sets_per_user = "
-                f"{self.q.param_sets_per_user}): delete one first",
-                "name",
-            )
+        self._one_more(
+            user, held, replacing, "param_sets_per_user", self.q.param_sets_per_user, "parameter sets"
+        )
 
     def new_program(self, user: str, held: int, replacing: bool) -> None:
-        if not replacing and held >= self.q.programs_per_user:
+        self._one_more(user, held, replacing, "programs_per_user", self.q.programs_per_user, "saved programs")
+
+    @staticmethod
+    def _one_more(user: str, held: int, replacing: bool, bound: str, most: int, what: str) -> None:
+        """A new named thing of a user's library (not one replaced) within its count bound."""
+        if not replacing and held >= most:
             raise RequestError(
                 "busy",
-                f"{user} holds {held} saved programs, the most one user may (programs_per_user = "
-                f"{self.q.programs_per_user}): delete one first",
+                f"{user} holds {held} {what}, the most one user may ({bound} = {most}): delete one first",
                 "name",
             )

@@ -95,6 +95,16 @@ def start_service(mesh: LocalMesh, max_running: int = 4, extra_simulator: tuple[
     return Service(mesh, mesh.start_service(max_running, extra_simulator))
 
 
+def restart_every_node(mesh: LocalMesh) -> Service:
+    """Stop the service nodes and the hub, start them again on the same data (a server reboot)."""
+    for name in ("hotfeedback", "simulator", "proxy"):
+        mesh.stop(name)
+    mesh.stop("hub")
+    mesh.clients.clear()
+    mesh.start_hub()
+    return start_service(mesh)
+
+
 @pytest.fixture
 def service(mesh: LocalMesh) -> Service:
     """Hub, proxy, simulator and hot-feedback on an isolated mesh."""

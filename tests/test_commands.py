@@ -12,11 +12,11 @@ from simecs import models
 from simecs.mesh import keys
 from simecs.mesh import messages as m
 from simecs.mesh.client import RemoteError, SessionClient
-from simecs.mesh.kinematics import rot_rpy
+from simecs.mesh.kinematics import matrix_from_quat, rot_rpy
 from simecs.models.ik import ArmKinematics, rpy_of
 from simecs.nodes import mcapread
 
-from tests.conftest import Mesh, Service, start_service
+from tests.conftest import Mesh, Service, restart_every_node, start_service
 from tests.test_recorder_support import wait_file_closed
 from tests.test_service import Recorder
 
@@ -32,17 +32,6 @@ def kinematics(model_id: str) -> ArmKinematics:
 
 def tool_columns(columns: list[str]) -> list[int]:
     return [columns.index(f"pose.tool.{f}") for f in ("x", "y", "z", "qw", "qx", "qy", "qz")]
-
-
-def quat_matrix(q: np.ndarray) -> np.ndarray:
-    w, x, y, z = q / np.linalg.norm(q)
-    return np.array(
-        [
-            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-        ]
-    )
 
 
 def run_to_end(s: SessionClient, plan: m.CommandPlan, after: float = 1.0) -> tuple[list[str], np.ndarray]:
@@ -68,7 +57,7 @@ def test_a_lin_move_ends_on_its_target_and_stays_near_its_line(service: Service)
     tool = rows[:, tool_columns(cols)]
     end = tool[-1]
     assert np.linalg.norm(end[:3] - p1) < 2e-3, f"LIN ends {np.linalg.norm(end[:3] - p1) * 1000:.2f} mm off"
-    R_end = quat_matrix(end[3:])
+    R_end = matrix_from_quat(end[3:])
     angle = np.arccos(np.clip((np.trace(R_end.T @ rot_rpy(rpy1)) - 1) / 2, -1, 1))
     assert angle < 5e-3, f"orientation {angle * 1000:.2f} mrad off"
     # Every sample of the tool stays close to the straight line from p0 to p1.
@@ -186,12 +175,7 @@ def test_a_saved_mission_survives_a_restart_of_every_node_and_runs_step_by_step(
     assert s.save_program("shift", mission) == "shift"
     assert s.save_program("approach", mission.tasks[0]) == "approach"
     assert [(e.kind, e.name) for e in s.list_programs()] == [("task", "approach"), ("mission", "shift")]
-    for name in ("hotfeedback", "simulator", "proxy"):
-        mesh.stop(name)
-    mesh.stop("hub")
-    mesh.clients.clear()
-    mesh.start_hub()
-    start_service(mesh)
+    restart_every_node(mesh)
     mesh.start("recorder", "--dir", str(mesh.folder / "rec"))
     c = mesh.client()
     s = c.session(s.user, s.id)

@@ -11,48 +11,39 @@ from .conftest import Service, mesh_env
 EXAMPLES = Path(__file__).resolve().parent.parent / "docs" / "examples"
 
 
-def test_plain_client_from_the_protocol_document(service: Service) -> None:
-    service.mesh.start("recorder", "--dir", str(service.mesh.folder / "rec"))
-    source = (EXAMPLES / "plain_client.py").read_text()
-    assert "simecs." not in source.replace("simecs/", "")  # no simecs code: the document alone
+def run_example(name: str, service: Service, timeout: float = 180.0, protocol_only: bool = True) -> str:
+    """Run docs/examples/<name> against the service's hub; its stdout (the run must succeed).
+    `protocol_only`: the example uses no simecs code, only the document and the schema."""
+    if protocol_only:
+        assert "simecs." not in (EXAMPLES / name).read_text().replace("simecs/", "")
     out = subprocess.run(
-        [sys.executable, str(EXAMPLES / "plain_client.py"), service.mesh.endpoint],
+        [sys.executable, str(EXAMPLES / name), service.mesh.endpoint],
         capture_output=True,
         text=True,
-        timeout=120,
+        timeout=timeout,
         env=mesh_env(),
     )
     assert out.returncode == 0, out.stdout + out.stderr
-    assert "run r1: finished" in out.stdout
-    assert "101 samples of ['time', 'joint1.q', 'joint2.q']" in out.stdout
-    assert "replay r2: finished" in out.stdout and "r2 finished (replay)" in out.stdout
+    return out.stdout
+
+
+def test_plain_client_from_the_protocol_document(service: Service) -> None:
+    service.mesh.start("recorder", "--dir", str(service.mesh.folder / "rec"))
+    stdout = run_example("plain_client.py", service, timeout=120)
+    assert "run r1: finished" in stdout
+    assert "101 samples of ['time', 'joint1.q', 'joint2.q']" in stdout
+    assert "replay r2: finished" in stdout and "r2 finished (replay)" in stdout
 
 
 def test_commands_client_runs_a_line_and_a_saved_task(service: Service) -> None:
-    source = (EXAMPLES / "commands_client.py").read_text()
-    assert "simecs." not in source.replace("simecs/", "")
-    out = subprocess.run(
-        [sys.executable, str(EXAMPLES / "commands_client.py"), service.mesh.endpoint],
-        capture_output=True,
-        text=True,
-        timeout=180,
-        env=mesh_env(),
-    )
-    assert out.returncode == 0, out.stdout + out.stderr
-    line = next(x for x in out.stdout.splitlines() if x.startswith("line r1:"))
+    stdout = run_example("commands_client.py", service)
+    line = next(x for x in stdout.splitlines() if x.startswith("line r1:"))
     assert float(line.split("ends ")[1].split(" mm")[0]) < 2.0, line
-    assert "saved: ['back']" in out.stdout
-    assert "task r2: finished; steps seen: retreat, wait, settle" in out.stdout, out.stdout
+    assert "saved: ['back']" in stdout
+    assert "task r2: finished; steps seen: retreat, wait, settle" in stdout, stdout
 
 
 def test_batch_client_runs_and_sweeps_with_the_python_api(service: Service) -> None:
-    out = subprocess.run(
-        [sys.executable, str(EXAMPLES / "batch_client.py"), service.mesh.endpoint],
-        capture_output=True,
-        text=True,
-        timeout=180,
-        env=mesh_env(),
-    )
-    assert out.returncode == 0, out.stdout + out.stderr
-    assert "r1: finished, 1001 samples, joint2 ends at 0.3" in out.stdout, out.stdout
-    assert sum(line.startswith("kp_pos") for line in out.stdout.splitlines()) == 3, out.stdout
+    stdout = run_example("batch_client.py", service, protocol_only=False)
+    assert "r1: finished, 1001 samples, joint2 ends at 0.3" in stdout, stdout
+    assert sum(line.startswith("kp_pos") for line in stdout.splitlines()) == 3, stdout

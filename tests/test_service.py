@@ -15,7 +15,7 @@ from simecs.mesh import codec, frames, keys
 from simecs.mesh import messages as m
 from simecs.mesh.client import NoReply, RemoteError, SessionClient
 
-from .conftest import Mesh, Service, start_service, wait_until
+from .conftest import Mesh, Service, restart_every_node, start_service, wait_until
 
 TARGET = [0.3, -0.2, 0.2, 0.1, -0.1, 0.1, 0.0]
 
@@ -248,12 +248,7 @@ def test_parameter_sets_and_sessions_survive_a_restart_of_every_node(mesh: Mesh)
     values = s.set_params({"joint2.ctrl.kp_pos": 33.0, "link2.length": 0.9})
     s.save_param_set("stiff")
     s.set_initial([0.1, 0, 0, 0, 0, 0, 0])
-    for name in ("hotfeedback", "simulator", "proxy"):
-        mesh.stop(name)
-    mesh.stop("hub")
-    mesh.clients.clear()
-    mesh.start_hub()
-    start_service(mesh)
+    restart_every_node(mesh)
     c = mesh.client()
     back = c.session(s.user, s.id).snapshot()
     assert back.values == values and back.initial[0] == 0.1
