@@ -231,7 +231,7 @@ class Run:
         if not ctl.paused.is_set():
             self.status("running")
         while not source.finished and not ctl.aborted.is_set():
-            moved = self._seek(source)
+            moved = False
             if ctl.paused.is_set():
                 self.status("paused")
                 while ctl.paused.is_set() and not ctl.aborted.is_set():
@@ -243,6 +243,9 @@ class Run:
                     break
                 moved = True
                 self.status("running")
+            # Every pending seek goes before the next chunk: one that came with a resume too (the
+            # thread descheduled between a look and the pause check must not play a chunk first).
+            moved = self._seek(source) or moved
             if moved:  # pacing starts again from here
                 wall0, t0 = time.monotonic(), source.time
             step_wall, step_t = time.monotonic(), source.time
