@@ -12,6 +12,7 @@ kernels), exudyn_chain (the Exudyn system), simulation (one run), package (Model
 
 from __future__ import annotations
 
+import numpy as np
 from simecs.mesh.model import ModelSummary
 
 from .errors import CommandError, ParameterError, SimulationError
@@ -63,6 +64,8 @@ def warmup() -> float:
     sim.set_initial([0.0] * sim.n)
     sim.set_joint_path([([0.01] * sim.n, 100.0, 100.0)])
     sim.start(0.004, 0.002)
+    sim.advance(0.002)
+    sim.sensors(np.empty(1 + 9 * sim.n))  # the external controller's sensor kernel
     sim.advance(0.004)
     sim.close()
     from .planner import warmup as warm_planner

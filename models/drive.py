@@ -170,11 +170,17 @@ def traj_eval(seg, hold, t, qr, qdr):
 # joint modes: what the reference table holds for a joint (models/signals.py writes them)
 JM_POSITION, JM_SPEED, JM_CURRENT, JM_HOLD = 0, 1, 2, 3
 
+# live inputs per joint, changed between solver calls (Simulation.jog, Simulation.set_actuators):
+# the jog (offset at t0, rate, t0) and an external controller's current set point, which replaces
+# the built-in cascade of the joint while LV_EXTERNAL is 1 (the drive's current loops stay).
+NLIVE = 5
+LV_OFFSET, LV_RATE, LV_T0, LV_EXTERNAL, LV_IREF = range(NLIVE)
+
 
 @njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
-def ref_eval(seg, hold, tab, jmode, jog, t, qr, qdr):
+def ref_eval(seg, hold, tab, jmode, live, t, qr, qdr):
     """The set points at t: the trapezoid segments when the table is empty, else the table; plus the
-    jog offset of each joint not in current mode (jog[j] = [offset at t0, rate, t0]).
+    jog offset of each joint not in current mode (live[j, LV_OFFSET..LV_T0]: offset at t0, rate, t0).
 
     Table rows are [t, r[0..n-1], rd[0..n-1]], linear between the rightmost row at or before t and the
     next (so two rows at one time make a jump); held before the first row and after the last. A joint
@@ -182,8 +188,8 @@ def ref_eval(seg, hold, tab, jmode, jog, t, qr, qdr):
     ref_nominal(seg, hold, tab, jmode, t, qr, qdr)
     for j in range(qr.shape[0]):
         if jmode[j] != JM_CURRENT:
-            qr[j] += jog[j, 0] + jog[j, 1] * (t - jog[j, 2])
-            qdr[j] += jog[j, 1]
+            qr[j] += live[j, LV_OFFSET] + live[j, LV_RATE] * (t - live[j, LV_T0])
+            qdr[j] += live[j, LV_RATE]
 
 
 @njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
@@ -368,6 +374,25 @@ def gear_torque(P, j, theta_m, omega_m, ql, qdl):
 
 
 @njit(cache=_CACHE, inline="always", error_model="numpy", fastmath=_FAST)
+def motor_resolver(P, j, th, om):
+    """(angle, speed) the motor resolver reads: its error is em*sin(p*theta) (mechanical rad)."""
+    em = P[j, P_EM]
+    if em == 0.0:
+        return th, om
+    p = P[j, P_POLES]
+    return th + em * math.sin(p * th), om * (1.0 + em * p * math.cos(p * th))
+
+
+@njit(cache=_CACHE, inline="always", error_model="numpy", fastmath=_FAST)
+def load_resolver(P, j, ql, qdl):
+    """(angle, speed) the load resolver reads: its error is el*sin(q)."""
+    el = P[j, P_EL]
+    if el == 0.0:
+        return ql, qdl
+    return ql + el * math.sin(ql), qdl * (1.0 + el * math.cos(ql))
+
+
+@njit(cache=_CACHE, inline="always", error_model="numpy", fastmath=_FAST)
 def joint_signals(P, j, x, ql, qdl, qr, qdr, mode, out):
     """All algebraic signals of joint j; fills out[0..NO) in OUTPUTS order and returns nothing.
 
@@ -386,18 +411,14 @@ def joint_signals(P, j, x, ql, qdl, qr, qdr, mode, out):
     s1 = math.sin(te)
     c1 = math.cos(te)
     # resolvers
-    em = P[j, P_EM]
-    if em != 0.0:
-        tem = te + p * em * s1
-        sm = math.sin(tem)
-        cm = math.cos(tem)
-        om_meas = om * (1.0 + em * p * c1)
+    th_meas, om_meas = motor_resolver(P, j, th, om)
+    if th_meas != th:
+        sm = math.sin(p * th_meas)
+        cm = math.cos(p * th_meas)
     else:
         sm = s1
         cm = c1
-        om_meas = om
-    el = P[j, P_EL]
-    q_meas = ql + el * math.sin(ql) if el != 0.0 else ql
+    q_meas = load_resolver(P, j, ql, qdl)[0]
     # cascade joint control: P position (load side), PI motor speed with anti-windup and feed-forward
     if mode == JM_CURRENT:
         iref = _sat(qr, P[j, P_IMAX])
@@ -498,15 +519,18 @@ def joint_signals(P, j, x, ql, qdl, qr, qdr, mode, out):
 
 
 @njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
-def drive_rhs(P, seg, hold, tab, jmode, jog, Minv, t, X, dX, sig, qr, qdr, tau, new_t=True):
+def drive_rhs(P, seg, hold, tab, jmode, live, Minv, t, X, dX, sig, qr, qdr, tau, new_t=True):
     """dX = f(t, X); the set points qr, qdr are evaluated at t unless `new_t` is False (same t as the
     previous call: RK4 stages 2 and 3)."""
     n = X.shape[0]
     if new_t:
-        ref_eval(seg, hold, tab, jmode, jog, t, qr, qdr)
+        ref_eval(seg, hold, tab, jmode, live, t, qr, qdr)
     for j in range(n):
         x = X[j]
-        joint_signals(P, j, x, x[S_QL], x[S_QDL], qr[j], qdr[j], jmode[j], sig)
+        if live[j, LV_EXTERNAL] > 0.5:
+            joint_signals(P, j, x, x[S_QL], x[S_QDL], live[j, LV_IREF], 0.0, JM_CURRENT, sig)
+        else:
+            joint_signals(P, j, x, x[S_QL], x[S_QDL], qr[j], qdr[j], jmode[j], sig)
         d = dX[j]
         om = x[S_OM]
         d[S_TH] = om
@@ -536,7 +560,7 @@ def drive_rhs(P, seg, hold, tab, jmode, jog, Minv, t, X, dX, sig, qr, qdr, tau, 
 
 @njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
 def drive_step(
-    P, seg, hold, tab, jmode, jog, pre_R, pre_p, masses, coms, inertias, X, q, qd, t, h, nsub, tau_out, work
+    P, seg, hold, tab, jmode, live, pre_R, pre_p, masses, coms, inertias, X, q, qd, t, h, nsub, tau_out, work
 ):
     """Integrate all drives over [t, t+h] with nsub RK4 substeps; tau_out = mean gear torque."""
     n = q.shape[0]
@@ -559,19 +583,19 @@ def drive_step(
     hs = h / nsub
     for s in range(nsub):
         ts = t + s * hs
-        drive_rhs(P, seg, hold, tab, jmode, jog, Minv, ts, X, k1, sig, qr, qdr, tau)
+        drive_rhs(P, seg, hold, tab, jmode, live, Minv, ts, X, k1, sig, qr, qdr, tau)
         for j in range(n):
             for k in range(NL):
                 Xt[j, k] = X[j, k] + 0.5 * hs * k1[j, k]
-        drive_rhs(P, seg, hold, tab, jmode, jog, Minv, ts + 0.5 * hs, Xt, k2, sig, qr, qdr, tau)
+        drive_rhs(P, seg, hold, tab, jmode, live, Minv, ts + 0.5 * hs, Xt, k2, sig, qr, qdr, tau)
         for j in range(n):
             for k in range(NL):
                 Xt[j, k] = X[j, k] + 0.5 * hs * k2[j, k]
-        drive_rhs(P, seg, hold, tab, jmode, jog, Minv, ts + 0.5 * hs, Xt, k3, sig, qr, qdr, tau, False)
+        drive_rhs(P, seg, hold, tab, jmode, live, Minv, ts + 0.5 * hs, Xt, k3, sig, qr, qdr, tau, False)
         for j in range(n):
             for k in range(NL):
                 Xt[j, k] = X[j, k] + hs * k3[j, k]
-        drive_rhs(P, seg, hold, tab, jmode, jog, Minv, ts + hs, Xt, k4, sig, qr, qdr, tau)
+        drive_rhs(P, seg, hold, tab, jmode, live, Minv, ts + hs, Xt, k4, sig, qr, qdr, tau)
         for j in range(n):
             for k in range(NL):
                 X[j, k] += hs / 6.0 * (k1[j, k] + 2.0 * k2[j, k] + 2.0 * k3[j, k] + k4[j, k])
@@ -593,7 +617,7 @@ def drive_prestep(
     hold,
     tab,
     jmode,
-    jog,
+    live,
     pre_R,
     pre_p,
     masses,
@@ -622,7 +646,7 @@ def drive_prestep(
         hold,
         tab,
         jmode,
-        jog,
+        live,
         pre_R,
         pre_p,
         masses,
@@ -640,18 +664,25 @@ def drive_prestep(
 
 
 @njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
-def drive_outputs(P, seg, hold, tab, jmode, jog, X, q, qd, t, out):
+def drive_outputs(P, seg, hold, tab, jmode, live, X, q, qd, t, out):
     """Variables of every joint at time t from the drive states and the chain state: out[j, :NO]."""
     n = q.shape[0]
     qr = np.empty(n)
     qdr = np.empty(n)
-    ref_eval(seg, hold, tab, jmode, jog, t, qr, qdr)
+    ref_eval(seg, hold, tab, jmode, live, t, qr, qdr)
     sig = np.empty(NO + 10)
     for j in range(n):
-        joint_signals(P, j, X[j], q[j], qd[j], qr[j], qdr[j], jmode[j], sig)
+        if live[j, LV_EXTERNAL] > 0.5:  # q_ref, qd_ref: the command's set points the controller was sent
+            joint_signals(P, j, X[j], q[j], qd[j], live[j, LV_IREF], 0.0, JM_CURRENT, sig)
+            sig[2] = qr[j]
+            sig[3] = qdr[j]
+        else:
+            joint_signals(P, j, X[j], q[j], qd[j], qr[j], qdr[j], jmode[j], sig)
         for k in range(NO):
             out[j, k] = sig[k]
-        if jmode[j] == JM_CURRENT:  # q_ref, qd_ref: the position set point the current replaced
+        if (
+            jmode[j] == JM_CURRENT and live[j, LV_EXTERNAL] <= 0.5
+        ):  # q_ref, qd_ref: the position set point the current replaced
             out[j, 2] = hold[j]
             out[j, 3] = 0.0
 
@@ -695,7 +726,7 @@ def pose_rows(pre_R, pre_p, Rrpy, tool_local, q, out):
 
 
 @njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
-def output_row(P, seg, hold, tab, jmode, jog, X, q, qd, t, pre_R, pre_p, Rrpy, tool_local, rows, k):
+def output_row(P, seg, hold, tab, jmode, live, X, q, qd, t, pre_R, pre_p, Rrpy, tool_local, rows, k):
     """One result row into rows[k]: time, the variables of every joint, the link and tool poses.
 
     Returns 0, or 1 when the chain coordinates are not finite (row untouched), 2 when an output is not.
@@ -707,7 +738,7 @@ def output_row(P, seg, hold, tab, jmode, jog, X, q, qd, t, pre_R, pre_p, Rrpy, t
     row = rows[k]
     row[0] = t
     out = np.empty((n, NO))
-    drive_outputs(P, seg, hold, tab, jmode, jog, X, q, qd, t, out)
+    drive_outputs(P, seg, hold, tab, jmode, live, X, q, qd, t, out)
     for j in range(n):
         for c in range(NO):
             row[1 + j * NO + c] = out[j, c]

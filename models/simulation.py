@@ -22,6 +22,7 @@ from .description import ArmDescription
 from .errors import SimulationError
 from .exudyn_chain import ExudynChain, exudyn
 from .mechanics import MECH_PREFIXES, chain_arrays, drive_array, init_states, tool_point, vec
+from .sensors import sensor_row
 
 
 class Simulation:
@@ -43,8 +44,9 @@ class Simulation:
         self.seg = np.zeros((0, 3 + 2 * self.n))
         self.tab = np.zeros((0, 1 + 2 * self.n))  # a sampled reference (planner.py), when not a joint path
         self.jmode = np.zeros(self.n, dtype=np.int64)
-        #: Live jogging (drive.ref_eval): per joint [offset at t0, rate, t0], superposed on the reference.
-        self.jog_state = np.zeros((self.n, 3))
+        #: Live inputs per joint (drive.LV_*): the jog, superposed on the reference, and the current set
+        #: points of an external controller for the joints it drives.
+        self.live = np.zeros((self.n, dr.NLIVE))
         self._events: list[tuple[float, dict[str, float]]] = []  # (t, parameter changes) during a run
         self._pending_events: list[tuple[float, dict[str, float]]] = []
         self._run_values: dict[str, float] | None = None  # the values a run started with
@@ -177,12 +179,12 @@ class Simulation:
         jogging); a rate is cut so its joint's set point stays within the joint's range for `horizon`
         s. Joints in current mode do not jog. Returns the rates applied."""
         t = self._time
-        js = self.jog_state
-        js[:, 0] += js[:, 1] * (t - js[:, 2])
-        js[:, 2] = t
+        js = self.live
+        js[:, dr.LV_OFFSET] += js[:, dr.LV_RATE] * (t - js[:, dr.LV_T0])
+        js[:, dr.LV_T0] = t
         qr, qdr = np.empty(self.n), np.empty(self.n)
         dr.ref_nominal(self.seg, self.hold, self.tab, self.jmode, t, qr, qdr)
-        now = qr + js[:, 0]
+        now = qr + js[:, dr.LV_OFFSET]
         applied = np.asarray(rates, dtype=float).copy()
         for j, lk in enumerate(self._desc.links):
             if self.jmode[j] == dr.JM_CURRENT or not math.isfinite(applied[j]):
@@ -191,8 +193,41 @@ class Simulation:
                 applied[j] = min(applied[j], max(0.0, (lk.joint_max - now[j]) / horizon))
             else:
                 applied[j] = max(applied[j], min(0.0, (lk.joint_min - now[j]) / horizon))
-        js[:, 1] = applied
+        js[:, dr.LV_RATE] = applied
         return applied
+
+    def set_external(self, joints: Sequence[bool] | np.ndarray) -> None:
+        """Hand the control of the marked joints to an external controller (from now on, and for the
+        runs that follow): their current set point is what `set_actuators` gives, 0 until then."""
+        mask = np.asarray(joints, dtype=bool)
+        if mask.shape != (self.n,):
+            raise ValueError(f"expected {self.n} flags, one per joint")
+        self.live[:, dr.LV_EXTERNAL] = mask
+        self.live[:, dr.LV_IREF] = 0.0
+
+    def set_actuators(self, i_ref: np.ndarray) -> None:
+        """The external controller's current set points (A), held until the next call (zero-order
+        hold); the entries of joints the built-in controller keeps are not used."""
+        self.live[:, dr.LV_IREF] = i_ref
+
+    def sensors(self, out: np.ndarray) -> None:
+        """What an external controller reads now into `out` (models/sensors.py, mesh/hil.py)."""
+        sd = self._sd
+        ok = sensor_row(
+            self.P,
+            self.seg,
+            self.hold,
+            self.tab,
+            self.jmode,
+            self.live,
+            self.X,
+            np.asarray(sd.GetODE2Coordinates()),
+            np.asarray(sd.GetODE2Coordinates_t()),
+            self._time,
+            out,
+        )
+        if not ok:
+            raise SimulationError(f"a sensor value is not finite at t = {self._time:.6f} s")
 
     def path_duration(self) -> float:
         """Seconds from the first segment's start to the last one's end (0 without a path)."""
@@ -220,7 +255,7 @@ class Simulation:
             self._update_mechanics()
         self._run_values = dict(self.values)
         self._pending_events = list(self._events)
-        self.jog_state[:] = 0.0
+        self.live[:, [dr.LV_OFFSET, dr.LV_RATE, dr.LV_T0, dr.LV_IREF]] = 0.0  # set_external stays
         self.h = h
         self.k_out = max(1, int(round(output_interval / h)))
         self.dt_out = self.k_out * h
@@ -296,7 +331,7 @@ class Simulation:
             self.hold,
             self.tab,
             self.jmode,
-            self.jog_state,
+            self.live,
             m[0],
             m[1],
             m[2],
@@ -336,7 +371,7 @@ class Simulation:
             self.hold,
             self.tab,
             self.jmode,
-            self.jog_state,
+            self.live,
             self.X,
             q,
             qd,
