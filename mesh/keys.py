@@ -255,6 +255,22 @@ _TABLE = (
         payload="JogInput",
         meaning="live jogging of a running run: a velocity superposed on its command (§5.4, JogInput)",
     ),
+    KeySpec(
+        name="hil_sensors",
+        pattern="simecs/u/<user>/sessions/<session>/hil/sensors",
+        kind="put",
+        writer="worker",
+        payload="frame",
+        meaning="controller external: the sensors at the start of each control period, one row (§6.3)",
+    ),
+    KeySpec(
+        name="hil_actuators",
+        pattern="simecs/u/<user>/sessions/<session>/hil/actuators",
+        kind="put",
+        writer="client",
+        payload="frame",
+        meaning="controller external: the current set points answering a sensor frame, same seq (§6.3)",
+    ),
     # -- liveliness tokens: under '@' chunks, so `simecs/**` data subscribers never match them ----------
     KeySpec(
         name="node_token",
@@ -483,6 +499,14 @@ def notices(user: str, session: str) -> str:
 
 def jog(user: str, session: str) -> str:
     return build("jog", user=user, session=session)
+
+
+def hil_sensors(user: str, session: str) -> str:
+    return build("hil_sensors", user=user, session=session)
+
+
+def hil_actuators(user: str, session: str) -> str:
+    return build("hil_actuators", user=user, session=session)
 
 
 # -- parsing ----------------------------------------------------------------------------------------

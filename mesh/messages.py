@@ -93,6 +93,24 @@ class RunSettings(Record):
     factor: Annotated[float, Meta(ge=0.01, le=1000.0, description="x real time, for pacing scaled")] = 1.0
     live_rate_hz: Annotated[float, Meta(ge=0.1, le=1000.0, description="live frames per wall second")] = 50.0
     live_vars: Annotated[list[Name], Meta(max_length=10_000, description="empty: every variable")] = []
+    controller: Annotated[
+        Literal["builtin", "external"],
+        Meta(description="external: a controller on hil/actuators drives the joints (PROTOCOL.md §6.3)"),
+    ] = "builtin"
+    external_joints: Annotated[
+        list[Name],
+        Meta(max_length=64, description="controller external: the joints it drives; empty = every joint"),
+    ] = []
+    control_period: Annotated[
+        float,
+        Meta(
+            ge=1e-4, le=0.1, description="s, controller external: one exchange per period, a multiple of step"
+        ),
+    ] = 0.001
+    hil_timeout: Annotated[
+        float,
+        Meta(ge=0.05, le=60.0, description="s of wall time without an actuator frame: the run fails"),
+    ] = 2.0
 
     def __post_init__(self) -> None:
         if self.output_interval > self.stop_time:
@@ -291,6 +309,14 @@ SessionRequest = CreateSession | ListSessions
 
 
 # -- published state -----------------------------------------------------------------------------------
+class HilStats(Record):
+    """An external controller's timeliness over the run so far (PROTOCOL.md §6.3)."""
+
+    periods: Annotated[int, Meta(ge=0, description="control periods exchanged")] = 0
+    misses: Annotated[int, Meta(ge=0, description="actuator frames later than one period (paced runs)")] = 0
+    worst_late_ms: Annotated[float, Meta(ge=0.0, description="ms past the deadline, the worst miss")] = 0.0
+
+
 class SessionState(Message, tag="state"):
     """Lifecycle of a session on <session>/state (paper §3.2 Time Presentation)."""
 
@@ -307,6 +333,7 @@ class SessionState(Message, tag="state"):
     step: Annotated[Text, Meta(description="the running step (PlanStep.step); '' if none")] = ""
     task: Annotated[str, Meta(max_length=64, description="the running task's name (task, mission)")] = ""
     action: Annotated[str, Meta(max_length=64, description="the running action's label or primitive")] = ""
+    hil: Annotated[HilStats | None, Meta(description="controller external: its timeliness so far")] = None
 
 
 class ParamValues(Message, tag="params"):
@@ -414,6 +441,7 @@ class RunStatus(Message, tag="run_status"):
     step: Annotated[Text, Meta(description="the running step (PlanStep.step)")] = ""
     task: Annotated[str, Meta(max_length=64)] = ""
     action: Annotated[str, Meta(max_length=64)] = ""
+    hil: HilStats | None = None
 
 
 class RunContext(Record):

@@ -45,7 +45,7 @@ GROUPS: list[tuple[str, list[str]]] = [
     (
         "sessions",
         ["CreateSession", "ListSessions", "SessionRequest", "SessionEntry", "SessionSnapshot", "SessionState"]
-        + ["ParamValues", "RunInfo", "RunList", "Notice"],
+        + ["HilStats", "ParamValues", "RunInfo", "RunList", "Notice"],
     ),
     (
         "runs",
@@ -182,6 +182,17 @@ def _frame_table(schema: dict[str, Any]) -> str:
     return "\n".join(rows) + "\n"
 
 
+def _hil_table(schema: dict[str, Any]) -> str:
+    rows = ["| frame | column | unit | meaning |", "|---|---|---|---|"]
+    hil = schema["x-simecs-hil"]
+    rows.append("| sensors | `time` | s | simulated time at the start of the period |")
+    for f in hil["sensor_joint_fields"]:
+        rows.append(f"| sensors, per joint | `{f['field']}` | {f['unit']} | {_cell(f['meaning'])} |")
+    for f in hil["actuator_joint_fields"]:
+        rows.append(f"| actuators, per joint | `{f['field']}` | {f['unit']} | {_cell(f['meaning'])} |")
+    return "\n".join(rows) + "\n"
+
+
 def _actions_table(schema: dict[str, Any]) -> str:
     rows = ["| primitive | what it does | argument | size | unit | required / default | bounds | meaning |"]
     rows.append("|---" * 8 + "|")
@@ -224,6 +235,7 @@ def sections() -> dict[str, str]:
         "commands": _command_table(schema),
         "phases": _phase_table(),
         "frame": _frame_table(schema),
+        "hil": _hil_table(schema),
         "limits": _limits_table(),
         "actions": _actions_table(schema),
     }

@@ -19,7 +19,7 @@ from typing import Any
 
 import msgspec
 
-from . import frames, keys, phases
+from . import frames, hil, keys, phases
 from . import messages as m
 from . import model as md
 from .robot_commands import ACTION_ARGS, ACTION_DOC
@@ -140,8 +140,9 @@ def protocol_schema() -> dict[str, Any]:
         "description": (
             "Every JSON message of the simecs protocol ($defs), which key carries which (x-simecs-keys), "
             "each command's reply (x-simecs-commands), the session phases (x-simecs-phases), the action "
-            "primitives' arguments (x-simecs-actions) and the binary "
-            "frame header (x-simecs-frame). Refusals are Zenoh error replies carrying $defs/Error. "
+            "primitives' arguments (x-simecs-actions), the binary "
+            "frame header (x-simecs-frame) and the controller-in-the-loop rows (x-simecs-hil). "
+            "Refusals are Zenoh error replies carrying $defs/Error. "
             "Generated from mesh/ by `python -m simecs.mesh.schema`; docs/PROTOCOL.md explains it."
         ),
         "x-simecs-version": m.VERSION,
@@ -182,6 +183,17 @@ def protocol_schema() -> dict[str, Any]:
                 for name, offset, size, meaning in frames.HEADER_FIELDS
             ],
             "data": "float64 values, n_rows x n_cols, row after row",
+        },
+        "x-simecs-hil": {
+            "sensor_row": "1 row: time, then per joint (in the model's joint order) these fields",
+            "sensor_joint_fields": [
+                {"field": f, "unit": u, "meaning": meaning} for f, u, meaning in hil.SENSOR_JOINT_FIELDS
+            ],
+            "actuator_row": "1 row: per joint these fields; seq and run_index those of the sensor frame",
+            "actuator_joint_fields": [
+                {"field": f, "unit": u, "meaning": meaning} for f, u, meaning in hil.ACTUATOR_JOINT_FIELDS
+            ],
+            "resend_s": hil.RESEND_S,
         },
         "$defs": dict(sorted(defs.items())),
     }

@@ -32,6 +32,7 @@ BENCHES = {
     "viewer": "simecs.benchmarks.viewer:run_viewer_bench",
     "recorder": "simecs.benchmarks.recorder:run_recorder_bench",
     "lan": "simecs.benchmarks.lan:run_lan_bench",
+    "hil": "simecs.benchmarks.hil:run_hil_bench",
 }
 
 

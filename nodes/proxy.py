@@ -262,6 +262,21 @@ class Proxy(Node):
                 raise RequestError(
                     "bad_request", f"model {desc.id} has no variable {name!r}", f"settings.live_vars[{i}]"
                 )
+        joints = [link.joint for link in desc.links]
+        for i, name in enumerate(cmd.settings.external_joints):
+            if name not in joints:
+                raise RequestError(
+                    "bad_request",
+                    f"model {desc.id} has no joint {name!r} ({', '.join(joints)})",
+                    f"settings.external_joints[{i}]",
+                )
+        step, period = cmd.settings.step, cmd.settings.control_period
+        if step > 0 and abs(period / step - round(period / step)) > 1e-6:
+            raise RequestError(
+                "bad_request",
+                f"{period:g} s is not a whole number of solver steps ({step:g} s)",
+                "settings.control_period",
+            )
         rec.settings = cmd.settings
         self.store.edited(rec)
         return rec.settings

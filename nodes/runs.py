@@ -124,7 +124,9 @@ class RunTracker:
             self.end_run(rec, "failed", why)
 
     def started(self, rec: SessionRecord) -> None:
-        self.store.move(rec, "started", queue_position=0, progress=0.0, sim_time=0.0, rtf=0.0, reason="")
+        self.store.move(
+            rec, "started", queue_position=0, progress=0.0, sim_time=0.0, rtf=0.0, reason="", hil=None
+        )
         self.run_info(rec, rec.state.run_id, phase="running")
 
     def run_info(self, rec: SessionRecord, run_id: str, **fields: Any) -> None:
@@ -244,6 +246,7 @@ class RunTracker:
                 self.run_info(rec, st.run_id, stop_time=st.stop_time)
             rec.state.sim_time, rec.state.progress, rec.state.rtf = st.sim_time, progress, st.rtf
             rec.state.step, rec.state.task, rec.state.action = st.step, st.task, st.action
+            rec.state.hil = st.hil
             if st.phase in phases.ENDED:
                 self.end_run(rec, st.phase, st.reason)
                 self.admission.update()

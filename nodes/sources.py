@@ -68,6 +68,7 @@ class SimulationSource:
             field = f"command.{exc.field}" if exc.field else "command"
             raise ValueError(f"{field}: {exc.reason}") from None
         self.sim = package.build(req.values)
+        self.joints = [link.joint for link in package.describe().links]
         self.columns, self.units = list(self.sim.columns), list(self.sim.units)
         self.stop_time = req.settings.stop_time
         self.output_interval = req.settings.output_interval

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import argparse
 import logging
-import math
 import os
 import sys
 import threading
@@ -31,8 +30,9 @@ from simecs.mesh.logs import setup_logging
 from simecs.mesh.runtime import mesh_from_args, node_arguments
 from simecs.mesh.seal import Seal, SealedPublisher
 
+from .hil import Lockstep, Pacer
 from .results_store import ResultsStore, StoredRun
-from .sources import RunSource, open_source
+from .sources import RunSource, SimulationSource, open_source
 
 # Simulated seconds per chunk at real-time pacing: pause/abort act within one chunk. 25 ms gives
 # 40 frames per wall second, below the default live rate of 50 Hz: the hot-feedback rate limit then
@@ -86,18 +86,36 @@ class Control:
         self.wake.clear()
 
 
+class Notifier:
+    """Notices from the run to its user (at most 8 different texts, each said once)."""
+
+    def __init__(self, z: zenoh.Session, req: m.RunRequest, seal: Seal) -> None:
+        self.z, self.req, self.seal = z, req, seal
+        self.told: set[str] = set()
+
+    def tell(self, text: str) -> None:
+        if text in self.told or len(self.told) >= 8:
+            return
+        self.told.add(text)
+        notice = m.Notice(self.req.session, self.req.run_id, "simulator", text)
+        key, payload = keys.notices(self.req.user, self.req.session), codec.dumps(notice)
+        try:
+            self.z.put(key, payload, attachment=self.seal.mac(key, payload))
+        except zenoh.ZError:
+            pass
+
+
 class Jogging:
     """The session's jog key: the newest message for this run, held for JOG_DEADMAN_S (PROTOCOL.md
     §5.4). A message for this run that is not usable stops the jog, and the user is told once what was
     wrong; one that does not decode names no run, so it is only logged."""
 
-    def __init__(self, z: zenoh.Session, req: m.RunRequest, seal: Seal) -> None:
-        self.req, self.z, self.seal = req, z, seal
+    def __init__(self, z: zenoh.Session, req: m.RunRequest, notifier: Notifier) -> None:
+        self.req, self.notifier = req, notifier
         self.lock = threading.Lock()
         self.latest: m.JogInput | None = None
         self.at = 0.0
         self.active = False
-        self.told: set[str] = set()
         self.sub = z.declare_subscriber(keys.jog(req.user, req.session), self.on_sample)
 
     def on_sample(self, sample: zenoh.Sample) -> None:
@@ -121,18 +139,7 @@ class Jogging:
             self.active = fresh
         problem = source.jog(msg, horizon)
         if problem:
-            self.tell(f"jog ignored: {problem}")
-
-    def tell(self, text: str) -> None:
-        if text in self.told or len(self.told) >= 8:
-            return
-        self.told.add(text)
-        notice = m.Notice(self.req.session, self.req.run_id, "simulator", text)
-        key, payload = keys.notices(self.req.user, self.req.session), codec.dumps(notice)
-        try:
-            self.z.put(key, payload, attachment=self.seal.mac(key, payload))
-        except zenoh.ZError:
-            pass
+            self.notifier.tell(f"jog ignored: {problem}")
 
 
 class Run:
@@ -161,7 +168,10 @@ class Run:
             seal,
         )
         self.control_sub = z.declare_subscriber(keys.control(u, s), self.control.on_sample)
-        self.jogging = Jogging(z, req, seal)
+        self.notifier = Notifier(z, req, seal)
+        self.jogging = Jogging(z, req, self.notifier)
+        self.pacer = Pacer(req.settings.speed)
+        self.hil: Lockstep | None = None
         self.token = z.liveliness().declare_token(keys.run_token(u, s, req.run_id))
         self.seq = 0
         self.final_sent = False
@@ -183,6 +193,8 @@ class Run:
         )
         if self.source is not None:
             msg.step, msg.task, msg.action = self.source.step_at(self.sim_time)
+        if self.hil is not None:
+            msg.hil = self.hil.stats
         self.status_pub.put(codec.dumps(msg))
 
     def publish(self, rows: np.ndarray, final: bool = False) -> None:
@@ -213,21 +225,36 @@ class Run:
             )
             self.layout_pub.put(codec.dumps(layout))
             source.start()
+            if req.settings.controller == "external" and isinstance(source, SimulationSource):
+                self.hil = Lockstep(
+                    self.z,
+                    req,
+                    source.sim,
+                    source.joints,
+                    self.pacer,
+                    self.notifier.tell,
+                    self.control.aborted.is_set,
+                )
             self._loop(source)
             if self.control.aborted.is_set():
                 return "aborted", "aborted by the user"
             return source.end()
         finally:
+            if self.hil is not None:
+                summary = self.hil.summary()
+                if summary:
+                    self.notifier.tell(summary)
+                self.hil.close()
             source.close()
 
     def _loop(self, source: RunSource) -> None:
-        st, ctl = self.req.settings, self.control
+        st, ctl, pacer = self.req.settings, self.control, self.pacer
         speed = st.speed
         chunk = chunk_length(speed, source.output_interval)
-        wall0 = time.monotonic()
         last_status = 0.0
         simulated = busy = 0.0  # over the run so far, pauses left out: the RTF
-        t0 = t = source.time
+        pacer.reset(source.time)
+        t = source.time
         if not ctl.paused.is_set():
             self.status("running")
         while not source.finished and not ctl.aborted.is_set():
@@ -247,12 +274,12 @@ class Run:
             # thread descheduled between a look and the pause check must not play a chunk first).
             moved = self._seek(source) or moved
             if moved:  # pacing starts again from here
-                wall0, t0 = time.monotonic(), source.time
+                pacer.reset(source.time)
             step_wall, step_t = time.monotonic(), source.time
-            if math.isfinite(speed):  # jogging is telemanipulation: runs paced in wall time only
+            if pacer.paced:  # jogging is telemanipulation: runs paced in wall time only
                 self.jogging.apply(source, chunk)
             until = min(source.time + chunk, source.stop_time)
-            rows = source.advance(until)
+            rows = self.hil.advance(until) if self.hil is not None else source.advance(until)
             t = source.time
             if rows.size and not np.all(np.isfinite(rows)):
                 bad = source.columns[int(np.where(~np.isfinite(rows))[1][0])]
@@ -262,10 +289,9 @@ class Run:
                 self.samples += rows.shape[0]
                 self.publish(rows, final=source.finished)
             self.sim_time = t
-            if math.isfinite(speed):
-                ahead = (t - t0) / speed - (time.monotonic() - wall0)
-                if ahead > 0:
-                    ctl.sleep(ahead)
+            ahead = pacer.ahead(t)
+            if ahead > 0:
+                ctl.sleep(ahead)
             simulated += max(t - step_t, 0.0)
             busy += time.monotonic() - step_wall
             self.rtf = simulated / max(busy, 1e-9)
@@ -366,7 +392,11 @@ def main(argv: list[str] | None = None) -> None:
                 except OSError:
                     log.info("running at nice 10: no right to raise the priority back")
                 req = codec.loads(m.RunRequest, line)
-                if req.settings.pacing == "fast":
+                if req.settings.controller == "external":
+                    # Lockstep: every period wakes this thread from a zenoh thread, and a wake-up
+                    # across CPUs costs most of a period on a VM (mesh/affinity.py): all on one core.
+                    affinity.place_on_mesh_core(args.cpu)
+                elif req.settings.pacing == "fast":
                     # Throughput, not latency: on the mesh core its frames would take CPU time
                     # from the simulation whenever the OS puts both there.
                     affinity.pin_process(os.sched_getaffinity(0))

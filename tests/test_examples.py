@@ -47,3 +47,10 @@ def test_batch_client_runs_and_sweeps_with_the_python_api(service: Service) -> N
     stdout = run_example("batch_client.py", service, protocol_only=False)
     assert "r1: finished, 1001 samples, joint2 ends at 0.3" in stdout, stdout
     assert sum(line.startswith("kp_pos") for line in stdout.splitlines()) == 3, stdout
+
+
+def test_external_controller_closes_the_loop_and_matches_the_builtin_controller(service: Service) -> None:
+    stdout = run_example("external_controller.py", service)
+    line = next(x for x in stdout.splitlines() if x.startswith("built-in vs external controller:"))
+    assert float(line.split(": ")[1].split(" mrad")[0]) < 0.5, stdout
+    assert "control periods in" in stdout
