@@ -71,6 +71,7 @@ bench: $(STAMP) warm
 	$(BIN)/simecs bench recorder
 	$(BIN)/simecs bench lan
 	$(BIN)/simecs bench viewer
+	$(BIN)/simecs bench hil
 
 clean:
 	rm -rf $(VENV) .simecs artifacts .pytest_cache .ruff_cache .mypy_cache

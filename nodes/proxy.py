@@ -271,7 +271,8 @@ class Proxy(Node):
                     f"settings.external_joints[{i}]",
                 )
         step, period = cmd.settings.step, cmd.settings.control_period
-        if step > 0 and abs(period / step - round(period / step)) > 1e-6:
+        external = cmd.settings.controller == "external"
+        if external and step > 0 and abs(period / step - round(period / step)) > 1e-6:
             raise RequestError(
                 "bad_request",
                 f"{period:g} s is not a whole number of solver steps ({step:g} s)",

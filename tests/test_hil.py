@@ -172,6 +172,7 @@ def test_settings_naming_a_joint_the_model_lacks_or_a_period_off_the_step_are_re
     with pytest.raises(RemoteError) as bad_period:
         s.set_settings(controller="external", step=0.001, control_period=0.0015)
     assert bad_period.value.field == "settings.control_period"
+    s.set_settings(step=0.001, control_period=0.0015)  # the built-in controller has no period to keep
 
 
 def test_a_controller_on_another_host_closes_the_loop() -> None:
