@@ -171,6 +171,8 @@ def test_decimated_rate_holds_from_the_first_frame_and_the_final_frame_goes(
     run_id = s.run()
     assert s.wait_for(["finished", "failed"], 60, run_id).phase == "finished"
     wait_until(lambda: rec.live and rec.live[-1][1].final, what="final live frame")
+    # each key reaches the watch through its own queue: the final state may come after the frames
+    wait_until(lambda: rec.states and rec.states[-1].phase == "finished", what="final state in the watch")
     rec.close()
     layout = rec.layouts[-1]
     assert layout.live_columns[:3] == ["time", "joint1.q", "joint2.q"]
