@@ -81,15 +81,6 @@ def slider_input(page: Any, label: str) -> Any:
     )
 
 
-def text_input(page: Any, label: str) -> Any:
-    """The input of the viser text field labelled `label`: viser's text fields do not tie their
-    label to the input (its number fields do), so the label cannot find it."""
-    return page.locator(
-        f"xpath=//label[normalize-space(.)='{label}']/ancestor::div[contains(@class,'mantine-Flex-root')][1]"
-        "//input"
-    ).first
-
-
 def set_field(page: Any, locator: Any, value: str) -> None:
     """Type a value into a viser input and commit it as a user would (Enter)."""
     locator.fill(value)

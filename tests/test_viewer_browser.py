@@ -132,24 +132,12 @@ def use_case(mesh: Mesh, browser: Any) -> None:
     # 2. parameters in place: a valid length reshapes the arm at once; an invalid mass is refused
     page.get_by_role("button", name="link2 (3)").click()
     t = now_ms(page)
-    chromium.set_field(page, chromium.text_input(page, "length [m]"), "0.5")
+    chromium.set_field(page, page.get_by_label("length [m]"), "0.5")
     wait_until(lambda: session.snapshot().values["link2.length"] == 0.5, timeout=10, what="length stored")
     wait_until(lambda: poses_since(page, t) > 0, timeout=10, what="the 3D arm reshaped")
-    chromium.set_field(page, chromium.text_input(page, "mass [kg]"), "9999")
+    chromium.set_field(page, page.get_by_label("mass [kg]"), "9999")
     text_appears(page, "outside [0, 500] kg")
     assert session.snapshot().values["link2.mass"] == 6.0
-    # typing is not committing: keystrokes 200 ms apart send nothing; Enter sends what was typed
-    chromium.set_field(page, chromium.text_input(page, "Find parameter"), "joint1.motor.J_rotor")
-    rotor = chromium.text_input(page, "J_rotor [kg*m^2]")
-    rotor.fill("")
-    rotor.press_sequentially("0.00008", delay=200)
-    assert session.snapshot().values["joint1.motor.J_rotor"] != 8e-5
-    rotor.press("Enter")
-    wait_until(lambda: session.snapshot().values["joint1.motor.J_rotor"] == 8e-5, timeout=10, what="J_rotor")
-    chromium.set_field(page, chromium.text_input(page, "Find parameter"), "joint1.motor.kt")
-    chromium.set_field(page, chromium.text_input(page, "kt [N*m/A]"), "0,15")
-    text_appears(page, "decimals take a point")
-    assert session.snapshot().values["joint1.motor.kt"] != 0.15
 
     # 2. documentation: hypertext, follow a link and come back
     dismiss_notifications(page)
@@ -249,7 +237,7 @@ def use_case(mesh: Mesh, browser: Any) -> None:
     page.reload()
     text_appears(page, f"session {sid[:8]}")
     page.get_by_role("button", name="link2 (3)").click()
-    assert chromium.text_input(page, "length [m] •").input_value() == "0.5"
+    assert page.get_by_label("length [m] •").input_value() == "0.5"
     text_appears(page, "▶1")
     assert sessions_of(client) == {sid}
     context.close()
@@ -275,7 +263,7 @@ def two_tabs(mesh: Mesh, browser: Any) -> None:
     assert sid_a != sid_b
 
     a.get_by_role("button", name="link3 (3)").click()
-    chromium.set_field(a, chromium.text_input(a, "length [m]"), "0.9")
+    chromium.set_field(a, a.get_by_label("length [m]"), "0.9")
     length_a = lambda: client.session(USER, sid_a).snapshot().values["link3.length"]  # noqa: E731
     wait_until(lambda: length_a() == 0.9, timeout=10, what="A")
     assert client.session(USER, sid_b).snapshot().values["link3.length"] == 0.7
@@ -284,7 +272,7 @@ def two_tabs(mesh: Mesh, browser: Any) -> None:
     b.reload()
     text_appears(b, f"session {sid_b[:8]}")
     b.get_by_role("button", name="link3 (3)").click()
-    assert chromium.text_input(b, "length [m]").input_value() == "0.7"
+    assert b.get_by_label("length [m]", exact=True).input_value() == "0.7"
     a.reload()
     text_appears(a, f"session {sid_a[:8]}")
     assert sessions_of(client) == {sid_a, sid_b}

@@ -3,9 +3,7 @@
 Both trees share the left panel on two tabs. A click on a component shows its items as a table
 below the tree (the paper's "table at the bottom left corner"), so a model with hundreds of
 parameters costs only the widgets of one component at a time. Parameter descriptions, units and
-bounds appear as hints. The values are a form: what the user types is sent only when committed
-(Enter or Apply), never half-typed, and text that is not a number is named below the form instead of
-being sent; the server accepts a value or refuses it with a reason. A 0/1 switch is a checkbox.
+bounds appear as hints; an edit goes to the server, which accepts it or refuses it with a reason.
 """
 
 from __future__ import annotations
@@ -21,33 +19,16 @@ from . import tree as tr
 CHANGED_MARK = " •"  # appended to the label of a value that differs from its default
 
 
-def is_switch(p: Parameter) -> bool:
-    """A 0/1 parameter: a checkbox, not a number to type."""
-    return p.integer and p.min == 0 and p.max == 1
-
-
-def format_value(p: Parameter, value: float) -> str:
-    """A value as its field shows it: the shortest text that reads back as the same number."""
-    return str(int(value)) if p.integer and float(value).is_integer() else repr(float(value))
-
-
-def parse_value(p: Parameter, text: str) -> float:
-    """What the user typed, as a number; ValueError naming what is wrong with it. The bounds are
-    the server's to check (its refusal names them)."""
-    text = text.strip()
-    if not text:
-        raise ValueError("type a number")
-    try:
-        value = float(text)
-    except ValueError:
-        if "," in text:
-            raise ValueError(f"“{text}” is not a number: decimals take a point, e.g. 0.15") from None
-        raise ValueError(f"“{text}” is not a number") from None
-    if not math.isfinite(value):
-        raise ValueError(f"“{text}” is not a finite number")
-    if p.integer and not value.is_integer():
-        raise ValueError(f"takes whole numbers, not {text}")
-    return value
+def number_step(p: Parameter, value: float) -> float:
+    """Increment (and so the typed precision) of a parameter's number field: ~4 significant digits
+    of the value, and enough decimals to type the bounds exactly."""
+    if p.integer:
+        return 1.0
+    digits = int(math.floor(-math.log10(abs(value)))) + 4 if value else 2
+    for x in (value, p.min, p.max):
+        while digits < 7 and x != round(x, digits):
+            digits += 1
+    return 10.0 ** (-min(max(digits, 0), 7))
 
 
 class ComponentTree:
@@ -112,15 +93,9 @@ class ParamPanel:
             self.tree = ComponentTree(gui, self.roots, self.show_component)
         self.search = gui.add_text("Find parameter", "", hint="words of a parameter name or description")
         self.search.on_update(self._on_search)
-        self.table = gui.add_form("Values")
+        self.table = gui.add_folder("Values")
         with self.table:
             self.caption = gui.add_markdown("_No component chosen._")
-        self.table.on_submit(lambda _e: self.commit())
-        self.problems = gui.add_markdown("")
-        self.apply = gui.add_button(
-            "Apply typed values", hint="or press Enter in a field: sends what is typed"
-        )
-        self.apply.on_click(lambda _e: self.commit())
         self.reset_shown = gui.add_button("Reset shown to defaults", hint="only the parameters listed above")
         self.reset_shown.on_click(lambda _e: self.on_reset([p.name for p in self.shown]))
         self.reset_all = gui.add_button("Reset all to defaults", color="orange", hint="every parameter")
@@ -158,45 +133,23 @@ class ParamPanel:
         with self.table:
             for p in self.shown:
                 value = self.values.get(p.name, p.value)
-                hint = tr.param_hint(p, self.defaults.get(p.name))
-                if is_switch(p):
-                    handle = self.gui.add_checkbox(self._label(p, value), bool(value), hint=hint)
-                    handle.on_update(lambda e, p=p: self._switched(e, p))
-                else:
-                    handle = self.gui.add_text(self._label(p, value), format_value(p, value), hint=hint)
+                handle = self.gui.add_number(
+                    self._label(p, value),
+                    initial_value=value,
+                    step=number_step(p, value),
+                    hint=tr.param_hint(p, self.defaults.get(p.name)),
+                )
+                handle.on_update(lambda e, p=p: self._edited(e, p))
                 self.fields[p.name] = handle
-        self.problems.content = ""
 
     def _label(self, p: Parameter, value: float) -> str:
         changed = value != self.defaults.get(p.name, p.value)
         return tr.param_label(p) + (CHANGED_MARK if changed else "")
 
-    def _switched(self, event: Any, p: Parameter) -> None:
+    def _edited(self, event: Any, p: Parameter) -> None:
         if event.client is None:  # our own assignment, not the user's
             return
-        self.on_set(p.name, 1.0 if event.target.value else 0.0)  # a click is a whole value
-
-    def commit(self) -> None:
-        """Send every typed value that differs from the server's; name those that are not numbers."""
-        problems = []
-        for name, handle in list(self.fields.items()):
-            p = self.model.parameter(name)
-            if is_switch(p):
-                continue
-            stored = self.values.get(name, p.value)
-            text = str(handle.value)
-            if text.strip() == format_value(p, stored):
-                continue
-            try:
-                value = parse_value(p, text)
-            except ValueError as exc:
-                problems.append(f"**{tr.param_label(p)}** ({name}): {exc}; not sent.")
-                continue
-            if value != stored:
-                self.on_set(name, value)
-            else:
-                handle.value = format_value(p, stored)
-        self.problems.content = "\n\n".join(problems)
+        self.on_set(p.name, float(event.target.value))
 
     # -- values from the server --------------------------------------------------------------------
     def show_values(self, values: dict[str, float]) -> None:
@@ -205,9 +158,8 @@ class ParamPanel:
         for name, handle in self.fields.items():
             p = self.model.parameter(name)
             value = self.values.get(name, p.value)
-            shown = bool(value) if is_switch(p) else format_value(p, value)
-            if handle.value != shown:
-                handle.value = shown
+            if handle.value != value:
+                handle.value = value
             label = self._label(p, value)
             if handle.label != label:
                 handle.label = label
