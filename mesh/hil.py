@@ -41,11 +41,6 @@ ACTUATOR_JOINT_FIELDS = (
 RESEND_S = 0.05
 
 
-def sensor_columns(joints: Sequence[str]) -> list[str]:
-    """`time`, then `<joint>.<field>` for each joint and field."""
-    return ["time"] + [f"{j}.{f[0]}" for j in joints for f in SENSOR_JOINT_FIELDS]
-
-
 def sensor_frame(run_index: int, seq: int, wall_ns: int, row: np.ndarray) -> bytes:
     return frames.encode(frames.Frame(run_index, seq, wall_ns, row.reshape(1, -1)))
 

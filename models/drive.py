@@ -518,6 +518,19 @@ def joint_signals(P, j, x, ql, qdl, qr, qdr, mode, out):
     out[NO + 8] = emf_b
 
 
+@njit(cache=_CACHE, inline="always", error_model="numpy", fastmath=_FAST)
+def controlled_signals(P, j, x, ql, qdl, qr, qdr, jmode, live, out):
+    """`joint_signals` of joint j under whichever controller has it: the built-in cascade in the
+    command's mode, or an external controller's current set point (live[j, LV_IREF]), in which
+    case out[2], out[3] keep the command's set points (what the controller was sent)."""
+    if live[j, LV_EXTERNAL] > 0.5:
+        joint_signals(P, j, x, ql, qdl, live[j, LV_IREF], 0.0, JM_CURRENT, out)
+        out[2] = qr
+        out[3] = qdr
+    else:
+        joint_signals(P, j, x, ql, qdl, qr, qdr, jmode[j], out)
+
+
 @njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
 def drive_rhs(P, seg, hold, tab, jmode, live, Minv, t, X, dX, sig, qr, qdr, tau, new_t=True):
     """dX = f(t, X); the set points qr, qdr are evaluated at t unless `new_t` is False (same t as the
@@ -527,10 +540,7 @@ def drive_rhs(P, seg, hold, tab, jmode, live, Minv, t, X, dX, sig, qr, qdr, tau,
         ref_eval(seg, hold, tab, jmode, live, t, qr, qdr)
     for j in range(n):
         x = X[j]
-        if live[j, LV_EXTERNAL] > 0.5:
-            joint_signals(P, j, x, x[S_QL], x[S_QDL], live[j, LV_IREF], 0.0, JM_CURRENT, sig)
-        else:
-            joint_signals(P, j, x, x[S_QL], x[S_QDL], qr[j], qdr[j], jmode[j], sig)
+        controlled_signals(P, j, x, x[S_QL], x[S_QDL], qr[j], qdr[j], jmode, live, sig)
         d = dX[j]
         om = x[S_OM]
         d[S_TH] = om
@@ -672,12 +682,7 @@ def drive_outputs(P, seg, hold, tab, jmode, live, X, q, qd, t, out):
     ref_eval(seg, hold, tab, jmode, live, t, qr, qdr)
     sig = np.empty(NO + 10)
     for j in range(n):
-        if live[j, LV_EXTERNAL] > 0.5:  # q_ref, qd_ref: the command's set points the controller was sent
-            joint_signals(P, j, X[j], q[j], qd[j], live[j, LV_IREF], 0.0, JM_CURRENT, sig)
-            sig[2] = qr[j]
-            sig[3] = qdr[j]
-        else:
-            joint_signals(P, j, X[j], q[j], qd[j], qr[j], qdr[j], jmode[j], sig)
+        controlled_signals(P, j, X[j], q[j], qd[j], qr[j], qdr[j], jmode, live, sig)
         for k in range(NO):
             out[j, k] = sig[k]
         if (

@@ -27,10 +27,7 @@ def sensor_row(P, seg, hold, tab, jmode, live, X, q, qd, t, out):
     sig = np.empty(dr.NO + 10)
     out[0] = t
     for j in range(n):
-        if live[j, dr.LV_EXTERNAL] > 0.5:
-            dr.joint_signals(P, j, X[j], q[j], qd[j], live[j, dr.LV_IREF], 0.0, dr.JM_CURRENT, sig)
-        else:
-            dr.joint_signals(P, j, X[j], q[j], qd[j], qr[j], qdr[j], jmode[j], sig)
+        dr.controlled_signals(P, j, X[j], q[j], qd[j], qr[j], qdr[j], jmode, live, sig)
         ql, qdl = dr.load_resolver(P, j, q[j], qd[j])
         th, om = dr.motor_resolver(P, j, X[j, dr.S_TH], X[j, dr.S_OM])
         k = 1 + PER_JOINT * j

@@ -15,11 +15,17 @@ import math
 import threading
 import time
 from collections.abc import Callable
+from typing import TYPE_CHECKING
 
 import numpy as np
 import zenoh
 from simecs.mesh import hil, keys
 from simecs.mesh import messages as m
+
+from .pacing import Pacer
+
+if TYPE_CHECKING:
+    from simecs.models import Simulation
 
 log = logging.getLogger("simecs.worker")
 MISS_NOTICE_S = 5.0  # wall seconds between two notices about missed deadlines
@@ -27,28 +33,6 @@ MISS_NOTICE_S = 5.0  # wall seconds between two notices about missed deadlines
 
 class ControllerSilent(ValueError):
     """No usable actuator frame within the run's hil_timeout: the run fails with this text."""
-
-
-class Pacer:
-    """When each simulated time is due in wall time, at the run's speed (math.inf: never waits)."""
-
-    def __init__(self, speed: float) -> None:
-        self.speed = speed
-        self.reset(0.0)
-
-    def reset(self, t: float) -> None:
-        """Pacing starts again from simulated time t, now (after a pause or a seek)."""
-        self.wall0, self.t0 = time.monotonic(), t
-
-    @property
-    def paced(self) -> bool:
-        return math.isfinite(self.speed)
-
-    def ahead(self, t: float) -> float:
-        """Wall seconds until simulated time t is due (negative: late); 0 for an unpaced run."""
-        if not self.paced:
-            return 0.0
-        return (t - self.t0) / self.speed - (time.monotonic() - self.wall0)
 
 
 def external_joints(settings: m.RunSettings, joints: list[str]) -> np.ndarray:
@@ -70,15 +54,12 @@ class Lockstep:
         self,
         z: zenoh.Session,
         req: m.RunRequest,
-        sim: object,
+        sim: Simulation,
         joints: list[str],
         pacer: Pacer,
         tell: Callable[[str], None],
         stopped: Callable[[], bool],
     ) -> None:
-        from simecs.models import Simulation
-
-        assert isinstance(sim, Simulation)
         st = req.settings
         self.sim, self.pacer, self.tell, self.stopped = sim, pacer, tell, stopped
         self.n = len(joints)

@@ -30,7 +30,8 @@ from simecs.mesh.logs import setup_logging
 from simecs.mesh.runtime import mesh_from_args, node_arguments
 from simecs.mesh.seal import Seal, SealedPublisher
 
-from .hil import Lockstep, Pacer
+from .hil import Lockstep
+from .pacing import Pacer
 from .results_store import ResultsStore, StoredRun
 from .sources import RunSource, SimulationSource, open_source
 
