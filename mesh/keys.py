@@ -302,6 +302,9 @@ def wildcard(name: str) -> str:
 NODES_STATUS = wildcard("node_status")
 NODE_TOKENS = f"{ROOT}/@node/**"
 RUN_TOKENS = f"{ROOT}/@run/**"
+#: The simulator hosts: their tokens (up = ready to take runs) and their statuses (their load).
+SIMULATOR_TOKENS = KEYS["node_token"].pattern.replace("<role>", "simulator").replace("<node>", "*")
+SIMULATOR_STATUS = KEYS["node_status"].pattern.replace("<role>", "simulator").replace("<node>", "*")
 ALL_SESSION_REQUESTS = wildcard("sessions")
 ALL_CMD = wildcard("cmd")
 ALL_RUN_STATUS = wildcard("run_status")

@@ -334,6 +334,16 @@ class SessionState(Message, tag="state"):
     task: Annotated[str, Meta(max_length=64, description="the running task's name (task, mission)")] = ""
     action: Annotated[str, Meta(max_length=64, description="the running action's label or primitive")] = ""
     hil: Annotated[HilStats | None, Meta(description="controller external: its timeliness so far")] = None
+    host: Annotated[
+        str, Meta(max_length=64, description="the simulator host running the run; '' if none")
+    ] = ""
+    wait_s: Annotated[
+        float,
+        Meta(ge=0.0, description="queued: estimated s until the run starts (0 = not queued or unknown)"),
+    ] = 0.0
+    attempt: Annotated[
+        int, Meta(ge=1, description="2+: restarted from the start after its host was lost")
+    ] = 1
 
 
 class ParamValues(Message, tag="params"):
@@ -355,6 +365,10 @@ class RunInfo(Record):
     samples: Annotated[int, Meta(ge=0)] = 0
     reason: Text = ""
     recording: Annotated[str, Meta(max_length=64, description="replay runs: the recording replayed")] = ""
+    host: Annotated[str, Meta(max_length=64, description="the simulator host that ran it")] = ""
+    attempt: Annotated[
+        int, Meta(ge=1, description="2+: restarted from the start after its host was lost")
+    ] = 1
 
 
 class SessionSnapshot(Message, tag="session"):
@@ -412,6 +426,8 @@ class RunRequest(Message, tag="run_request"):
     settings: RunSettings
     recording: Annotated[str, Meta(max_length=64, description="'' = simulate the model")] = ""
     paused: Annotated[bool, Meta(description="start paused (resume to go)")] = False
+    attempt: Annotated[int, Meta(ge=1, description="2+: the run restarted after its host was lost")] = 1
+    restarted: Annotated[Text, Meta(description="attempt 2+: why the run started again")] = ""
 
 
 class Accepted(Record):
@@ -425,6 +441,7 @@ class RunControl(Message, tag="run_control"):
     op: Literal["pause", "resume", "abort", "seek"]
     run_id: Name
     time: Annotated[Seconds, Meta(description="seek target in s (replay runs)")] = 0.0
+    attempt: Annotated[int, Meta(ge=0, description="the run's attempt it is for; 0 = whichever")] = 0
 
 
 class RunStatus(Message, tag="run_status"):
@@ -442,6 +459,9 @@ class RunStatus(Message, tag="run_status"):
     task: Annotated[str, Meta(max_length=64)] = ""
     action: Annotated[str, Meta(max_length=64)] = ""
     hil: HilStats | None = None
+    attempt: Annotated[
+        int, Meta(ge=1, description="the attempt of the run reporting (RunRequest.attempt)")
+    ] = 1
 
 
 class RunContext(Record):
@@ -453,6 +473,10 @@ class RunContext(Record):
     command: RobotCommand | None
     settings: RunSettings
     recording: Annotated[str, Meta(max_length=64, description="replay runs: the recording replayed")] = ""
+    attempt: Annotated[
+        int, Meta(ge=1, description="2+: restarted from the start after its host was lost")
+    ] = 1
+    restarted: Annotated[Text, Meta(description="attempt 2+: why the run started again")] = ""
 
 
 class RunLayout(Message, tag="layout"):
@@ -512,6 +536,46 @@ class JogInput(Message, tag="jog"):
 
 
 # -- nodes and recordings ------------------------------------------------------------------------------
+class RunLoad(Record):
+    """One run a simulator host carries (SimulatorLoad.runs)."""
+
+    session: SessionId
+    run_id: Name
+    model_id: Name
+    demand: Annotated[float, Meta(ge=0.0, le=1.0, description="cores it needs at its pacing (LAN.md)")]
+    cpu: Annotated[float, Meta(ge=0.0, description="cores its worker used over the last seconds")] = 0.0
+    rtf: Annotated[float, Meta(ge=0.0, description="simulated s per wall s over the last seconds")] = 0.0
+    behind: Annotated[bool, Meta(description="paced, and slower than its pace for longer than the grace")] = (
+        False
+    )
+
+
+class SimulatorLoad(Record):
+    """What a simulator host can carry and carries now: the proxy admits and places runs by it."""
+
+    cores: Annotated[float, Meta(ge=0.0, description="CPU cores the host's runs may use")]
+    capacity: Annotated[
+        float, Meta(ge=0.0, description="cores offered to runs: cores x headroom - other processes' use")
+    ]
+    demand: Annotated[float, Meta(ge=0.0, description="sum of its runs' demand")] = 0.0
+    runs: Annotated[list[RunLoad], Meta(max_length=10_000)] = []
+    cost: Annotated[
+        dict[Name, float], Meta(description="measured CPU s per simulated s, by model (1/RTF when fast)")
+    ] = {}
+    models: Annotated[list[Name], Meta(max_length=10_000, description="the models it can run")] = []
+    memory_free_mb: Annotated[float, Meta(ge=0.0)] = 0.0
+    worker_mb: Annotated[float, Meta(ge=0.0, description="memory one more run takes")] = 0.0
+    max_runs: Annotated[int, Meta(ge=0, description="a configured ceiling of runs; 0 = none")] = 0
+    behind: Annotated[int, Meta(ge=0, description="runs falling behind: no new run goes here meanwhile")] = 0
+    start_s: Annotated[float, Meta(ge=0.0, description="measured s from hand-over to a run's first step")] = (
+        0.0
+    )
+    warm: Annotated[
+        int, Meta(ge=0, description="idle workers ready: a run starts on one in milliseconds")
+    ] = 0
+    starting: Annotated[int, Meta(ge=0, description="runs handed over that have not stepped yet")] = 0
+
+
 class NodeStatus(Message, tag="node_status"):
     role: Name
     node_id: Name
@@ -519,6 +583,7 @@ class NodeStatus(Message, tag="node_status"):
     host: Text
     state: Literal["starting", "ready", "stopping"]
     detail: dict[str, Any] = {}
+    load: Annotated[SimulatorLoad | None, Meta(description="simulators: capacity and load")] = None
 
 
 class RecordingInfo(Record):

@@ -3,6 +3,7 @@ viewer uses to enable its buttons, and the tests and PROTOCOL.md read.
 
     created --edit--> configured --run/replay--> queued --started--> running <--> paused
     queued/running/paused --finished|aborted|failed--> that phase --run/replay--> queued ...
+    running/paused --restarted (its host lost)--> queued
     any phase --closed--> closed
 """
 
@@ -32,6 +33,7 @@ TRANSITIONS: dict[str, dict[str, str]] = {
     "edited": {p: ("configured" if p == "created" else p) for p in EDITABLE},
     "queued": {p: "queued" for p in EDITABLE},
     "started": {"queued": "running"},
+    "restarted": {p: "queued" for p in GOING},  # its simulator host was lost: from the start elsewhere
     "paused": {"running": "paused"},
     "resumed": {"paused": "running"},
     "finished": {p: "finished" for p in UNDER_WAY},

@@ -150,6 +150,10 @@ class Node:
     def status_detail(self) -> dict[str, Any]:
         return {}
 
+    def status_load(self) -> Any:
+        """A simulator's `SimulatorLoad` (NodeStatus.load); None for the other roles."""
+        return None
+
     # -- helpers for subclasses ----------------------------------------------------------------
     @property
     def z(self) -> zenoh.Session:
@@ -330,6 +334,7 @@ class Node:
             host=socket.gethostname(),
             state=state,  # type: ignore[arg-type]
             detail=self.full_status_detail() if detail is None else detail,
+            load=self.status_load(),
         )
         if self._status_pub is not None:
             self._status_pub.put(codec.dumps(status))
@@ -351,7 +356,7 @@ class Node:
             self.declare(self.z.liveliness().declare_token(keys.node_token(self.role, self.node_id)))
             self.publish_status("ready")
             self.log.info("ready as %s/%s (pid %d)", self.role, self.node_id, os.getpid())
-            last_status, last_detail = time.monotonic(), self.full_status_detail()
+            last_status, last_detail = time.monotonic(), (self.full_status_detail(), self.status_load())
             while not self.stop_event.wait(self.tick_s):
                 try:
                     self.tick()
@@ -360,9 +365,9 @@ class Node:
                 # Status on every change of its detail (at most 5 per second), and every 5 s anyway.
                 now = time.monotonic()
                 if now - last_status > 0.2:
-                    detail = self.full_status_detail()
+                    detail = (self.full_status_detail(), self.status_load())
                     if detail != last_detail or now - last_status > 5.0:
-                        self.publish_status("ready", detail)
+                        self.publish_status("ready", detail[0])
                         last_status, last_detail = now, detail
             self.publish_status("stopping")
             return 0

@@ -28,6 +28,7 @@ __all__ = [
     "ParameterError",
     "SimulationError",
     "warmup",
+    "costs",
 ]
 
 _REGISTRY: dict[str, ModelPackage] = {}
@@ -53,6 +54,26 @@ def get_model(model_id: str) -> ModelPackage:
     if model_id not in reg:
         raise KeyError(f"unknown model {model_id!r}; known: {', '.join(sorted(reg))}")
     return reg[model_id]
+
+
+def costs(seconds: float = 0.25) -> dict[str, float]:
+    """CPU s per simulated s of each model (default values, a joint move, the default step): the
+    simulator's first estimate of what a run costs, until its runs measure it (mesh/load.py)."""
+    import time
+
+    out = {}
+    for model_id, package in _load().items():
+        sim = package.build({})
+        try:
+            sim.set_initial([0.0] * sim.n)
+            sim.set_joint_path([([0.05] * sim.n, 100.0, 100.0)])
+            sim.start(seconds, 0.002)
+            t0 = time.process_time()
+            sim.advance(seconds)
+            out[model_id] = (time.process_time() - t0) / seconds
+        finally:
+            sim.close()
+    return out
 
 
 def warmup() -> float:

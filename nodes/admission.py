@@ -1,38 +1,45 @@
-"""Admission: at most N runs at once, the rest queued in order, each handed to a simulator host.
+"""Admission: a run starts as soon as some simulator host can hold it at its pacing; the others wait
+in the queue, in order, each told its position and an estimate of its wait.
 
-A run waits in the queue (its session `queued` with a position) until a slot is free, then its
-`RunRequest` goes to a live simulator host, round robin, in a thread of its own: a host that is slow to
-answer (up to the query timeout) holds up no other session's commands. The run holds its slot while it
-is being handed over. The outcome (which host took it, or why none did) goes back to the proxy.
+Whether a host can hold a run, and which host is least loaded, is the simulators' own measured load
+(nodes/placement.py, mesh/load.py): a real-time run needs a fraction of a core, a run as fast as
+possible a whole one. A configured `max_running` caps the runs of the whole service besides.
+
+The chosen host gets the `RunRequest` in a thread of its own: a host that is slow to answer (up to the
+query timeout) holds up no other session's commands. The run counts on that host while it is handed
+over. A host that answers busy (its status was stale) gets no offer until its next status; the run
+goes back to the head of the queue. The outcome (which host took it, or why none did) goes back to
+the proxy.
 """
 
 from __future__ import annotations
 
 import collections
-import os
+import math
 import threading
 import time
 from collections.abc import Callable
 from typing import Any
 
 import zenoh
-from simecs.mesh import codec, keys, phases
+from simecs.mesh import codec, keys, load, phases
 from simecs.mesh import messages as m
 from simecs.mesh.hublink import HubLink
 from simecs.mesh.runtime import RequestError
 from simecs.mesh.seal import Seal
 
+from .placement import GoingRun, Hosts
 from .sessions import SessionRecord, SessionStore
 
 HANDOVER_TIMEOUT_S = 10.0
 HUB_WAIT_S = 60.0  # a hand-over that met a hub restart waits this long for the hub, then tries again
-#: Every host answered busy: offer again this often, this long (a run that reported its end may still
-#: be leaving its process), before the run fails.
-BUSY_RETRY_S = 0.2
-BUSY_WAIT_S = 5.0
 BUSY = '"code":"busy"'
+HUB_AWAY_S = 10.0  # queued runs wait this long after a hub restart for the simulators to be back
+#: A queued run's wait estimate is published again when it moved by this much (and this fraction).
+WAIT_CHANGE_S = 1.0
 
 #: (request, host that took it or "", hosts tried, their refusals), called with the proxy's lock held.
+#: `requeued` runs went back to the head of the queue (every host offered was busy).
 Outcome = Callable[[m.RunRequest, str, list[str], list[str]], None]
 
 
@@ -52,27 +59,27 @@ class Admission:
         self._seal = seal
         self.lock = lock
         self.outcome = outcome
-        self.max_running = max_running or os.cpu_count() or 1
+        self.max_running = max_running or 0  # 0: no ceiling beyond what the hosts can carry
         self.max_queue = max_queue
+        self.hosts = Hosts()
         self.queue: collections.deque[str] = collections.deque()
         self.pending: dict[str, m.RunRequest] = {}  # session -> the request of its queued run
-        self._rr = 0
         self.hub: HubLink | None = None  # set once the proxy's session is open
         #: Runs of closed sessions still ending (the run tracker's): they hold a slot until then.
         self.orphans: dict[str, tuple[str, str]] = {}
 
     def occupied(self) -> int:
-        """Simulation slots in use: runs going, runs being handed to a simulator, and runs of closed
-        sessions that were told to abort and have not ended yet."""
+        """Runs going, runs being handed to a simulator, and runs of closed sessions that were told
+        to abort and have not ended yet."""
         return sum(1 for s in self.store if s.phase in phases.GOING or s.starting) + len(self.orphans)
 
     def enqueue(self, rec: SessionRecord, request: m.RunRequest) -> None:
-        """Queue a run, or refuse it with `busy` when every slot and the whole queue are taken."""
-        active = self.occupied()
-        if active >= self.max_running and len(self.queue) >= self.max_queue:
+        """Queue a run, or refuse it with `busy` when the queue is full."""
+        if len(self.queue) >= self.max_queue:
             raise RequestError(
                 "busy",
-                f"server full: {active} runs going and {len(self.queue)} waiting (limit {self.max_queue})",
+                f"server full: {self.occupied()} runs going and {len(self.queue)} waiting "
+                f"(limit {self.max_queue})",
             )
         self.pending[rec.id] = request
         self.queue.append(rec.id)
@@ -85,77 +92,138 @@ class Admission:
             return True
         return False
 
-    def requeue(self, rec: SessionRecord, request: m.RunRequest) -> None:
-        """After a proxy restart: a queued run takes its place again."""
+    def requeue(self, rec: SessionRecord, request: m.RunRequest, first: bool = False) -> None:
+        """A run takes its place in the queue again: after a proxy restart (at the end), or when its
+        host was lost or every host offered was busy (`first`: at the head)."""
         self.pending[rec.id] = request
-        self.queue.append(rec.id)
+        if rec.id in self.queue:
+            self.queue.remove(rec.id)
+        if first:
+            self.queue.appendleft(rec.id)
+        else:
+            self.queue.append(rec.id)
 
     def update(self) -> None:
-        """Start queued runs while there is a free slot; tell the others their position."""
-        while self.queue and self.occupied() < self.max_running:
-            sid = self.queue.popleft()
+        """Start queued runs, in order, while a host can take the next one; tell the others their
+        position and their estimated wait."""
+        while self.queue:
+            if self.max_running and self.occupied() >= self.max_running:
+                break
+            sid = self.queue[0]
             rec = self.store.records.get(sid)
-            request = self.pending.pop(sid, None)
-            if rec is not None and request is not None and rec.phase == "queued":
-                self._start(rec, request)
-        for pos, sid in enumerate(self.queue, start=1):
+            request = self.pending.get(sid)
+            if rec is None or request is None or rec.phase != "queued":
+                self.queue.popleft()
+                self.pending.pop(sid, None)
+                continue
+            if not self.hosts.live:
+                if self.hub is not None and self.hub.lost_since(time.monotonic() - HUB_AWAY_S):
+                    break  # the hub went away lately: its simulators come back with it
+                self._fail_head(request, "no simulator node is on the mesh")
+                continue
+            if not self.hosts.offers(request.model_id) and not request.recording:
+                self._fail_head(request, f"no simulator host offers model {request.model_id}")
+                continue
+            host, _why = self.hosts.choose(request)
+            if not host:
+                break
+            self.queue.popleft()
+            self.pending.pop(sid, None)
+            self._start(rec, request, host)
+        self._publish_positions()
+
+    def _fail_head(self, request: m.RunRequest, why: str) -> None:
+        self.queue.popleft()
+        self.pending.pop(request.session, None)
+        self.outcome(request, "", [], [why])
+
+    def _publish_positions(self) -> None:
+        queued = [(sid, self.pending[sid]) for sid in self.queue if sid in self.pending]
+        waits = self.hosts.wait_estimates(self._going(), [r for _, r in queued]) if queued else []
+        for pos, ((sid, _), wait) in enumerate(zip(queued, waits, strict=True), start=1):
             rec = self.store.records[sid]
-            if rec.state.queue_position != pos:
-                rec.state.queue_position = pos
+            wait = round(wait, 1) if math.isfinite(wait) else 0.0
+            moved = abs(wait - rec.state.wait_s) >= max(WAIT_CHANGE_S, 0.2 * rec.state.wait_s)
+            if rec.state.queue_position != pos or moved:
+                rec.state.queue_position, rec.state.wait_s = pos, wait
                 self.store.publish_state(rec)
 
-    def _start(self, rec: SessionRecord, request: m.RunRequest) -> None:
+    def _going(self) -> list[GoingRun]:
+        """Runs going or being handed over, as the wait estimate needs them: where, how big, how
+        long still (paced: at their speed; fast: at their RTF so far, or their model's cost)."""
+        out = []
+        for rec in self.store:
+            host = rec.state.host
+            view = self.hosts.views.get(host)
+            if not host or view is None or (rec.phase not in phases.GOING and not rec.starting):
+                continue
+            cost = load.DEFAULT_COST
+            if view.load is not None:
+                cost = view.load.cost.get(rec.model_id, cost)
+            info = rec.run_info(rec.state.run_id)
+            replay = bool(info is not None and info.recording)
+            stop = info.stop_time if info is not None else rec.settings.stop_time
+            speed = rec.settings.speed
+            if not math.isfinite(speed):
+                speed = rec.state.rtf if rec.state.rtf > 0 else 1.0 / max(cost, 1e-6)
+            left = max(stop - rec.state.sim_time, 0.0) / speed
+            out.append(GoingRun(host, load.demand(rec.settings, cost, replay), left))
+        return out
+
+    def _start(self, rec: SessionRecord, request: m.RunRequest, host: str) -> None:
         rec.starting, rec.abort_run = True, ""
-        rec.state.queue_position = 0
+        rec.state.queue_position, rec.state.wait_s, rec.state.host = 0, 0.0, host
         self.store.publish_state(rec)
-        self._rr += 1
+        self.hosts.reserve(host, request)
         threading.Thread(
-            target=self._dispatch, args=(request, self._rr), name=f"dispatch:{rec.id[:8]}", daemon=True
+            target=self._dispatch, args=(request, host), name=f"dispatch:{rec.id[:8]}", daemon=True
         ).start()
 
     def simulators(self) -> list[str]:
+        """The simulator hosts whose tokens are up now (asked: a round trip)."""
         hosts = []
-        for reply in self._z().liveliness().get(f"{keys.ROOT}/@node/simulator/*", timeout=1.0):
+        for reply in self._z().liveliness().get(keys.SIMULATOR_TOKENS, timeout=1.0):
             if reply.ok is not None:
                 token = keys.parse("node_token", reply.ok.key_expr)
                 hosts.append(token["node"])
         return sorted(hosts)
 
-    def _dispatch(self, request: m.RunRequest, rr: int) -> None:
-        """Offer the run to the simulators in turn (without the lock), then report the outcome. A
-        hand-over that failed because the hub went away is tried again once the hub is back."""
-        hosts: list[str] = []
+    def _dispatch(self, request: m.RunRequest, host: str) -> None:
+        """Offer the run to its host (without the lock), then report the outcome. A hand-over that
+        failed because the hub went away is tried again once the hub is back."""
         errors: list[str] = []
-        accepted = ""
+        accepted, busy = "", False
         try:
             payload = codec.dumps(request)
-            busy_until = time.monotonic() + BUSY_WAIT_S
-            attempt = 0
-            while attempt < 3:
+            for _attempt in range(3):
                 began = time.monotonic()
-                hosts, errors = self.simulators(), []
-                for i in range(len(hosts)):
-                    host = hosts[(rr + i) % len(hosts)]
-                    accepted = self._offer(host, payload, errors)
-                    if accepted:
-                        break
-                if not accepted and hosts and all(BUSY in e for e in errors) and began < busy_until:
-                    # Every host is full: a run that just ended may not have left its process yet.
-                    time.sleep(BUSY_RETRY_S)
-                    continue
-                attempt += 1
-                if accepted or self.hub is None or not self.hub.lost_since(began):
+                errors = []
+                accepted = self._offer(host, payload, errors)
+                busy = not accepted and bool(errors) and all(BUSY in e for e in errors)
+                if accepted or busy or self.hub is None or not self.hub.lost_since(began):
                     break
                 if not self.hub.wait_back(HUB_WAIT_S):
                     errors.append(f"the hub has been unreachable for {HUB_WAIT_S:g} s")
                     break
-        except Exception as exc:  # never leave the slot taken
+        except Exception as exc:  # never leave the run half handed over
             errors.append(f"{type(exc).__name__}: {exc}")
         with self.lock:
             rec = self.store.records.get(request.session)
             if rec is not None:
                 rec.starting = False
-            self.outcome(request, accepted, hosts, errors)
+            if not accepted:
+                self.hosts.release(host, request)
+                if rec is not None and rec.state.run_id == request.run_id:
+                    rec.state.host = ""
+            waiting = rec is not None and rec.phase == "queued" and rec.abort_run != request.run_id
+            if not accepted and waiting and (busy or host not in self.hosts.live):
+                # Its status was stale, or it left meanwhile: another host, or this one's next status.
+                assert rec is not None
+                if busy:
+                    self.hosts.refused(host)
+                self.requeue(rec, request, first=True)
+            else:
+                self.outcome(request, accepted, [host], errors)
             self.update()
 
     def _offer(self, host: str, payload: bytes, errors: list[str]) -> str:

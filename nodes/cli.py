@@ -33,6 +33,7 @@ BENCHES = {
     "recorder": "simecs.benchmarks.recorder:run_recorder_bench",
     "lan": "simecs.benchmarks.lan:run_lan_bench",
     "hil": "simecs.benchmarks.hil:run_hil_bench",
+    "scale": "simecs.benchmarks.scale:run_scale_bench",
 }
 
 
@@ -191,17 +192,33 @@ def cmd_ls(args: argparse.Namespace) -> int:
         live_states = {k: v for k, v in states.items() if v.phase != "closed"}
         if args.json:
             print(
-                json.dumps({"nodes": sorted(live), "sessions": {k: v.phase for k, v in live_states.items()}})
+                json.dumps(
+                    {
+                        "nodes": sorted(live),
+                        "sessions": {k: v.phase for k, v in live_states.items()},
+                        "hosts": {k: v.host for k, v in live_states.items() if v.host},
+                    }
+                )
             )
             return 0
         print(f"{'NODE':40} {'PID':>7}  DETAIL")
         for name in sorted(live):
             node = statuses.get(name)
             detail = " ".join(f"{k}={v}" for k, v in (node.detail if node else {}).items())
+            if node is not None and node.load is not None:
+                ld = node.load
+                detail += f" load={ld.demand:.2f}/{ld.capacity:.2f} cores runs={len(ld.runs)}" + (
+                    f" behind={ld.behind}" if ld.behind else ""
+                )
             print(f"{name:40} {node.pid if node else '?':>7}  {detail}")
-        print(f"\n{'SESSION':24} {'PHASE':10} {'RUN':5} PROGRESS")
+        print(f"\n{'SESSION':24} {'PHASE':10} {'RUN':5} {'PROGRESS':>9}  HOST")
         for sid, state in sorted(live_states.items()):
-            print(f"{sid:24} {state.phase:10} {state.run_id:5} {state.progress * 100:5.1f} %")
+            where = state.host or (f"queued #{state.queue_position}" if state.phase == "queued" else "")
+            if state.phase == "queued" and state.wait_s:
+                where += f", ~{state.wait_s:.0f} s"
+            if state.attempt > 1:
+                where += f" (attempt {state.attempt})"
+            print(f"{sid:24} {state.phase:10} {state.run_id:5} {state.progress * 100:7.1f} %  {where}")
         return 0
     finally:
         z.close()
@@ -237,7 +254,9 @@ def build_parser() -> argparse.ArgumentParser:
         help="sessions, parameter sets, results",
     )
     up.add_argument("--recordings", default="recordings", help="where MCAP recordings go")
-    up.add_argument("--max-running", type=int, default=None, help="simultaneous runs (default: cores)")
+    up.add_argument(
+        "--max-running", type=int, default=None, help="a ceiling of runs at once (default: by capacity)"
+    )
     up.add_argument("--no-viewer", action="store_true", help="headless: no web viewer")
     up.add_argument("--no-recorder", action="store_true", help="do not record runs")
     up.add_argument(

@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import Any
 
 import msgspec
+import zenoh
 from simecs.mesh import columns, keys, limits, phases
 from simecs.mesh import messages as m
 from simecs.mesh.client import MeshClient, NoReply, RemoteError
@@ -28,7 +29,7 @@ from simecs.mesh.runtime import Node, NotMine, Request, RequestError, main_for, 
 
 from .library import ModelLibrary
 from .quotas import QuotaCheck, Quotas
-from .runs import RunTracker
+from .runs import LAST_REPORT_GRACE_S, RunTracker
 from .sessions import SessionRecord, SessionStore
 from .user_library import UserLibrary
 
@@ -84,10 +85,13 @@ class Proxy(Node):
             "--data-dir", default=os.environ.get("SIMECS_DATA", ".simecs"), help="sessions and parameter sets"
         )
         parser.add_argument(
-            "--max-running", type=int, default=None, help="simultaneous runs (default: cores)"
+            "--max-running",
+            type=int,
+            default=None,
+            help="a ceiling of runs at once, all hosts (default: what the simulator hosts can carry)",
         )
         parser.add_argument(
-            "--max-queue", type=int, default=limits.limit("run_queue"), help="runs waiting beyond max-running"
+            "--max-queue", type=int, default=limits.limit("run_queue"), help="runs waiting for a host"
         )
         q = Quotas()
         parser.add_argument("--max-sessions", type=int, default=q.sessions, help="open sessions, all users")
@@ -124,7 +128,9 @@ class Proxy(Node):
     def status_detail(self) -> dict[str, Any]:
         with self.lock:
             running = sum(1 for s in self.store if s.phase in phases.GOING)
-            return {"sessions": len(self.store), "running": running, "queued": len(self.admission.queue)}
+            hosts = len(self.admission.hosts.live)
+            queued = len(self.admission.queue)
+            return {"sessions": len(self.store), "running": running, "queued": queued, "simulators": hosts}
 
     def _release(self, entity: Any) -> None:
         try:
@@ -152,7 +158,44 @@ class Proxy(Node):
         )
         self.subscribe_messages(keys.ALL_NOTICES, m.Notice, self.runs.on_notice, maxlen=256, sealed=True)
         self.subscribe(keys.RUN_TOKENS, self.runs.on_run_token, maxlen=4096, liveliness=True)
+        # The simulator hosts: which are up, and what each can carry (admission and placement).
+        self.subscribe(keys.SIMULATOR_TOKENS, self._on_simulator_token, liveliness=True)
+        self.subscribe_messages(
+            keys.SIMULATOR_STATUS, m.NodeStatus, self._on_simulator_status, sealed=True, latched=True
+        )
+        for host in self.admission.simulators():
+            with self.lock:
+                self.admission.hosts.joined(host)
         self.runs.recover()
+
+    def _on_simulator_token(self, sample: zenoh.Sample) -> None:
+        try:
+            host = keys.parse("node_token", sample.key_expr)["node"]
+        except ValueError:
+            return
+        gone_at = time.monotonic()
+        if sample.kind == zenoh.SampleKind.DELETE:
+            # A hub restart takes every token at once: our own link's loss is known a moment later.
+            time.sleep(LAST_REPORT_GRACE_S)
+        with self.lock:
+            if sample.kind != zenoh.SampleKind.DELETE:
+                self.log.info("simulator host %s joined", host)
+                self.admission.hosts.joined(host)
+                self.admission.update()
+                return
+            if self.hub is not None and self.hub.lost_since(gone_at - 0.05):
+                self.admission.hosts.live.discard(host)  # every token went with the hub: it comes back
+                return
+            self.log.warning("simulator host %s left the mesh", host)
+            self.runs.host_lost(host)
+
+    def _on_simulator_status(self, status: m.NodeStatus, key: str) -> None:
+        host = keys.parse("node_status", key)["node"]
+        if status.role != "simulator" or status.node_id != host or status.load is None:
+            return
+        with self.lock:
+            self.admission.hosts.status(host, status.load)
+            self.admission.update()
 
     @property
     def models(self) -> ModelLibrary:

@@ -22,6 +22,7 @@ import numpy as np
 from simecs.mesh import codec, frames, keys, phases
 from simecs.mesh import messages as m
 from simecs.mesh.model import ModelDescription
+from simecs.mesh.runtime import RequestError
 
 from . import mcapfmt as fmt
 from . import mcaprepair
@@ -143,9 +144,13 @@ class RunFiles:
         sid = owner
         cur = self.active.get(sid)
         if cur is not None:
-            if cur.layout.run_id == layout.run_id and cur.layout.run_index == layout.run_index:
+            same_run = cur.layout.run_id == layout.run_id and cur.layout.run_index == layout.run_index
+            if same_run and layout.context.attempt <= cur.layout.context.attempt:
                 return  # the same layout again (history and live)
-            self.close(cur, f"superseded by run {layout.run_id}")
+            if not same_run:
+                self.close(cur, f"superseded by run {layout.run_id}")
+        if layout.context.attempt > 1:
+            self._drop_earlier_attempts(owner[0], layout)
         if (sid, layout.run_id) in self.done or (sid, layout.run_id) in self.filling:
             return
         if layout.source == "replay":
@@ -167,11 +172,31 @@ class RunFiles:
             return
         self._open(owner[0], layout)
 
+    def _drop_earlier_attempts(self, user: str, layout: m.RunLayout) -> None:
+        """The run restarted from the start on another host (its host was lost): what was recorded of
+        its earlier attempt is a prefix of what comes now, so the new recording replaces it."""
+        sid = (user, layout.session)
+        earlier = [r for r in (self.active.get(sid), self.filling.get((sid, layout.run_id))) if r is not None]
+        for rec in earlier:
+            if rec.layout.run_id == layout.run_id and rec.layout.context.attempt < layout.context.attempt:
+                self._finish(rec, f"its run restarted (attempt {layout.context.attempt})")
+        if (sid, layout.run_id) in self.done:
+            del self.done[(sid, layout.run_id)]
+            name = keys.recording_name(layout.session, layout.run_id)
+            try:
+                if self.library.path_of(user, name).exists():
+                    self.library.delete(user, name)
+            except RequestError as exc:
+                self.log.warning("could not replace %s of an earlier attempt: %s", name, exc.message)
+
     def _open(self, user: str, layout: m.RunLayout) -> None:
         base = keys.recording_name(layout.session, layout.run_id)
         name = self.library.free_name(user, base)
         path = self.library.path_of(user, name)
         run_meta = {"recorder": self.node_id}
+        if layout.context.attempt > 1:
+            run_meta["attempt"] = str(layout.context.attempt)
+            run_meta["restarted"] = layout.context.restarted
         if name != base:
             run_meta["continues"] = base
         try:
@@ -190,6 +215,8 @@ class RunFiles:
         )
         self.stats["files"] += 1
         note = f" (continues {base}: the recorder restarted during the run)" if name != base else ""
+        if layout.context.attempt > 1:
+            note += f" (attempt {layout.context.attempt}, from the start: {layout.context.restarted})"
         writer.write_log(
             fmt.LOG_INFO,
             f"recording started: user {user} session {layout.session} run {layout.run_id} "

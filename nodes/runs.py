@@ -11,6 +11,7 @@ import time
 from collections.abc import Callable
 from typing import Any
 
+import msgspec
 import zenoh
 from simecs.mesh import codec, keys, phases
 from simecs.mesh import messages as m
@@ -57,6 +58,8 @@ class RunTracker:
         self.admission.orphans = self.orphans
         #: Runs whose token disappeared with the hub: (user, session) -> run id, checked when it is back.
         self.suspended: dict[tuple[str, str], str] = {}
+        #: The request of each session's run going: what a restart on another host sends again.
+        self.going: dict[str, m.RunRequest] = {}
         self.hub: HubLink | None = None  # set once the proxy's session is open
         self._hub_check: threading.Thread | None = None
 
@@ -113,8 +116,13 @@ class RunTracker:
             return
         if host:
             self.log.info("session %s run %s started on simulator %s", sid, run_id, host)
+            self.going[sid] = request
+            rec.state.host = host
+            self.run_info(rec, run_id, host=host, attempt=request.attempt)
             if rec.phase == "queued":  # its first status report may have come first
                 self.started(rec)
+            else:
+                self.store.publish_state(rec)
         elif rec.phase == "queued":
             why = (
                 "no simulator accepted the run: " + "; ".join(errors)
@@ -136,6 +144,7 @@ class RunTracker:
                 setattr(info, k, v)
 
     def end_run(self, rec: SessionRecord, phase: str, reason: str = "") -> None:
+        self.going.pop(rec.id, None)
         rec.active_at = time.time()  # a run that ends is activity: idle expiry counts from here
         self.run_info(rec, rec.state.run_id, phase=phase, reason=reason, sim_time=rec.state.sim_time)
         self.store.move(rec, phase, reason=reason, queue_position=0)
@@ -147,8 +156,10 @@ class RunTracker:
             rec.abort_run = rec.state.run_id
         self.send_control(rec.user, rec.id, rec.state.run_id, op, at)
 
-    def send_control(self, user: str, sid: str, run_id: str, op: str, at: float = 0.0) -> None:
-        control = m.RunControl(op=op, run_id=run_id, time=at)  # type: ignore[arg-type]
+    def send_control(
+        self, user: str, sid: str, run_id: str, op: str, at: float = 0.0, attempt: int = 0
+    ) -> None:
+        control = m.RunControl(op=op, run_id=run_id, time=at, attempt=attempt)  # type: ignore[arg-type]
         key, payload = keys.control(user, sid), codec.dumps(control)
         self.z().put(key, payload, attachment=self.seal().mac(key, payload))  # workers obey only this
 
@@ -239,6 +250,11 @@ class RunTracker:
                 self.admission.update()
             if rec is None or rec.state.run_id != st.run_id or rec.phase not in phases.UNDER_WAY:
                 return
+            if st.attempt != rec.state.attempt:
+                if st.phase not in phases.ENDED and st.attempt < rec.state.attempt:
+                    # An attempt on a host taken for lost (cut off, not dead): it runs for no one.
+                    self.send_control(user, sid, st.run_id, "abort", attempt=st.attempt)
+                return
             rec.reported = st.run_id
             progress = min(1.0, st.sim_time / st.stop_time) if st.stop_time > 0 else 0.0
             self.run_info(rec, st.run_id, sim_time=st.sim_time, samples=st.samples)
@@ -269,9 +285,7 @@ class RunTracker:
             rec = self.store.owned(user, sid)
             if rec is None or notice.session != sid or rec.state.run_id != notice.run_id:
                 return
-            text = f"{notice.source}: {notice.message}"
-            if text not in rec.state.warnings and len(rec.state.warnings) < MAX_WARNINGS:
-                rec.state.warnings.append(text)
+            if self.warn(rec, notice.message, notice.source):
                 self.store.publish_state(rec)
 
     def on_run_token(self, sample: zenoh.Sample) -> None:
@@ -317,15 +331,73 @@ class RunTracker:
                 self.log.warning("session %s run %s: the hub went away; run kept meanwhile", sid, run_id)
                 self._check_when_hub_back()
                 return
+            attempt, host = rec.state.attempt, rec.state.host
+        # The worker is gone: with its host (restart the run elsewhere), or alone (it crashed).
+        host_up = bool(host) and self._token_up_at(keys.node_token("simulator", host))
+        with self.lock:
+            rec = self.store.owned(user, sid)
+            if rec is None or rec.state.run_id != run_id or rec.phase not in phases.GOING:
+                return
+            if rec.state.attempt != attempt:
+                return  # restarted meanwhile (its host's token went first)
+            if host and not host_up:
+                self.host_lost(host)
+                return
             self.end_run(
                 rec, "failed", f"the simulator process of run {run_id} disappeared (crashed or killed)"
             )
             self.admission.update()
 
+    def host_lost(self, host: str) -> None:
+        """Simulator host `host` left the mesh: each of its runs starts again from the start on another
+        host (the simulation is deterministic: same result), or fails if no host is left."""
+        self.admission.hosts.left(host)
+        for rec in list(self.store):
+            if rec.state.host != host or rec.phase not in phases.GOING:
+                continue
+            request = self.going.get(rec.id) or self.request(rec, rec.state.run_id)
+            at = rec.state.sim_time
+            why = f"simulator host {host} was lost at t = {at:.2f} s"
+            self.log.warning(
+                "session %s run %s: %s; restarting it on another host", rec.id, rec.state.run_id, why
+            )
+            attempt = rec.state.attempt + 1
+            restarted = msgspec.structs.replace(
+                request, attempt=attempt, restarted=why, paused=rec.phase == "paused"
+            )
+            self.going.pop(rec.id, None)
+            rec.reported = ""
+            text = f"{why}: run {rec.state.run_id} starts again from the start on another host"
+            self.warn(rec, text)
+            self.store.move(
+                rec, "restarted", attempt=attempt, host="", progress=0.0, sim_time=0.0, rtf=0.0, hil=None
+            )
+            self.run_info(rec, rec.state.run_id, phase="queued", sim_time=0.0, attempt=attempt, host="")
+            self.notify(rec, text)
+            self.admission.requeue(rec, restarted, first=True)
+        self.admission.update()
+
+    def notify(self, rec: SessionRecord, text: str) -> None:
+        """A notice from the proxy to the session's user (listed in its warnings by `warn`)."""
+        notice = m.Notice(session=rec.id, run_id=rec.state.run_id, source="proxy", message=text)
+        key, payload = keys.notices(rec.user, rec.id), codec.dumps(notice)
+        self.z().put(key, payload, attachment=self.seal().mac(key, payload))
+
+    def warn(self, rec: SessionRecord, text: str, source: str = "proxy") -> bool:
+        """List a notice in the session's warnings (once; at most MAX_WARNINGS); whether it is new."""
+        line = f"{source}: {text}"
+        if line in rec.state.warnings or len(rec.state.warnings) >= MAX_WARNINGS:
+            return False
+        rec.state.warnings.append(line)
+        return True
+
     def _token_up(self, user: str, sid: str, run_id: str) -> bool:
         """Whether a token of the run is still declared (asked without the lock: it takes a round trip)."""
+        return self._token_up_at(keys.run_token(user, sid, run_id))
+
+    def _token_up_at(self, key: str) -> bool:
         try:
-            replies = self.z().liveliness().get(keys.run_token(user, sid, run_id), timeout=TOKEN_QUERY_S)
+            replies = self.z().liveliness().get(key, timeout=TOKEN_QUERY_S)
             return any(r.ok is not None for r in replies)
         except zenoh.ZError:
             return False

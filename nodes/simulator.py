@@ -24,8 +24,9 @@ from simecs.mesh import seal as seals
 from simecs.mesh.results import results_reply
 from simecs.mesh.runtime import Binary, Node, NotMine, Request, RequestError, main_for, mesh_from_args
 
+from .host_load import HostLoad
 from .results_store import ResultsStore
-from .worker import READY
+from .worker import COST, READY
 
 CLOSED_KEPT = 4096
 WARM_TIMEOUT_S = 600.0  # a first start compiles the drives (tens of seconds on a cold cache)
@@ -43,14 +44,18 @@ class Simulator(Node):
         node_id: str | None = None,
         results_dir: str = ".simecs/results",
         max_runs: int | None = None,
-        warm: int = 1,
+        warm: int = 2,
     ) -> None:
         super().__init__(mesh, node_id)
         self.store = ResultsStore(results_dir)
-        self.max_runs = max_runs or max(os.cpu_count() or 1, 1) * 4
+        from simecs.models import list_models
+
+        #: What this host carries and can carry: runs are refused by it, the proxy places runs by it.
+        self.load = HostLoad([s.id for s in list_models()], max_runs or 0)
         self.warm_target = warm
         self.lock = threading.Lock()
         self.idle: list[subprocess.Popen[str]] = []
+        self.ready: set[int] = set()  # pids of idle workers that said they are warm
         #: Sessions closed lately: an aborted run's worker may store results after the close.
         self.closed: dict[tuple[str, str], None] = {}
         self.busy: dict[str, subprocess.Popen[str]] = {}
@@ -64,8 +69,10 @@ class Simulator(Node):
             default=os.path.join(os.environ.get("SIMECS_DATA", ".simecs"), "results"),
             help="where full-resolution results are kept",
         )
-        parser.add_argument("--max-runs", type=int, default=None, help="runs this host accepts at once")
-        parser.add_argument("--warm", type=int, default=1, help="idle worker processes kept ready")
+        parser.add_argument(
+            "--max-runs", type=int, default=None, help="a ceiling of runs at once (default: by capacity)"
+        )
+        parser.add_argument("--warm", type=int, default=2, help="idle worker processes kept ready")
 
     @classmethod
     def from_args(cls, args: argparse.Namespace) -> Simulator:
@@ -75,7 +82,11 @@ class Simulator(Node):
 
     def status_detail(self) -> dict[str, Any]:
         with self.lock:
-            return {"running": len(self.busy), "warm": len(self.idle), "max_runs": self.max_runs}
+            return {"running": len(self.busy), "warm": len(self.idle)}
+
+    def status_load(self) -> m.SimulatorLoad:
+        with self.lock:
+            return self.load.current
 
     def start(self) -> None:
         self.store.folder.mkdir(parents=True, exist_ok=True)
@@ -90,6 +101,7 @@ class Simulator(Node):
     # -- worker processes ----------------------------------------------------------------------
     def _spawn(self) -> subprocess.Popen[str]:
         cmd = [sys.executable, "-m", "simecs.nodes.worker", "--results-dir", str(self.store.folder)]
+        cmd += ["--simulator", self.node_id]
         for ep in self.mesh.connect:
             cmd += ["--connect", ep]
         cmd += ["--cpu", self.cpu_choice]  # where its zenoh threads go (mesh.affinity)
@@ -97,9 +109,27 @@ class Simulator(Node):
         env["SIMECS_SERVICE_KEY_FILE"] = str(seals.key_file(self.mesh.service_key_file))
         if self.mesh_config_path:
             env["SIMECS_MESH_CONFIG"] = self.mesh_config_path
-        return subprocess.Popen(
+        proc = subprocess.Popen(
             cmd, stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, env=env, bufsize=1
         )
+        assert proc.stdout is not None
+        os.set_blocking(proc.stdout.fileno(), False)  # read in tick(), never waited on
+        return proc
+
+    def _poll_idle(self) -> None:
+        """Read what idle workers said: their measured costs, and that they are warm."""
+        for proc in self.idle:
+            if proc.pid in self.ready or proc.stdout is None:
+                continue
+            try:
+                text = os.read(proc.stdout.fileno(), 65536).decode("utf-8", "replace")
+            except (BlockingIOError, OSError, ValueError):
+                continue
+            for line in text.splitlines():
+                if line.startswith(COST):
+                    self.load.take_costs(line)
+                elif line.strip() == READY:
+                    self.ready.add(proc.pid)
 
     def _wait_warm(self, proc: subprocess.Popen[str]) -> None:
         """Block until `proc` says it is warm (or dies, or the time is up: then runs still start,
@@ -108,20 +138,19 @@ class Simulator(Node):
         self.log.info("warming up a worker (compiling the drives the first time takes a while)")
         t0 = time.monotonic()
         end = t0 + WARM_TIMEOUT_S
-        while time.monotonic() < end and not self.stop_event.is_set():
-            ready, _, _ = select.select([proc.stdout], [], [], 0.5)
-            if ready:
-                line = proc.stdout.readline()
-                if line.strip() == READY:
+        while time.monotonic() < end and not self.stop_event.is_set() and proc.poll() is None:
+            select.select([proc.stdout], [], [], 0.5)
+            with self.lock:
+                self._poll_idle()
+                if proc.pid in self.ready:
                     self.log.info("worker warm after %.1f s", time.monotonic() - t0)
                     return
-                if not line:  # the worker died
-                    break
         self.log.warning("no warm worker after %.0f s: runs start cold", time.monotonic() - t0)
 
     def _refill(self) -> None:
         with self.lock:
             self.idle = [p for p in self.idle if p.poll() is None]
+            self.ready &= {p.pid for p in self.idle}
             while len(self.idle) < self.warm_target:
                 self.idle.append(self._spawn())
 
@@ -131,6 +160,7 @@ class Simulator(Node):
                 code = proc.poll()
                 if code is not None:
                     del self.busy[key]
+                    self.load.remove(key)
                     self.fast.discard(key)
                     user, session, _run = key.split(" ")
                     if (user, session) in self.closed:  # its worker stored results after the close
@@ -141,6 +171,8 @@ class Simulator(Node):
             # Warming a worker up (seconds of compiling) would steal CPU from a run going as fast as
             # possible, even at nice 10 on a 2-vCPU machine: wait until no such run is going.
             defer = bool(self.fast)
+            self._poll_idle()
+            self.load.sample([p.pid for p in self.idle], sum(1 for p in self.idle if p.pid in self.ready))
         if not defer:
             self._refill()
 
@@ -163,11 +195,15 @@ class Simulator(Node):
             if taken is not None and taken.poll() is None:
                 # Offered again: the proxy did not get our answer (the hub went away meanwhile).
                 return m.Accepted(self.node_id, taken.pid)
-            if len(self.busy) >= self.max_runs:
-                raise RequestError(
-                    "busy", f"simulator {self.node_id} already runs {len(self.busy)} simulations"
-                )
-            proc = self.idle.pop(0) if self.idle else self._spawn()
+            why = self.load.refusal(run)
+            if why:
+                raise RequestError("busy", f"simulator {self.node_id} cannot take the run: {why}")
+            warm = [p for p in self.idle if p.pid in self.ready] or self.idle
+            proc = warm[0] if warm else self._spawn()
+            if proc in self.idle:
+                self.idle.remove(proc)
+            self.ready.discard(proc.pid)
+            self.load.warm = sum(1 for p in self.idle if p.pid in self.ready)
             if proc.poll() is not None:
                 proc = self._spawn()
             assert proc.stdin is not None
@@ -178,6 +214,7 @@ class Simulator(Node):
             except OSError as exc:
                 raise RequestError("internal", f"worker process could not take the run: {exc}") from None
             self.busy[key] = proc
+            self.load.add(key, proc, run)
             if run.settings.pacing == "fast":
                 self.fast.add(key)
             else:

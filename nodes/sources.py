@@ -72,7 +72,15 @@ class SimulationSource:
         self.columns, self.units = list(self.sim.columns), list(self.sim.units)
         self.stop_time = req.settings.stop_time
         self.output_interval = req.settings.output_interval
-        self.context = m.RunContext(req.user, dict(req.values), list(req.initial), req.command, req.settings)
+        self.context = m.RunContext(
+            req.user,
+            dict(req.values),
+            list(req.initial),
+            req.command,
+            req.settings,
+            attempt=req.attempt,
+            restarted=req.restarted,
+        )
         self.sim.set_initial(req.initial)
         self.plan.apply(self.sim)
         self.kin, self.vmax = planner.kin, planner.vmax
@@ -165,6 +173,7 @@ class RecordingSource:
         self.stop_time = rec.layout.stop_time or float(self.rows[-1, 0])
         self.output_interval = rec.layout.output_interval
         self.context = rec.context(req.recording)
+        self.context.attempt, self.context.restarted = req.attempt, req.restarted
         self._next = 0  # index of the next row to play
         self._time = float(self.rows[0, 0])
         self._played_to = -1  # index of the last row played

@@ -11,6 +11,7 @@ them from, and exits.
 from __future__ import annotations
 
 import argparse
+import json
 import logging
 import os
 import sys
@@ -22,7 +23,7 @@ from typing import Any
 import numpy as np
 import zenoh
 import zenoh.ext
-from simecs.mesh import affinity, codec, columns, frames, keys
+from simecs.mesh import affinity, codec, columns, frames, keys, load
 from simecs.mesh import messages as m
 from simecs.mesh import seal as seals
 from simecs.mesh.config import open_session
@@ -31,7 +32,7 @@ from simecs.mesh.runtime import mesh_from_args, node_arguments
 from simecs.mesh.seal import Seal, SealedPublisher
 
 from .hil import Lockstep
-from .pacing import Pacer
+from .pacing import Pacer, PaceWatch
 from .results_store import ResultsStore, StoredRun
 from .sources import RunSource, SimulationSource, open_source
 
@@ -41,7 +42,10 @@ from .sources import RunSource, SimulationSource, open_source
 CHUNK_S = 0.025
 MAX_CHUNK_S = 0.1  # faster pacing: bigger chunks (fewer, larger frames), still a few ms of wall time
 STATUS_PERIOD_S = 0.1  # at most 10 progress reports per wall second
-READY = "ready"  # the line a warm worker writes on stdout
+# Lines a worker writes on stdout for its simulator (nodes/host_load.py reads them):
+READY = "ready"  # warm: send the run
+COST = "cost"  # `cost {"model": CPU s per simulated s, ...}`, measured while warming up
+PROGRESS = "progress"  # `progress <simulated s> <1 if falling behind its pace else 0>`
 log = logging.getLogger("simecs.worker")
 
 
@@ -53,8 +57,8 @@ def chunk_length(speed: float, output_interval: float) -> float:
 class Control:
     """Pause, resume, abort and seek, as the proxy sends them on the session's control key."""
 
-    def __init__(self, run_id: str, paused: bool, seal: Seal) -> None:
-        self.run_id = run_id
+    def __init__(self, run_id: str, paused: bool, seal: Seal, attempt: int = 1) -> None:
+        self.run_id, self.attempt = run_id, attempt
         self.seal = seal
         self.paused = threading.Event()
         if paused:
@@ -70,8 +74,8 @@ class Control:
             ctl = codec.loads(m.RunControl, sample.payload.to_bytes())
         except codec.DecodeError:
             return
-        if ctl.run_id != self.run_id:
-            return
+        if ctl.run_id != self.run_id or ctl.attempt not in (0, self.attempt):
+            return  # another run, or this run's attempt on a host that was taken for lost
         if ctl.op == "pause":
             self.paused.set()
         elif ctl.op == "resume":
@@ -144,9 +148,11 @@ class Jogging:
 
 
 class Run:
-    def __init__(self, z: zenoh.Session, req: m.RunRequest, store: ResultsStore, seal: Seal) -> None:
-        self.z, self.req, self.store = z, req, store
-        self.control = Control(req.run_id, req.paused, seal)
+    def __init__(
+        self, z: zenoh.Session, req: m.RunRequest, store: ResultsStore, seal: Seal, host: str = ""
+    ) -> None:
+        self.z, self.req, self.store, self.host = z, req, store, host
+        self.control = Control(req.run_id, req.paused, seal, req.attempt)
         self.samples = 0
         self.chunks: list[np.ndarray] = []
         self.source: RunSource | None = None
@@ -172,6 +178,7 @@ class Run:
         self.notifier = Notifier(z, req, seal)
         self.jogging = Jogging(z, req, self.notifier)
         self.pacer = Pacer(req.settings.speed)
+        self.pace_watch = PaceWatch(req.settings.speed)
         self.hil: Lockstep | None = None
         self.token = z.liveliness().declare_token(keys.run_token(u, s, req.run_id))
         self.seq = 0
@@ -191,6 +198,7 @@ class Run:
             rtf=self.rtf,
             samples=self.samples,
             reason=reason,
+            attempt=self.req.attempt,
         )
         if self.source is not None:
             msg.step, msg.task, msg.action = self.source.step_at(self.sim_time)
@@ -276,6 +284,7 @@ class Run:
             moved = self._seek(source) or moved
             if moved:  # pacing starts again from here
                 pacer.reset(source.time)
+                self.pace_watch.reset(source.time)
             step_wall, step_t = time.monotonic(), source.time
             if pacer.paced:  # jogging is telemanipulation: runs paced in wall time only
                 self.jogging.apply(source, chunk)
@@ -299,7 +308,23 @@ class Run:
             now = time.monotonic()
             if now - last_status >= STATUS_PERIOD_S:
                 self.status("running")
+                self.watch_pace(t)
                 last_status = now
+
+    def watch_pace(self, t: float) -> None:
+        """Tell the user when the run falls behind its pace (and when it catches up), and the simulator
+        every time: it stops taking runs while one of its runs is behind."""
+        changed = self.pace_watch.update(t)
+        speed = self.req.settings.speed
+        if changed is True:
+            self.notifier.tell(
+                f"run {self.req.run_id} falls behind its pace: {self.pace_watch.rtf / speed:.2f}x of it "
+                f"for {load.BEHIND_GRACE_S:g} s (simulator {self.host} is overloaded); it takes no new run "
+                "until this one catches up"
+            )
+        elif changed is False:
+            self.notifier.tell(f"run {self.req.run_id} keeps its pace again")
+        tell_simulator(f"{PROGRESS} {t:.6f} {int(self.pace_watch.behind)}")
 
     def _seek(self, source: RunSource) -> bool:
         """Obey a pending seek (replays); True when one happened."""
@@ -344,8 +369,18 @@ class Run:
                 pass
 
 
-def run_request(z: zenoh.Session, req: m.RunRequest, store: ResultsStore, seal: Seal, log: Any) -> int:
-    run = Run(z, req, store, seal)
+def tell_simulator(line: str) -> None:
+    """One line to the simulator on stdout; dropped rather than waited for if the pipe is full."""
+    try:
+        os.write(sys.stdout.fileno(), (line + "\n").encode())
+    except (BlockingIOError, BrokenPipeError, OSError):
+        pass
+
+
+def run_request(
+    z: zenoh.Session, req: m.RunRequest, store: ResultsStore, seal: Seal, log: Any, host: str = ""
+) -> int:
+    run = Run(z, req, store, seal, host)
     phase, reason = "failed", ""
     try:
         phase, reason = run.execute()
@@ -371,8 +406,10 @@ def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(prog="simecs-worker", description=__doc__)
     node_arguments(parser)
     parser.add_argument("--results-dir", required=True)
+    parser.add_argument("--simulator", default="", help="the node id of the simulator that started it")
     args = parser.parse_args(argv)
     setup_logging("worker", args.log_level)
+    os.set_blocking(sys.stdout.fileno(), False)  # a simulator that does not read never stalls a run
     code = 0
     # Warming up (imports, compiling) is background work: it must not slow the runs going on.
     # Once a run is ours we take normal priority back (possible as root or within RLIMIT_NICE).
@@ -381,11 +418,12 @@ def main(argv: list[str] | None = None) -> None:
         from simecs import models
 
         models.warmup()
+        tell_simulator(f"{COST} {json.dumps(models.costs())}")
         cfg = mesh_from_args(args)
         seal = seals.load(seals.key_file(cfg.service_key_file))  # the simulator's, made before us
         z = affinity.open_on_mesh_core(lambda: open_session(cfg), args.cpu)
         try:
-            print(READY, flush=True)
+            tell_simulator(READY)
             line = sys.stdin.readline()
             if line.strip():
                 try:
@@ -401,7 +439,8 @@ def main(argv: list[str] | None = None) -> None:
                     # Throughput, not latency: on the mesh core its frames would take CPU time
                     # from the simulation whenever the OS puts both there.
                     affinity.pin_process(os.sched_getaffinity(0))
-                code = run_request(z, req, ResultsStore(Path(args.results_dir)), seal, log)
+                store = ResultsStore(Path(args.results_dir))
+                code = run_request(z, req, store, seal, log, args.simulator)
         finally:
             z.close()
     except Exception as exc:

@@ -1,0 +1,175 @@
+"""The proxy's view of the simulator hosts: which are up (their liveliness tokens), what each carries
+and can carry (the `SimulatorLoad` of their sealed status), and the runs on their way to each. From it:
+which host takes a run (the least loaded that can hold it, mesh/load.py), and how long a queued run
+will wait.
+
+A run handed to a host is *reserved* there until the host's status lists it, so a burst of runs does
+not all go to the host that looked emptiest a second ago. A host that refused a run as busy gets no
+other offer until its next status.
+"""
+
+from __future__ import annotations
+
+import heapq
+import math
+import time
+from dataclasses import dataclass, field
+
+from simecs.mesh import load
+from simecs.mesh import messages as m
+
+RESERVATION_S = 15.0  # a run on its way to a host that never lists it stops counting after this
+
+
+@dataclass
+class HostView:
+    node_id: str
+    load: m.SimulatorLoad | None = None
+    seen_at: float = 0.0
+    refused_at: float = -math.inf  # the last busy answer: no offer until a newer status
+    reserved: dict[tuple[str, str], tuple[float, float]] = field(default_factory=dict)  # run -> (demand, at)
+
+    def reserved_demand(self) -> float:
+        return sum(d for d, _ in self.reserved.values())
+
+
+@dataclass
+class GoingRun:
+    """What the proxy knows of a run going, for the wait estimate."""
+
+    host: str
+    demand: float
+    remaining_s: float  # wall seconds until it ends, as it goes
+
+
+class Hosts:
+    """Simulator hosts as the proxy sees them. Called with the proxy's lock held."""
+
+    def __init__(self) -> None:
+        self.views: dict[str, HostView] = {}
+        self.live: set[str] = set()
+
+    # -- what the mesh says ---------------------------------------------------------------------------
+    def joined(self, node_id: str) -> None:
+        self.live.add(node_id)
+        self.views.setdefault(node_id, HostView(node_id))
+
+    def left(self, node_id: str) -> None:
+        self.live.discard(node_id)
+        self.views.pop(node_id, None)
+
+    def status(self, node_id: str, status: m.SimulatorLoad) -> None:
+        view = self.views.setdefault(node_id, HostView(node_id))
+        view.load, view.seen_at = status, time.monotonic()
+        listed = {(r.session, r.run_id) for r in status.runs}
+        now = time.monotonic()
+        view.reserved = {
+            run: (d, at)
+            for run, (d, at) in view.reserved.items()
+            if run not in listed and now - at < RESERVATION_S
+        }
+
+    def reserve(self, node_id: str, request: m.RunRequest) -> None:
+        view = self.views.get(node_id)
+        if view is not None:
+            need = load.request_demand(request, view.load)
+            view.reserved[(request.session, request.run_id)] = (need, time.monotonic())
+
+    def release(self, node_id: str, request: m.RunRequest) -> None:
+        view = self.views.get(node_id)
+        if view is not None:
+            view.reserved.pop((request.session, request.run_id), None)
+
+    def refused(self, node_id: str) -> None:
+        view = self.views.get(node_id)
+        if view is not None:
+            view.refused_at = time.monotonic()
+
+    # -- decisions ------------------------------------------------------------------------------------
+    def usable(self) -> list[HostView]:
+        """Live hosts whose load is known."""
+        return [v for n, v in sorted(self.views.items()) if n in self.live and v.load is not None]
+
+    def choose(
+        self, request: m.RunRequest, exclude: set[str] | frozenset[str] = frozenset()
+    ) -> tuple[str, str]:
+        """(the host to take the run, '') or ('', why none can now)."""
+        best: tuple[float, int, str] | None = None
+        reasons = []
+        for view in self.usable():
+            assert view.load is not None
+            if view.node_id in exclude:
+                continue
+            if view.refused_at >= view.seen_at:
+                reasons.append(f"{view.node_id}: busy (waiting for its next status)")
+                continue
+            why = load.refusal(view.load, request, view.reserved_demand(), len(view.reserved))
+            if why:
+                reasons.append(f"{view.node_id}: {why}")
+                continue
+            spare = load.free_cores(view.load, view.reserved_demand()) - load.request_demand(
+                request, view.load
+            )
+            rank = (-spare, len(view.load.runs) + len(view.reserved), view.node_id)
+            if best is None or rank < best:
+                best = rank
+        if best is not None:
+            return best[2], ""
+        return "", "; ".join(reasons) or "no simulator host has reported its load yet"
+
+    def offers(self, model_id: str) -> bool:
+        """Whether some live host can run the model at all (a host that has not said yet may)."""
+        return any(
+            v.load is None or not v.load.models or model_id in v.load.models for v in self.usable()
+        ) or any(n in self.live and v.load is None for n, v in self.views.items())
+
+    def wait_estimates(self, going: list[GoingRun], queued: list[m.RunRequest]) -> list[float]:
+        """Seconds each queued run (in queue order) will wait before it starts: the going runs end as
+        they progress, and each queued run takes the first host where its demand fits once enough
+        runs have ended (runs start in queue order). math.inf when no host could ever hold it."""
+        free: dict[str, float] = {v.node_id: v.load.capacity for v in self.usable() if v.load is not None}
+        ends: list[tuple[float, str, float]] = []  # (when, host, demand freed)
+        for run in going:
+            if run.host in free:
+                free[run.host] -= run.demand
+                heapq.heappush(ends, (run.remaining_s, run.host, run.demand))
+        now, out = 0.0, []
+        for request in queued:
+            placed = False
+            while not placed:
+                fits = [
+                    h
+                    for h, f in free.items()
+                    if f + 1e-9 >= self._demand(h, request) or f >= self._capacity(h) - 1e-9
+                ]
+                if fits:
+                    host = max(fits, key=lambda h: free[h])
+                    need = self._demand(host, request)
+                    free[host] -= need
+                    heapq.heappush(ends, (now + self._duration(host, request), host, need))
+                    out.append(now)
+                    placed = True
+                elif ends:
+                    now, host, freed = heapq.heappop(ends)
+                    free[host] += freed
+                else:
+                    out.append(math.inf)
+                    placed = True
+        return out
+
+    def _demand(self, host: str, request: m.RunRequest) -> float:
+        return load.request_demand(request, self.views[host].load)
+
+    def _capacity(self, host: str) -> float:
+        view = self.views[host]
+        return view.load.capacity if view.load is not None else 0.0
+
+    def _duration(self, host: str, request: m.RunRequest) -> float:
+        """Wall seconds the run will take on `host`: its start-up, then stop time over its speed (fast:
+        over the RTF its model's measured cost allows)."""
+        status = self.views[host].load
+        speed = request.settings.speed
+        if not math.isfinite(speed):
+            speed = 1.0 / max(load.request_cost(request, status), 1e-6)
+        start = status.start_s if status is not None else 0.0
+        return start + request.settings.stop_time / speed
