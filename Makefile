@@ -72,6 +72,7 @@ bench: $(STAMP) warm
 	$(BIN)/simecs bench lan
 	$(BIN)/simecs bench viewer
 	$(BIN)/simecs bench hil
+	$(BIN)/simecs bench scale
 
 clean:
 	rm -rf $(VENV) .simecs artifacts .pytest_cache .ruff_cache .mypy_cache

@@ -52,7 +52,7 @@ GROUPS: list[tuple[str, list[str]]] = [
         ["RunRequest", "Accepted", "RunControl", "RunStatus", "RunLayout", "RunContext", "ResultsAttachment"]
         + ["JogInput"],
     ),
-    ("nodes", ["NodeStatus", "RecordingList", "RecordingInfo"]),
+    ("nodes", ["NodeStatus", "SimulatorLoad", "RunLoad", "RecordingList", "RecordingInfo"]),
 ]
 
 

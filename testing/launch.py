@@ -71,7 +71,7 @@ class LocalMesh:
         """Start `python -m module args`, logging to `<folder>/<name>.log`."""
         argv = [*self.argv_prefix(module), sys.executable, "-m", module, *args]
         if module != "simecs.nodes.hub":
-            argv += ["--connect", self.endpoint]
+            argv += ["--connect", self.connect_to(name)]
         if node_id:
             argv += ["--node-id", node_id]
         env = clean_env()
@@ -82,6 +82,10 @@ class LocalMesh:
             )
         self.procs[name] = proc
         return proc
+
+    def connect_to(self, name: str) -> str:
+        """The endpoint node `name` joins the hub on (a LAN of namespaces overrides it)."""
+        return self.endpoint
 
     def argv_prefix(self, module: str) -> list[str]:
         """What runs a node's command on its host (a LAN of namespaces overrides it; here: nothing)."""

@@ -18,6 +18,7 @@ import signal
 import subprocess
 import time
 from collections.abc import Sequence
+from typing import Any
 
 SUBNET = "10.231.0"
 PREFIX = "smx"  # names: smx<pid>-<host>, so a crashed bench's leftovers can be recognised
@@ -160,3 +161,39 @@ class Lan:
 
     def __exit__(self, *exc: object) -> None:
         self.down()
+
+
+def lan_mesh(
+    lan: Lan, placement: dict[str, str], hub_host: str = "hub", cpus: dict[str, int] | None = None
+) -> Any:
+    """A `LocalMesh` whose hub listens on `hub_host`'s LAN address too, and whose nodes named in
+    `placement` (node name -> host) run on their host and join the hub over the LAN. The harness
+    itself (and nodes not placed) stays on the machine and joins through the hub's unix socket.
+    `cpus` pins nodes (by name) to one CPU each, as a host of that size."""
+    from .launch import LocalMesh
+
+    lan_endpoint = f"tcp/{lan.address(hub_host)}:7447"
+
+    class LanMesh(LocalMesh):
+        _placing = ""  # the node being spawned
+
+        def spawn(self, name: str, module: str, *args: str, node_id: str | None = None) -> Any:
+            if module == "simecs.nodes.hub":
+                args = (*args, "--listen", lan_endpoint)
+            self._placing = name
+            return super().spawn(name, module, *args, node_id=node_id)
+
+        def argv_prefix(self, module: str) -> list[str]:
+            if module == "simecs.nodes.hub":
+                return lan.prefix(hub_host)
+            host = placement.get(self._placing)
+            pin = (cpus or {}).get(self._placing)
+            return [
+                *(lan.prefix(host) if host else []),
+                *(["taskset", "-c", str(pin)] if pin is not None else []),
+            ]
+
+        def connect_to(self, name: str) -> str:
+            return lan_endpoint if name in placement else self.endpoint
+
+    return LanMesh()

@@ -1,0 +1,222 @@
+"""`simecs bench scale`: how many runs the service carries, and how it spreads them over hosts.
+
+- `realtime_sessions_2cores`: real-time Spider sessions (full drive train) added one at a time to a
+  service started with its defaults (no --max-running), until one of them falls below RTF 0.99 over
+  its last second (the simulator's own measure, `SimulatorLoad.runs[].rtf`), the service stops
+  admitting, or MAX_SESSIONS / the time limit is reached; the count of sessions held at RTF >= 0.99;
+- `admitted_by_default`: how many of those the defaults admitted without queueing;
+- `queue_wait_estimate_error`: |estimated - actual| / actual wait of runs queued behind runs as fast
+  as possible on one host (the estimate is the first `wait_s` each queued run was told);
+- `scale_ratio_2_hosts`: simulated s per wall s of FAST_RUNS runs as fast as possible with two
+  simulator hosts (network namespaces, each pinned to one core) vs one;
+- `host_loss_runs_lost`: runs lost when one of two simulator hosts is killed mid-run (0: each is
+  restarted on the other host).
+Every loop is bounded in count and time.
+"""
+
+from __future__ import annotations
+
+import json
+import signal
+import sys
+import threading
+import time
+from typing import Any
+
+import zenoh
+import zenoh.ext
+from simecs.mesh import codec, keys
+from simecs.mesh import messages as m
+from simecs.mesh.client import SessionClient
+from simecs.testing import netns
+from simecs.testing.launch import LocalMesh, wait_until
+
+PATH = [([0.4, -0.3, 0.5, 0.2, -0.2, 0.3, 0.1], 30.0, 30.0)]
+MAX_SESSIONS = 64
+TIME_LIMIT_S = 300.0
+FAST_RUNS = 8
+
+
+def log(text: str) -> None:
+    print(f"bench scale: {text}", file=sys.stderr, flush=True)
+
+
+def session(mesh: LocalMesh, user: str, **settings: Any) -> SessionClient:
+    s = mesh.client().create_session(user, "spider")
+    s.set_joint_path(PATH)
+    s.set_settings(**settings)
+    return s
+
+
+class Loads:
+    """The simulators' loads, as their statuses come."""
+
+    def __init__(self, mesh: LocalMesh) -> None:
+        self.latest: dict[str, m.SimulatorLoad] = {}
+        self.at: dict[str, float] = {}
+        history = zenoh.ext.HistoryConfig(detect_late_publishers=True)
+        self.sub = zenoh.ext.declare_advanced_subscriber(
+            mesh.client().z, keys.SIMULATOR_STATUS, self._on, history=history
+        )
+
+    def _on(self, sample: zenoh.Sample) -> None:
+        status = codec.loads(m.NodeStatus, sample.payload.to_bytes())
+        if status.load is not None:
+            self.latest[status.node_id], self.at[status.node_id] = status.load, time.monotonic()
+
+    def close(self) -> None:
+        self.sub.undeclare()
+
+
+def realtime_capacity() -> dict[str, Any]:
+    with LocalMesh() as mesh:
+        mesh.start_hub()
+        data = mesh.folder / "data"
+        mesh.start("proxy", "--data-dir", str(data))
+        mesh.start("simulator", "--results-dir", str(data / "results"))
+        mesh.start("hotfeedback")
+        loads = Loads(mesh)
+        held, admitted, began = 0, 0, time.monotonic()
+        sessions: list[SessionClient] = []
+        try:
+            while len(sessions) < MAX_SESSIONS and time.monotonic() - began < TIME_LIMIT_S:
+                s = session(mesh, f"rt{len(sessions)}", stop_time=600.0, output_interval=0.02)
+                sessions.append(s)
+                run_id = s.run()
+                try:
+                    s.wait_for(["running"], 60, run_id)
+                except TimeoutError:
+                    log(f"session {len(sessions)} was not admitted: {s.snapshot().state}")
+                    break
+                if s.snapshot().state.queue_position == 0 and admitted == len(sessions) - 1:
+                    admitted = len(sessions)
+                # Two fresh loads after the newest run stepped: every run's RTF over its last second.
+                seen = time.monotonic()
+
+                def fresh(seen: float = seen) -> bool:
+                    return min(loads.at.values(), default=0.0) > seen + 1.2
+
+                wait_until(fresh, 10, 0.1)
+                load = loads.latest["simulator-t"]
+                worst = min((r.rtf for r in load.runs), default=0.0)
+                used = f"{load.demand:.2f}/{load.capacity:.2f} cores"
+                log(f"{len(load.runs)} real-time runs: worst RTF {worst:.3f}, {used}")
+                if worst < 0.99 or load.behind:
+                    break
+                held = len(load.runs)
+        finally:
+            loads.close()
+            for s in sessions:
+                try:
+                    s.abort()
+                except Exception:
+                    pass
+    return {"realtime_sessions_2cores": held, "admitted_by_default": min(admitted, held)}
+
+
+def queue_wait_error() -> dict[str, Any]:
+    with LocalMesh() as mesh:
+        mesh.start_hub()
+        data = mesh.folder / "data"
+        mesh.start("proxy", "--data-dir", str(data))
+        mesh.start("simulator", "--results-dir", str(data / "results"), "--max-runs", "1")
+        told: dict[str, float] = {}
+        started: dict[str, float] = {}
+        sessions = [session(mesh, f"q{i}", stop_time=20.0, pacing="fast") for i in range(4)]
+        watches = []
+        for s in sessions:
+
+            def on_state(st: m.SessionState, sid: str = s.id) -> None:
+                if st.phase == "queued" and st.wait_s > 0 and sid not in told:
+                    told[sid] = time.monotonic() + st.wait_s
+                if st.phase == "running" and sid not in started:
+                    started[sid] = time.monotonic()
+
+            watches.append(s.watch(on_state=on_state))
+        queued_at = time.monotonic()
+        for s in sessions:
+            s.run()
+        for s in sessions:
+            s.wait_for(["finished", "failed"], 240)
+        for w in watches:
+            w.close()
+    errors = [
+        abs(told[sid] - started[sid]) / max(started[sid] - queued_at, 1e-3) for sid in told if sid in started
+    ]
+    log(f"wait estimates of {len(errors)} queued runs: relative errors {[round(e, 2) for e in errors]}")
+    return {"queue_wait_estimate_error": round(max(errors), 3) if errors else None}
+
+
+def two_hosts() -> dict[str, Any]:
+    try:
+        lan = netns.Lan(("hub", "sim1", "sim2")).up()
+    except netns.NetnsUnavailable as exc:
+        log(f"no network namespaces here ({exc}): scale_ratio_2_hosts and host_loss_runs_lost skipped")
+        return {}
+    try:
+        one = fast_throughput(lan, ["sim1"])
+        two = fast_throughput(lan, ["sim1", "sim2"])
+        lost = host_loss(lan)
+    finally:
+        lan.down()
+    log(f"as fast as possible: {one:.1f} simulated s per wall s on one host, {two:.1f} on two")
+    return {"scale_ratio_2_hosts": round(two / one, 2), "host_loss_runs_lost": lost}
+
+
+def fast_throughput(lan: netns.Lan, hosts: list[str]) -> float:
+    """Simulated s per wall s of FAST_RUNS fast runs, each host pinned to a core of its own."""
+    placement = {h: h for h in hosts}
+    mesh = netns.lan_mesh(lan, placement, cpus={h: i for i, h in enumerate(hosts)})
+    try:
+        mesh.start_hub()
+        data = mesh.folder / "data"
+        mesh.start("proxy", "--data-dir", str(data))
+        for h in hosts:
+            mesh.start("simulator", "--results-dir", str(data / h), name=h)
+        sessions = [session(mesh, f"f{i}", stop_time=10.0, pacing="fast") for i in range(FAST_RUNS)]
+        began = time.monotonic()
+        threads = [
+            threading.Thread(target=lambda s=s: s.wait_for(["finished", "failed"], 300, s.run()))
+            for s in sessions
+        ]
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join(320)
+        return 10.0 * FAST_RUNS / (time.monotonic() - began)
+    finally:
+        mesh.close()
+
+
+def host_loss(lan: netns.Lan) -> int:
+    """Four real-time runs over two hosts; one host killed mid-run: how many do not finish."""
+    mesh = netns.lan_mesh(lan, {"sim1": "sim1", "sim2": "sim2"})
+    try:
+        mesh.start_hub()
+        data = mesh.folder / "data"
+        mesh.start("proxy", "--data-dir", str(data))
+        for h in ("sim1", "sim2"):
+            mesh.start("simulator", "--results-dir", str(data / h), "--max-runs", "2", name=h)
+        sessions = [session(mesh, f"h{i}", stop_time=4.0) for i in range(4)]
+        for s in sessions:
+            s.wait_for(["running"], 60, s.run())
+        time.sleep(1.5)
+        mesh.stop("sim1", signal.SIGKILL)
+        ends = [s.wait_for(["finished", "failed", "aborted"], 120) for s in sessions]
+        restarted = sum(1 for e in ends if e.attempt > 1)
+        log(f"host lost mid-run: {restarted} of 4 runs restarted on the other host")
+        return sum(1 for e in ends if e.phase != "finished")
+    finally:
+        mesh.close()
+
+
+def run_scale_bench(as_json: bool = False) -> dict[str, Any]:
+    results: dict[str, Any] = {}
+    results.update(realtime_capacity())
+    results.update(queue_wait_error())
+    results.update(two_hosts())
+    for key, value in results.items():
+        print(f"{key:40s} {value}")
+    if as_json:
+        print(json.dumps(results))
+    return results
