@@ -90,15 +90,17 @@ def realtime_capacity() -> dict[str, Any]:
                     break
                 if s.snapshot().state.queue_position == 0 and admitted == len(sessions) - 1:
                     admitted = len(sessions)
-                # Two fresh loads after the newest run stepped: every run's RTF over its last second.
-                seen = time.monotonic()
 
-                def fresh(seen: float = seen) -> bool:
-                    return min(loads.at.values(), default=0.0) > seen + 1.2
+                # A load in which every run (the newest too) has an RTF over its last second.
+                def measured() -> m.SimulatorLoad | None:
+                    load = loads.latest.get("simulator-t")
+                    if load is None or len(load.runs) != len(sessions):
+                        return None
+                    return load if all(r.rtf > 0 for r in load.runs) else None
 
-                wait_until(fresh, 10, 0.1)
-                load = loads.latest["simulator-t"]
-                worst = min((r.rtf for r in load.runs), default=0.0)
+                time.sleep(2.0)
+                load = wait_until(measured, 15, 0.1, what="every run's RTF")
+                worst = min(r.rtf for r in load.runs)
                 used = f"{load.demand:.2f}/{load.capacity:.2f} cores"
                 log(f"{len(load.runs)} real-time runs: worst RTF {worst:.3f}, {used}")
                 if worst < 0.99 or load.behind:

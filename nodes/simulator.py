@@ -143,7 +143,11 @@ class Simulator(Node):
             with self.lock:
                 self._poll_idle()
                 if proc.pid in self.ready:
-                    self.log.info("worker warm after %.1f s", time.monotonic() - t0)
+                    took = time.monotonic() - t0
+                    self.log.info("worker warm after %.1f s", took)
+                    # A run that finds no warm worker starts about this late: the wait estimates'
+                    # first guess, until runs measure their own start.
+                    self.load.start_s = self.load.start_s or took
                     return
         self.log.warning("no warm worker after %.0f s: runs start cold", time.monotonic() - t0)
 
