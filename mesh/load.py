@@ -43,11 +43,15 @@ def demand(settings: m.RunSettings, cost: float, replay: bool = False) -> float:
     return min(1.0, max(MIN_DEMAND, per_sim_s * settings.speed * COST_MARGIN))
 
 
-def request_cost(request: m.RunRequest, load: m.SimulatorLoad | None) -> float:
-    """CPU s per simulated s of the run's model on a host (its measure, or DEFAULT_COST)."""
-    if request.recording:
+def model_cost(load: m.SimulatorLoad | None, model_id: str, replay: bool = False) -> float:
+    """CPU s per simulated s of a run of `model_id` on a host (its measure, or DEFAULT_COST)."""
+    if replay:
         return REPLAY_COST
-    return load.cost.get(request.model_id, DEFAULT_COST) if load is not None else DEFAULT_COST
+    return load.cost.get(model_id, DEFAULT_COST) if load is not None else DEFAULT_COST
+
+
+def request_cost(request: m.RunRequest, load: m.SimulatorLoad | None) -> float:
+    return model_cost(load, request.model_id, bool(request.recording))
 
 
 def request_demand(request: m.RunRequest, load: m.SimulatorLoad | None) -> float:

@@ -219,13 +219,15 @@ class Node:
         inline: bool = False,
         liveliness: bool = False,
         sealed: bool = False,
+        history: bool = False,
     ) -> BoundedWorker | None:
         """Run `handle(sample)` in a worker thread, never in zenoh's callback.
 
         `inline=True` calls it in zenoh's callback instead, saving a thread wake-up (about a
         millisecond on an idle VM): only for handlers that never block and return in microseconds.
         Exceptions are logged either way. `liveliness=True` watches liveliness tokens under `key`
-        (PUT when one appears, DELETE when it goes) instead of data. `sealed=True`: only samples
+        (PUT when one appears, DELETE when it goes) instead of data; with `history`, the tokens already
+        up arrive first as PUTs. `sealed=True`: only samples
         with the service's seal reach `handle` (keys that only service nodes write)."""
         if sealed:
             handle = self.sealed_only(handle)
@@ -246,13 +248,11 @@ class Node:
             push = worker.push
         origin = zenoh.Locality.REMOTE if remote_only else zenoh.Locality.ANY
         if liveliness:
-            self.declare(self.z.liveliness().declare_subscriber(key, push))
+            self.declare(self.z.liveliness().declare_subscriber(key, push, history=history))
         elif latched:
-            history = zenoh.ext.HistoryConfig(detect_late_publishers=True)
+            late = zenoh.ext.HistoryConfig(detect_late_publishers=True)
             self.declare(
-                zenoh.ext.declare_advanced_subscriber(
-                    self.z, key, push, history=history, allowed_origin=origin
-                )
+                zenoh.ext.declare_advanced_subscriber(self.z, key, push, history=late, allowed_origin=origin)
             )
         else:
             self.declare(self.z.declare_subscriber(key, push, allowed_origin=origin))

@@ -39,7 +39,6 @@ HUB_AWAY_S = 10.0  # queued runs wait this long after a hub restart for the simu
 WAIT_CHANGE_S = 1.0
 
 #: (request, host that took it or "", hosts tried, their refusals), called with the proxy's lock held.
-#: `requeued` runs went back to the head of the queue (every host offered was busy).
 Outcome = Callable[[m.RunRequest, str, list[str], list[str]], None]
 
 
@@ -157,11 +156,9 @@ class Admission:
             view = self.hosts.views.get(host)
             if not host or view is None or (rec.phase not in phases.GOING and not rec.starting):
                 continue
-            cost = load.DEFAULT_COST
-            if view.load is not None:
-                cost = view.load.cost.get(rec.model_id, cost)
             info = rec.run_info(rec.state.run_id)
             replay = bool(info is not None and info.recording)
+            cost = load.model_cost(view.load, rec.model_id, replay)
             stop = info.stop_time if info is not None else rec.settings.stop_time
             speed = rec.settings.speed
             if not math.isfinite(speed):
@@ -178,15 +175,6 @@ class Admission:
         threading.Thread(
             target=self._dispatch, args=(request, host), name=f"dispatch:{rec.id[:8]}", daemon=True
         ).start()
-
-    def simulators(self) -> list[str]:
-        """The simulator hosts whose tokens are up now (asked: a round trip)."""
-        hosts = []
-        for reply in self._z().liveliness().get(keys.SIMULATOR_TOKENS, timeout=1.0):
-            if reply.ok is not None:
-                token = keys.parse("node_token", reply.ok.key_expr)
-                hosts.append(token["node"])
-        return sorted(hosts)
 
     def _dispatch(self, request: m.RunRequest, host: str) -> None:
         """Offer the run to its host (without the lock), then report the outcome. A hand-over that

@@ -45,7 +45,6 @@ class HostedRun:
     cpu: float = 0.0
     rtf: float = 0.0
     _last: tuple[float, float, float] | None = None  # (wall, CPU s, simulated s) at the last sample
-    _partial: bytes = field(default=b"", repr=False)
 
 
 def process_cpu_s(pid: int) -> float | None:
@@ -104,6 +103,7 @@ class HostLoad:
         self.models = models
         self.max_runs = max_runs
         self.runs: dict[str, HostedRun] = {}
+        self._partial: dict[int, bytes] = {}  # a worker's unfinished last line, by pid
         self.cost: dict[str, float] = {}
         self.other = 0.0  # cores used on our cores by processes other than the runs' workers
         self.worker_mb = DEFAULT_WORKER_MB
@@ -122,14 +122,33 @@ class HostLoad:
         run = HostedRun(
             proc, request.session, request.run_id, request.model_id, request.settings, bool(request.recording)
         )
-        if proc.stdout is not None:
-            os.set_blocking(proc.stdout.fileno(), False)
         self.runs[key] = run
         self.current = self._build()  # counted at once: the next request sees it
 
     def remove(self, key: str) -> None:
-        if self.runs.pop(key, None) is not None:
+        run = self.runs.pop(key, None)
+        if run is not None:
+            self._partial.pop(run.proc.pid, None)
             self.current = self._build()
+
+    def lines(self, proc: subprocess.Popen[str]) -> list[str]:
+        """The whole lines worker `proc` wrote since the last call (its stdout is non-blocking); its
+        `cost` lines are taken here, the others returned."""
+        if proc.stdout is None:
+            return []
+        try:
+            chunk = os.read(proc.stdout.fileno(), 65536)
+        except (BlockingIOError, OSError, ValueError):
+            return []
+        *whole, self._partial[proc.pid] = (self._partial.get(proc.pid, b"") + chunk).split(b"\n")
+        out = []
+        for raw in whole:
+            line = raw.decode("utf-8", "replace")
+            if line.startswith(COST):
+                self.take_costs(line)
+            else:
+                out.append(line)
+        return out
 
     def take_costs(self, line: str) -> None:
         """A `cost` line of a warm worker: first estimates, for models no run has measured here."""
@@ -184,21 +203,10 @@ class HostLoad:
         return True
 
     def _read_lines(self, run: HostedRun) -> bool:
-        out = run.proc.stdout
-        if out is None:
-            return False
-        try:
-            chunk = os.read(out.fileno(), 65536)
-        except (BlockingIOError, OSError, ValueError):
-            return False
-        lines = (run._partial + chunk).split(b"\n")
-        run._partial = lines.pop()
+        """Take a run's progress lines; whether its `behind` changed."""
         changed = False
-        for raw in lines:
-            line = raw.decode("utf-8", "replace")
-            if line.startswith(COST):
-                self.take_costs(line)
-            elif line.startswith(PROGRESS):
+        for line in self.lines(run.proc):
+            if line.startswith(PROGRESS):
                 try:
                     _, t, behind = line.split()
                     run.sim_time, was = float(t), run.behind

@@ -159,13 +159,10 @@ class Proxy(Node):
         self.subscribe_messages(keys.ALL_NOTICES, m.Notice, self.runs.on_notice, maxlen=256, sealed=True)
         self.subscribe(keys.RUN_TOKENS, self.runs.on_run_token, maxlen=4096, liveliness=True)
         # The simulator hosts: which are up, and what each can carry (admission and placement).
-        self.subscribe(keys.SIMULATOR_TOKENS, self._on_simulator_token, liveliness=True)
+        self.subscribe(keys.SIMULATOR_TOKENS, self._on_simulator_token, liveliness=True, history=True)
         self.subscribe_messages(
             keys.SIMULATOR_STATUS, m.NodeStatus, self._on_simulator_status, sealed=True, latched=True
         )
-        for host in self.admission.simulators():
-            with self.lock:
-                self.admission.hosts.joined(host)
         self.runs.recover()
 
     def _on_simulator_token(self, sample: zenoh.Sample) -> None:

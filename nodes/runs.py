@@ -124,11 +124,10 @@ class RunTracker:
             else:
                 self.store.publish_state(rec)
         elif rec.phase == "queued":
-            why = (
-                "no simulator accepted the run: " + "; ".join(errors)
-                if hosts
-                else "no simulator node is on the mesh"
-            )
+            if hosts:
+                why = "no simulator accepted the run: " + "; ".join(errors)
+            else:  # refused before any host was asked: admission says why
+                why = "; ".join(errors) or "no simulator node is on the mesh"
             self.end_run(rec, "failed", why)
 
     def started(self, rec: SessionRecord) -> None:

@@ -26,7 +26,7 @@ from simecs.mesh.runtime import Binary, Node, NotMine, Request, RequestError, ma
 
 from .host_load import HostLoad
 from .results_store import ResultsStore
-from .worker import COST, READY
+from .worker import READY
 
 CLOSED_KEPT = 4096
 WARM_TIMEOUT_S = 600.0  # a first start compiles the drives (tens of seconds on a cold cache)
@@ -119,17 +119,8 @@ class Simulator(Node):
     def _poll_idle(self) -> None:
         """Read what idle workers said: their measured costs, and that they are warm."""
         for proc in self.idle:
-            if proc.pid in self.ready or proc.stdout is None:
-                continue
-            try:
-                text = os.read(proc.stdout.fileno(), 65536).decode("utf-8", "replace")
-            except (BlockingIOError, OSError, ValueError):
-                continue
-            for line in text.splitlines():
-                if line.startswith(COST):
-                    self.load.take_costs(line)
-                elif line.strip() == READY:
-                    self.ready.add(proc.pid)
+            if proc.pid not in self.ready and READY in self.load.lines(proc):
+                self.ready.add(proc.pid)
 
     def _wait_warm(self, proc: subprocess.Popen[str]) -> None:
         """Block until `proc` says it is warm (or dies, or the time is up: then runs still start,
