@@ -43,11 +43,17 @@ def demand(settings: m.RunSettings, cost: float, replay: bool = False) -> float:
     return min(1.0, max(MIN_DEMAND, per_sim_s * settings.speed * COST_MARGIN))
 
 
-def model_cost(load: m.SimulatorLoad | None, model_id: str, replay: bool = False) -> float:
-    """CPU s per simulated s of a run of `model_id` on a host (its measure, or DEFAULT_COST)."""
+def measured_cost(load: m.SimulatorLoad | None, model_id: str, replay: bool = False) -> float | None:
+    """CPU s per simulated s of a run of `model_id` on a host, as the host measured it (None: not yet)."""
     if replay:
         return REPLAY_COST
-    return load.cost.get(model_id, DEFAULT_COST) if load is not None else DEFAULT_COST
+    return load.cost.get(model_id) if load is not None else None
+
+
+def model_cost(load: m.SimulatorLoad | None, model_id: str, replay: bool = False) -> float:
+    """The measured cost, or DEFAULT_COST: pessimistic, so that admission never overcommits."""
+    cost = measured_cost(load, model_id, replay)
+    return DEFAULT_COST if cost is None else cost
 
 
 def request_cost(request: m.RunRequest, load: m.SimulatorLoad | None) -> float:

@@ -544,7 +544,9 @@ class RunLoad(Record):
     model_id: Name
     demand: Annotated[float, Meta(ge=0.0, le=1.0, description="cores it needs at its pacing (LAN.md)")]
     cpu: Annotated[float, Meta(ge=0.0, description="cores its worker used over the last seconds")] = 0.0
-    rtf: Annotated[float, Meta(ge=0.0, description="simulated s per wall s over the last seconds")] = 0.0
+    rtf: Annotated[
+        float, Meta(ge=0.0, description="simulated s per wall s, its worker's last 1 s window")
+    ] = 0.0
     behind: Annotated[bool, Meta(description="paced, and slower than its pace for longer than the grace")] = (
         False
     )
@@ -567,9 +569,15 @@ class SimulatorLoad(Record):
     worker_mb: Annotated[float, Meta(ge=0.0, description="memory one more run takes")] = 0.0
     max_runs: Annotated[int, Meta(ge=0, description="a configured ceiling of runs; 0 = none")] = 0
     behind: Annotated[int, Meta(ge=0, description="runs falling behind: no new run goes here meanwhile")] = 0
-    start_s: Annotated[float, Meta(ge=0.0, description="measured s from hand-over to a run's first step")] = (
-        0.0
-    )
+    start_s: Annotated[
+        float, Meta(ge=0.0, description="measured s from hand-over to a warm worker to the run's first step")
+    ] = 0.0
+    cold_start_s: Annotated[
+        float,
+        Meta(
+            ge=0.0, description="measured s a new worker takes to warm up: a run finding none warm waits this"
+        ),
+    ] = 0.0
     warm: Annotated[
         int, Meta(ge=0, description="idle workers ready: a run starts on one in milliseconds")
     ] = 0

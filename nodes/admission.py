@@ -141,7 +141,7 @@ class Admission:
         waits = self.hosts.wait_estimates(self._going(), [r for _, r in queued]) if queued else []
         for pos, ((sid, _), wait) in enumerate(zip(queued, waits, strict=True), start=1):
             rec = self.store.records[sid]
-            wait = round(wait, 1) if math.isfinite(wait) else 0.0
+            wait = round(wait, 1) if math.isfinite(wait) else 0.0  # 0: unknown
             moved = abs(wait - rec.state.wait_s) >= max(WAIT_CHANGE_S, 0.2 * rec.state.wait_s)
             if rec.state.queue_position != pos or moved:
                 rec.state.queue_position, rec.state.wait_s = pos, wait
@@ -158,11 +158,15 @@ class Admission:
                 continue
             info = rec.run_info(rec.state.run_id)
             replay = bool(info is not None and info.recording)
-            cost = load.model_cost(view.load, rec.model_id, replay)
+            measured = load.measured_cost(view.load, rec.model_id, replay)
+            cost = load.DEFAULT_COST if measured is None else measured
             stop = info.stop_time if info is not None else rec.settings.stop_time
             speed = rec.settings.speed
             if not math.isfinite(speed):
-                speed = rec.state.rtf if rec.state.rtf > 0 else 1.0 / max(cost, 1e-6)
+                if rec.state.rtf > 0:
+                    speed = rec.state.rtf
+                else:  # not stepping yet: its model's cost says how fast it will go, once measured
+                    speed = 1.0 / max(measured, 1e-6) if measured is not None else math.nan
             left = max(stop - rec.state.sim_time, 0.0) / speed
             out.append(GoingRun(host, load.demand(rec.settings, cost, replay), left))
         return out

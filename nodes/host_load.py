@@ -23,6 +23,7 @@ from .worker import COST, PROGRESS
 SAMPLE_S = 1.0
 COST_SMOOTHING = 0.3  # weight of a new measurement of a model's cost
 OTHER_SMOOTHING = 0.3  # of a new measurement of the other processes' CPU use
+START_SMOOTHING = 0.3  # of a new measurement of a start-up time
 DEFAULT_WORKER_MB = 300.0
 _TICK = os.sysconf("SC_CLK_TCK")
 _PAGE = os.sysconf("SC_PAGE_SIZE")
@@ -38,6 +39,7 @@ class HostedRun:
     model_id: str
     settings: m.RunSettings
     replay: bool
+    warm: bool  # its worker was warm when it took the run
     sim_time: float = 0.0
     behind: bool = False
     started: float = field(default_factory=time.monotonic)  # handed over
@@ -107,7 +109,8 @@ class HostLoad:
         self.cost: dict[str, float] = {}
         self.other = 0.0  # cores used on our cores by processes other than the runs' workers
         self.worker_mb = DEFAULT_WORKER_MB
-        self.start_s = 0.0  # moving average of hand-over to first progress
+        self.start_s = 0.0  # moving average of hand-over to a warm worker to first progress
+        self.cold_start_s = 0.0  # moving average of a worker's warm-up (or a cold run's start)
         self.warm = 0  # idle workers that said they are ready
         self.memory_mb = memory_free_mb()
         self._cores_at = (time.monotonic(), *cores_busy_s(self.cpus))
@@ -118,9 +121,15 @@ class HostLoad:
     def refusal(self, request: m.RunRequest) -> str:
         return load.refusal(self.current, request)
 
-    def add(self, key: str, proc: subprocess.Popen[str], request: m.RunRequest) -> None:
+    def add(self, key: str, proc: subprocess.Popen[str], request: m.RunRequest, warm: bool) -> None:
         run = HostedRun(
-            proc, request.session, request.run_id, request.model_id, request.settings, bool(request.recording)
+            proc,
+            request.session,
+            request.run_id,
+            request.model_id,
+            request.settings,
+            bool(request.recording),
+            warm,
         )
         self.runs[key] = run
         self.current = self._build()  # counted at once: the next request sees it
@@ -182,7 +191,6 @@ class HostLoad:
                 wall, cpu0, sim0 = run._last
                 dt = max(now - wall, 1e-3)
                 run.cpu = max(cpu_s - cpu0, 0.0) / dt
-                run.rtf = max(run.sim_time - sim0, 0.0) / dt
                 workers_cpu += run.cpu
                 if not run.replay and run.sim_time - sim0 > 0.2:
                     measured = (cpu_s - cpu0) / (run.sim_time - sim0)
@@ -208,19 +216,24 @@ class HostLoad:
         for line in self.lines(run.proc):
             if line.startswith(PROGRESS):
                 try:
-                    _, t, behind = line.split()
+                    _, t, behind, rtf = line.split()
                     run.sim_time, was = float(t), run.behind
                     run.behind = behind == "1"
+                    run.rtf = float(rtf)  # the worker's own clock: exact, where ours would be late
                     changed |= was != run.behind
                     if not run.stepping:
                         run.stepping = True
-                        took = time.monotonic() - run.started
-                        self.start_s = (
-                            took if not self.start_s else self.start_s + 0.3 * (took - self.start_s)
-                        )
+                        self.started(time.monotonic() - run.started, run.warm)
                 except ValueError:
                     continue
         return changed
+
+    def started(self, took: float, warm: bool) -> None:
+        """A run took `took` s from hand-over to its first step (or a worker that long to warm up)."""
+        if warm:
+            self.start_s = _average(self.start_s, took)
+        else:
+            self.cold_start_s = _average(self.cold_start_s, took)
 
     def demand(self, run: HostedRun) -> float:
         """The run's demand at the model's cost as measured now."""
@@ -253,6 +266,11 @@ class HostLoad:
             max_runs=self.max_runs,
             behind=sum(1 for r in self.runs.values() if r.behind),
             start_s=round(self.start_s, 3),
+            cold_start_s=round(self.cold_start_s, 3),
             warm=self.warm,
             starting=sum(1 for r in self.runs.values() if not r.stepping),
         )
+
+
+def _average(before: float, took: float) -> float:
+    return took if not before else before + START_SMOOTHING * (took - before)

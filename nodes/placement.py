@@ -39,7 +39,7 @@ class GoingRun:
 
     host: str
     demand: float
-    remaining_s: float  # wall seconds until it ends, as it goes
+    remaining_s: float  # wall seconds until it ends, as it goes (math.nan: not known yet)
 
 
 class Hosts:
@@ -124,51 +124,79 @@ class Hosts:
 
     def wait_estimates(self, going: list[GoingRun], queued: list[m.RunRequest]) -> list[float]:
         """Seconds each queued run (in queue order) will wait before it starts: the going runs end as
-        they progress, and each queued run takes the first host where its demand fits once enough
-        runs have ended (runs start in queue order). math.inf when no host could ever hold it."""
+        they progress, and each queued run takes the first host where its demand fits (and its
+        `max_runs` allows) once enough runs have ended (runs start in queue order). math.inf when no
+        host could ever hold it; math.nan when it hangs on a run whose length is not known yet (its
+        model's cost not yet measured on its host: a guess would be off several times over)."""
         free: dict[str, float] = {v.node_id: v.load.capacity for v in self.usable() if v.load is not None}
-        ends: list[tuple[float, str, float]] = []  # (when, host, demand freed)
+        slots = {h: self._max_runs(h) for h in free}
+        warm = {h: [0.0] * self._status(h).warm for h in free}  # when each warm worker is ready
+        ends: list[tuple[float, bool, str, float]] = []  # (when, known, host, demand freed)
         for run in going:
             if run.host in free:
                 free[run.host] -= run.demand
-                heapq.heappush(ends, (run.remaining_s, run.host, run.demand))
-        now, out = 0.0, []
+                slots[run.host] -= 1
+                known = math.isfinite(run.remaining_s)
+                heapq.heappush(ends, (run.remaining_s if known else 0.0, known, run.host, run.demand))
+        now, known_now, out = 0.0, True, []
         for request in queued:
-            placed = False
-            while not placed:
+            while True:
                 fits = [
                     h
                     for h, f in free.items()
-                    if f + 1e-9 >= self._demand(h, request) or f >= self._capacity(h) - 1e-9
+                    if slots[h] > 0
+                    and (f + 1e-9 >= self._demand(h, request) or f >= self._capacity(h) - 1e-9)
                 ]
                 if fits:
                     host = max(fits, key=lambda h: free[h])
                     need = self._demand(host, request)
                     free[host] -= need
-                    heapq.heappush(ends, (now + self._duration(host, request), host, need))
-                    out.append(now)
-                    placed = True
-                elif ends:
-                    now, host, freed = heapq.heappop(ends)
-                    free[host] += freed
-                else:
+                    slots[host] -= 1
+                    took = self._duration(host, request, self._start_s(host, warm[host], now))
+                    took_known = known_now and took is not None
+                    heapq.heappush(ends, (now + (took or 0.0), took_known, host, need))
+                    out.append(now if known_now else math.nan)
+                    break
+                if not ends:
                     out.append(math.inf)
-                    placed = True
+                    break
+                now, known, host, freed = heapq.heappop(ends)
+                known_now = known_now and known
+                free[host] += freed
+                slots[host] += 1
         return out
+
+    def _status(self, host: str) -> m.SimulatorLoad:
+        status = self.views[host].load
+        assert status is not None  # only usable hosts are simulated
+        return status
+
+    def _max_runs(self, host: str) -> int:
+        status = self._status(host)
+        return status.max_runs if status.max_runs > 0 else 1 << 30
 
     def _demand(self, host: str, request: m.RunRequest) -> float:
         return load.request_demand(request, self.views[host].load)
 
     def _capacity(self, host: str) -> float:
-        view = self.views[host]
-        return view.load.capacity if view.load is not None else 0.0
+        return self._status(host).capacity
 
-    def _duration(self, host: str, request: m.RunRequest) -> float:
-        """Wall seconds the run will take on `host`: its start-up, then stop time over its speed (fast:
-        over the RTF its model's measured cost allows)."""
-        status = self.views[host].load
+    def _start_s(self, host: str, warm: list[float], now: float) -> float:
+        """How long a run handed to `host` at `now` takes to start: on a warm worker, the measured
+        hand-over; else until the next worker is warm. The worker it takes is replaced, warm after the
+        host's measured warm-up."""
+        status = self._status(host)
+        ready = heapq.heappop(warm) if warm else math.inf
+        heapq.heappush(warm, now + status.cold_start_s)
+        return status.start_s + min(max(ready - now, 0.0), status.cold_start_s)
+
+    def _duration(self, host: str, request: m.RunRequest, start_s: float) -> float | None:
+        """Wall seconds the run will take on `host` from its hand-over: its start, then stop time over
+        its speed (fast: over the RTF its model's measured cost allows; None while that is unmeasured)."""
         speed = request.settings.speed
         if not math.isfinite(speed):
-            speed = 1.0 / max(load.request_cost(request, status), 1e-6)
-        start = status.start_s if status is not None else 0.0
-        return start + request.settings.stop_time / speed
+            cost = load.measured_cost(self._status(host), request.model_id, bool(request.recording))
+            if cost is None:
+                return None
+            speed = 1.0 / max(cost, 1e-6)
+        return start_s + request.settings.stop_time / speed

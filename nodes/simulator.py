@@ -56,6 +56,7 @@ class Simulator(Node):
         self.lock = threading.Lock()
         self.idle: list[subprocess.Popen[str]] = []
         self.ready: set[int] = set()  # pids of idle workers that said they are warm
+        self.spawned_at: dict[int, float] = {}  # pids of workers not warm yet: when they were started
         #: Sessions closed lately: an aborted run's worker may store results after the close.
         self.closed: dict[tuple[str, str], None] = {}
         self.busy: dict[str, subprocess.Popen[str]] = {}
@@ -114,6 +115,7 @@ class Simulator(Node):
         )
         assert proc.stdout is not None
         os.set_blocking(proc.stdout.fileno(), False)  # read in tick(), never waited on
+        self.spawned_at[proc.pid] = time.monotonic()
         return proc
 
     def _poll_idle(self) -> None:
@@ -121,6 +123,10 @@ class Simulator(Node):
         for proc in self.idle:
             if proc.pid not in self.ready and READY in self.load.lines(proc):
                 self.ready.add(proc.pid)
+                # A run that finds no warm worker waits about this long.
+                spawned = self.spawned_at.pop(proc.pid, None)
+                if spawned is not None:
+                    self.load.started(time.monotonic() - spawned, warm=False)
 
     def _wait_warm(self, proc: subprocess.Popen[str]) -> None:
         """Block until `proc` says it is warm (or dies, or the time is up: then runs still start,
@@ -136,9 +142,6 @@ class Simulator(Node):
                 if proc.pid in self.ready:
                     took = time.monotonic() - t0
                     self.log.info("worker warm after %.1f s", took)
-                    # A run that finds no warm worker starts about this late: the wait estimates'
-                    # first guess, until runs measure their own start.
-                    self.load.start_s = self.load.start_s or took
                     return
         self.log.warning("no warm worker after %.0f s: runs start cold", time.monotonic() - t0)
 
@@ -146,6 +149,7 @@ class Simulator(Node):
         with self.lock:
             self.idle = [p for p in self.idle if p.poll() is None]
             self.ready &= {p.pid for p in self.idle}
+            self.spawned_at = {p.pid: self.spawned_at[p.pid] for p in self.idle if p.pid in self.spawned_at}
             while len(self.idle) < self.warm_target:
                 self.idle.append(self._spawn())
 
@@ -193,14 +197,16 @@ class Simulator(Node):
             why = self.load.refusal(run)
             if why:
                 raise RequestError("busy", f"simulator {self.node_id} cannot take the run: {why}")
-            warm = [p for p in self.idle if p.pid in self.ready] or self.idle
-            proc = warm[0] if warm else self._spawn()
+            ready = [p for p in self.idle if p.pid in self.ready]
+            proc = (ready or self.idle)[0] if self.idle else self._spawn()
             if proc in self.idle:
                 self.idle.remove(proc)
+            warm = proc.pid in self.ready
+            self.spawned_at.pop(proc.pid, None)  # its start is measured as the run's, not as a warm-up
             self.ready.discard(proc.pid)
             self.load.warm = sum(1 for p in self.idle if p.pid in self.ready)
             if proc.poll() is not None:
-                proc = self._spawn()
+                proc, warm = self._spawn(), False
             assert proc.stdin is not None
             try:
                 proc.stdin.write(codec.dumps(run).decode() + "\n")
@@ -209,7 +215,7 @@ class Simulator(Node):
             except OSError as exc:
                 raise RequestError("internal", f"worker process could not take the run: {exc}") from None
             self.busy[key] = proc
-            self.load.add(key, proc, run)
+            self.load.add(key, proc, run, warm)
             if run.settings.pacing == "fast":
                 self.fast.add(key)
             else:

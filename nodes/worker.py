@@ -45,7 +45,7 @@ STATUS_PERIOD_S = 0.1  # at most 10 progress reports per wall second
 # Lines a worker writes on stdout for its simulator (nodes/host_load.py reads them):
 READY = "ready"  # warm: send the run
 COST = "cost"  # `cost {"model": CPU s per simulated s, ...}`, measured while warming up
-PROGRESS = "progress"  # `progress <simulated s> <1 if falling behind its pace else 0>`
+PROGRESS = "progress"  # `progress <simulated s> <1 if falling behind its pace else 0> <RTF, last window>`
 log = logging.getLogger("simecs.worker")
 
 
@@ -324,7 +324,7 @@ class Run:
             )
         elif changed is False:
             self.notifier.tell(f"run {self.req.run_id} keeps its pace again")
-        tell_simulator(f"{PROGRESS} {t:.6f} {int(self.pace_watch.behind)}")
+        tell_simulator(f"{PROGRESS} {t:.6f} {int(self.pace_watch.behind)} {self.pace_watch.rtf:.4f}")
 
     def _seek(self, source: RunSource) -> bool:
         """Obey a pending seek (replays); True when one happened."""

@@ -54,7 +54,7 @@ def test_realtime_runs_share_a_small_machine_and_fast_runs_queue_per_core(mesh: 
     data = mesh.folder / "data"
     mesh.start("proxy", "--data-dir", str(data))
     mesh.start("simulator", "--results-dir", str(data / "results"))
-    realtime = [new_session(mesh, f"rt{i}", stop_time=30.0, output_interval=0.01) for i in range(8)]
+    realtime = [new_session(mesh, f"rt{i}", stop_time=300.0, output_interval=0.01) for i in range(8)]
     for s in realtime:
         s.wait_for(["running"], 60, s.run())
     states = [s.snapshot().state for s in realtime]
