@@ -27,6 +27,7 @@ MAX_WARNINGS = 20
 #: How long a lost run token waits for the worker's own last report (it travels another way).
 LAST_REPORT_GRACE_S = 0.3
 TOKEN_QUERY_S = 1.0  # asking whether a run's token is still up
+TOKEN_QUERY_TRIES = 3  # queries that time out before one counts as an answer
 #: How long runs whose tokens went with the hub wait for it to come back before they are settled.
 HUB_AWAY_S = 120.0
 
@@ -395,11 +396,20 @@ class RunTracker:
         return self._token_up_at(keys.run_token(user, sid, run_id))
 
     def _token_up_at(self, key: str) -> bool:
-        try:
-            replies = self.z().liveliness().get(key, timeout=TOKEN_QUERY_S)
-            return any(r.ok is not None for r in replies)
-        except zenoh.ZError:
-            return False
+        """Whether a token is declared under `key`. A query that ran into its timeout (a mesh busy
+        with a flood) proves nothing and is asked again: only a complete answer without the token
+        means gone, else a peer's dropped copy of a token could end a run whose worker is fine."""
+        for _ in range(TOKEN_QUERY_TRIES):
+            began = time.monotonic()
+            try:
+                replies = list(self.z().liveliness().get(key, timeout=TOKEN_QUERY_S))
+            except zenoh.ZError:
+                return False
+            if any(r.ok is not None for r in replies):
+                return True
+            if time.monotonic() - began < 0.9 * TOKEN_QUERY_S:
+                return False
+        return False
 
     def _check_when_hub_back(self) -> None:
         """Once the hub is back and every node had time to reconnect: runs whose worker is back go on;
