@@ -21,7 +21,7 @@ rotor inertia and viscous friction. Electrical angle `th_e = p * q_m`.
 
 Shape functions (3rd-harmonic imperfection h3) and phase constants (unbalance d):
 
-    s_a = -(sin th_e + h3 sin 3 th_e)        s_b = cos th_e + h3 cos 3 th_e
+    s_a = -(sin th_e + h3 sin 3 th_e)        s_b = cos th_e - h3 cos 3 th_e   (s_a shifted by 90 deg)
     k_a = kt (1 - d/2)                        k_b = kt (1 + d/2)
 
 Phase equations (back-EMF e = k s w_m, power-consistent with the torque):
@@ -80,7 +80,9 @@ chain joint (doc:{id}.chain).""",
     q_m' = q_m + e_m sin(p q_m)          w_m' = w_m (1 + e_m p cos(p q_m))
     q'   = q + e_l sin(q)
 
-q' closes the position loop, q_m' commutates the phases and w_m' closes the speed loop.""",
+q' closes the position loop, q_m' commutates the phases and w_m' closes the speed loop. The controller
+knows only what its resolvers read: at rest after a move to q_ref the load resolver reads q_ref, so
+the arm stands at q with q + e_l sin(q) = q_ref, about e_l sin(q_ref) short of the command.""",
     ),
     "ctrl": (
         "Cascade joint controller",
@@ -291,15 +293,18 @@ and the run starts without transients. See [the motor](doc:{mid}.motor) for s_a,
 - **Exudyn** integrates the kinematic tree (ObjectKinematicTree, explicit RK4) with the mechanics step h
   (default {s.default_step * 1e3:g} ms, `step` of a run).
 - A **PreStep** user function integrates the drives of all joints, compiled with numba, over [t, t+h]
-  with {s.substeps} classical RK4 substeps (h/{s.substeps}): electrics, current loops, LuGre, gear, control,
-  trajectory. Inside the step the load angles follow a predictor q'' = M(q(t))^-1 tau_gear (M from the
-  same link data as the Exudyn chain), which keeps the stiff gear stable; Exudyn then receives the mean
-  gear torque over the step as `jointForceVector`. The next step starts again from Exudyn's q, q'.
+  with {s.substeps} classical RK4 substeps (h/{s.substeps}), more at high motor speed where the LuGre
+  friction stiffens: electrics, current loops, LuGre, gear, control, trajectory. Inside the step the load
+  angles follow a predictor q'' = M(q(t))^-1 (tau_gear - C(q, q') q' - g(q)) (M and the Newton-Euler
+  bias from the same link data as the Exudyn chain), which keeps the stiff gear stable; Exudyn then
+  receives the mean gear torque over the step as `jointForceVector`. The next step starts again from
+  Exudyn's q, q'.
 - Output samples are taken every `output_interval` (rounded to a multiple of h): the state after the
   step that ends at the sample time, read inside the step loop (one Exudyn call per chunk of a run, so
   the output interval and the chunking change no result). Link poses come from q by the forward
   kinematics of the chain handed to Exudyn (checked against Exudyn's own sensors to 1e-9).
-- A NaN in the drive or the chain stops the run with an error naming the joint and the time.
+- A NaN in the drive or the chain stops the run with an error naming the joint and the time; so does a
+  friction state past its physical bound (the step too coarse for the friction stiffness).
 - Accuracy of the standard case: see `simecs bench model` and docs/MODELS.md.
 """,
             parent=mid,

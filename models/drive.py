@@ -129,6 +129,13 @@ NO = len(OUTPUTS)
 
 EFF_POWER_EPS = 1e-2  # W: width of the smooth switch between driving and driven efficiency
 
+# ---- substeps: the LuGre bristle state stiffens with speed ------------------------------------------
+FRICTION_RATE_STEP = 2.0  # its relaxation rate x substep: RK4 is stable to 2.8, damped 3x per substep here
+SPEED_MARGIN = 1.25  # the motor speed may grow within a step: size the substeps for this much more
+MAX_SUBSTEP_FACTOR = 64  # at most this many times the model's substeps; beyond, the bound check tells
+FRICTION_BOUND_MARGIN = 1.05
+STEP_OK, STEP_NOT_FINITE, STEP_FRICTION = 0, 1, 2
+
 
 # ---- trajectory: trapezoidal speed profiles, one segment per via point -------------------------------
 # segment table row: [t0, T, ta, q0[0..n-1], dq[0..n-1]]
@@ -317,6 +324,88 @@ def mass_matrix(pre_R, pre_p, masses, coms, inertias, q, M):
 
 
 @njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
+def _cross(a, b, out):
+    out[0] = a[1] * b[2] - a[2] * b[1]
+    out[1] = a[2] * b[0] - a[0] * b[2]
+    out[2] = a[0] * b[1] - a[1] * b[0]
+
+
+@njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
+def bias_forces(pre_R, pre_p, masses, coms, inertias, gravity, q, qd, out):
+    """out = C(q, qd) qd + g(q): the joint torques that hold the chain at zero acceleration (recursive
+    Newton-Euler in world axes, the base accelerated by -gravity). With the mass matrix they give the
+    chain's forward dynamics: M qdd = tau - out."""
+    n = q.shape[0]
+    R_all = np.empty((n, 3, 3))
+    p_all = np.empty((n, 3))
+    chain_frames(pre_R, pre_p, q, R_all, p_all)
+    w = np.zeros(3)
+    wd = np.zeros(3)
+    a_o = np.empty(3)
+    for a in range(3):
+        a_o[a] = -gravity[a]
+    F = np.empty((n, 3))
+    N = np.empty((n, 3))
+    r = np.empty((n, 3))
+    zq = np.empty(3)
+    t1 = np.empty(3)
+    t2 = np.empty(3)
+    Iw = np.empty(3)
+    for i in range(n):
+        if i > 0:  # the joint's origin rides on the previous link
+            for a in range(3):
+                zq[a] = p_all[i, a] - p_all[i - 1, a]
+            _cross(wd, zq, t1)
+            _cross(w, zq, t2)
+            _cross(w, t2, zq)
+            for a in range(3):
+                a_o[a] += t1[a] + zq[a]
+        for a in range(3):
+            zq[a] = R_all[i, a, 2] * qd[i]
+        _cross(w, zq, t1)
+        for a in range(3):
+            wd[a] += t1[a]
+            w[a] += zq[a]
+        for a in range(3):
+            r[i, a] = R_all[i, a, 0] * coms[i, 0] + R_all[i, a, 1] * coms[i, 1] + R_all[i, a, 2] * coms[i, 2]
+        _cross(wd, r[i], t1)
+        _cross(w, r[i], t2)
+        _cross(w, t2, zq)
+        for a in range(3):
+            F[i, a] = masses[i] * (a_o[a] + t1[a] + zq[a])
+        # N = Iw wd + w x (Iw w), Iw = R I R^T applied as R (I (R^T v))
+        for v_is_w in range(2):
+            v = w if v_is_w else wd
+            for a in range(3):
+                t1[a] = R_all[i, 0, a] * v[0] + R_all[i, 1, a] * v[1] + R_all[i, 2, a] * v[2]
+            for a in range(3):
+                t2[a] = inertias[i, a, 0] * t1[0] + inertias[i, a, 1] * t1[1] + inertias[i, a, 2] * t1[2]
+            for a in range(3):
+                Iw[a] = R_all[i, a, 0] * t2[0] + R_all[i, a, 1] * t2[1] + R_all[i, a, 2] * t2[2]
+            if v_is_w:
+                _cross(w, Iw, t1)
+                for a in range(3):
+                    N[i, a] += t1[a]
+            else:
+                for a in range(3):
+                    N[i, a] = Iw[a]
+    f = np.zeros(3)
+    m_next = np.zeros(3)  # moment about the next joint's origin
+    for i in range(n - 1, -1, -1):
+        _cross(r[i], F[i], t1)
+        if i < n - 1:
+            for a in range(3):
+                zq[a] = p_all[i + 1, a] - p_all[i, a]
+            _cross(zq, f, t2)
+        else:
+            t2[:] = 0.0
+        for a in range(3):
+            m_next[a] += N[i, a] + t1[a] + t2[a]
+            f[a] += F[i, a]
+        out[i] = R_all[i, 0, 2] * m_next[0] + R_all[i, 1, 2] * m_next[1] + R_all[i, 2, 2] * m_next[2]
+
+
+@njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
 def quats_from_matrices(Rs, out):
     """Unit quaternions (w, x, y, z), w >= 0, of rotation matrices Rs[k] into out[k]."""
     for k in range(Rs.shape[0]):
@@ -351,6 +440,16 @@ def _sat(x, lim):
     if x < -lim:
         return -lim
     return x
+
+
+@njit(cache=_CACHE, inline="always", error_model="numpy", fastmath=_FAST)
+def phase_shapes(h3, s1, c1):
+    """(s_a, s_b): the phases' shape functions at electrical angle th_e (s1 = sin, c1 = cos), each with
+    a 3rd harmonic h3; phase b is phase a shifted by 90 degrees electrical, so with balanced phases the
+    shape error gives a torque ripple at 4x th_e (1 - h3 cos 4 th_e), apart from the unbalance's 2x."""
+    s3 = 3.0 * s1 - 4.0 * s1 * s1 * s1  # sin 3 th_e
+    c3 = 4.0 * c1 * c1 * c1 - 3.0 * c1  # cos 3 th_e
+    return -(s1 + h3 * s3), c1 - h3 * c3
 
 
 @njit(cache=_CACHE, inline="always", error_model="numpy", fastmath=_FAST)
@@ -442,11 +541,7 @@ def joint_signals(P, j, x, ql, qdl, qr, qdr, mode, out):
     ia_s = -iref * sm
     ib_s = iref * cm
     # motor shape functions (true rotor angle), phase unbalance
-    h3 = P[j, P_H3]
-    s3 = 3.0 * s1 - 4.0 * s1 * s1 * s1
-    c3 = 4.0 * c1 * c1 * c1 - 3.0 * c1
-    sa = -(s1 + h3 * s3)
-    sb = c1 + h3 * c3
+    sa, sb = phase_shapes(P[j, P_H3], s1, c1)
     kt = P[j, P_KT]
     ka = kt * (1.0 - 0.5 * P[j, P_UNB])
     kb = kt * (1.0 + 0.5 * P[j, P_UNB])
@@ -532,7 +627,7 @@ def controlled_signals(P, j, x, ql, qdl, qr, qdr, jmode, live, out):
 
 
 @njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
-def drive_rhs(P, seg, hold, tab, jmode, live, Minv, t, X, dX, sig, qr, qdr, tau, new_t=True):
+def drive_rhs(P, seg, hold, tab, jmode, live, Minv, bias, t, X, dX, sig, qr, qdr, tau, new_t=True):
     """dX = f(t, X); the set points qr, qdr are evaluated at t unless `new_t` is False (same t as the
     previous call: RK4 stages 2 and 3)."""
     n = X.shape[0]
@@ -564,19 +659,75 @@ def drive_rhs(P, seg, hold, tab, jmode, live, Minv, t, X, dX, sig, qr, qdr, tau,
     for j in range(n):
         acc = 0.0
         for k in range(n):
-            acc += Minv[j, k] * tau[k]
+            acc += Minv[j, k] * (tau[k] - bias[k])
         dX[j, S_QDL] = acc
+
+
+@njit(cache=_CACHE, inline="always", error_model="numpy", fastmath=_FAST)
+def friction_rate(P, j, om):
+    """1/s at which joint j's LuGre bristle state relaxes at motor speed om: s0 |om| / g(om). It grows
+    with speed (about 100 |om| with s0 = fc / 0.01), and RK4 is stable only while rate x substep < 2.8."""
+    fc = P[j, P_FC]
+    fs = P[j, P_FS]
+    if P[j, P_S0] <= 0.0 or (fc <= 0.0 and fs <= 0.0):
+        return 0.0
+    g = fc + (fs - fc) * math.exp(-((om / P[j, P_VS]) ** 2))
+    return P[j, P_S0] * abs(om) / max(g, 1e-300)
+
+
+@njit(cache=_CACHE, inline="always", error_model="numpy", fastmath=_FAST)
+def friction_bound(P, j):
+    """LuGre keeps |z| <= max(fc, fs) / s0 exactly; a state past it (with a margin) means the
+    integration broke down. math.inf for a joint without bristles."""
+    if P[j, P_S0] <= 0.0 or (P[j, P_FC] <= 0.0 and P[j, P_FS] <= 0.0):
+        return math.inf
+    return FRICTION_BOUND_MARGIN * max(P[j, P_FC], P[j, P_FS]) / P[j, P_S0]
+
+
+@njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
+def substeps_for(P, X, h, nsub):
+    """RK4 substeps over a step of h: at least nsub, more while a joint's friction state relaxes fast
+    (rate x substep <= FRICTION_RATE_STEP, at the speed now plus a margin for the step's change)."""
+    rate = 0.0
+    for j in range(X.shape[0]):
+        rate = max(rate, friction_rate(P, j, SPEED_MARGIN * X[j, S_OM]))
+    return max(nsub, min(int(math.ceil(rate * h / FRICTION_RATE_STEP)), nsub * MAX_SUBSTEP_FACTOR))
 
 
 @njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
 def drive_step(
-    P, seg, hold, tab, jmode, live, pre_R, pre_p, masses, coms, inertias, X, q, qd, t, h, nsub, tau_out, work
+    P,
+    seg,
+    hold,
+    tab,
+    jmode,
+    live,
+    pre_R,
+    pre_p,
+    masses,
+    coms,
+    inertias,
+    gravity,
+    X,
+    q,
+    qd,
+    t,
+    h,
+    nsub,
+    tau_out,
+    work,
 ):
-    """Integrate all drives over [t, t+h] with nsub RK4 substeps; tau_out = mean gear torque."""
+    """Integrate all drives over [t, t+h] with RK4 substeps (nsub, more where friction is stiff);
+    tau_out = mean gear torque. STEP_OK, or STEP_NOT_FINITE / STEP_FRICTION when the states broke down."""
+    nsub = substeps_for(P, X, h, nsub)
     n = q.shape[0]
     M = np.empty((n, n))
     mass_matrix(pre_R, pre_p, masses, coms, inertias, q, M)
     Minv = np.linalg.inv(M)
+    # The load side within the step: M qdd = tau_gear - bias, the bias (velocity terms, gravity) held
+    # at the step start; without it the gear torques lag the chain's other forces by up to 8 %.
+    bias = np.empty(n)
+    bias_forces(pre_R, pre_p, masses, coms, inertias, gravity, q, qd, bias)
     for j in range(n):
         X[j, S_QL] = q[j]
         X[j, S_QDL] = qd[j]
@@ -593,31 +744,32 @@ def drive_step(
     hs = h / nsub
     for s in range(nsub):
         ts = t + s * hs
-        drive_rhs(P, seg, hold, tab, jmode, live, Minv, ts, X, k1, sig, qr, qdr, tau)
+        drive_rhs(P, seg, hold, tab, jmode, live, Minv, bias, ts, X, k1, sig, qr, qdr, tau)
         for j in range(n):
             for k in range(NL):
                 Xt[j, k] = X[j, k] + 0.5 * hs * k1[j, k]
-        drive_rhs(P, seg, hold, tab, jmode, live, Minv, ts + 0.5 * hs, Xt, k2, sig, qr, qdr, tau)
+        drive_rhs(P, seg, hold, tab, jmode, live, Minv, bias, ts + 0.5 * hs, Xt, k2, sig, qr, qdr, tau)
         for j in range(n):
             for k in range(NL):
                 Xt[j, k] = X[j, k] + 0.5 * hs * k2[j, k]
-        drive_rhs(P, seg, hold, tab, jmode, live, Minv, ts + 0.5 * hs, Xt, k3, sig, qr, qdr, tau, False)
+        drive_rhs(P, seg, hold, tab, jmode, live, Minv, bias, ts + 0.5 * hs, Xt, k3, sig, qr, qdr, tau, False)
         for j in range(n):
             for k in range(NL):
                 Xt[j, k] = X[j, k] + hs * k3[j, k]
-        drive_rhs(P, seg, hold, tab, jmode, live, Minv, ts + hs, Xt, k4, sig, qr, qdr, tau)
+        drive_rhs(P, seg, hold, tab, jmode, live, Minv, bias, ts + hs, Xt, k4, sig, qr, qdr, tau)
         for j in range(n):
             for k in range(NL):
                 X[j, k] += hs / 6.0 * (k1[j, k] + 2.0 * k2[j, k] + 2.0 * k3[j, k] + k4[j, k])
-    ok = True
+            if abs(X[j, S_Z]) > friction_bound(P, j):  # caught before it overflows
+                return STEP_FRICTION
     for j in range(n):
         tau_out[j] = X[j, S_IMP] / h
         for k in range(NS):
             if not math.isfinite(X[j, k]):
-                ok = False
+                return STEP_NOT_FINITE
         if not math.isfinite(tau_out[j]):
-            ok = False
-    return ok
+            return STEP_NOT_FINITE
+    return STEP_OK
 
 
 @njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
@@ -633,6 +785,7 @@ def drive_prestep(
     masses,
     coms,
     inertias,
+    gravity,
     X,
     Xbak,
     repeat,
@@ -644,8 +797,8 @@ def drive_prestep(
     tau_out,
     work,
 ):
-    """`drive_step` with the drive state kept for a repeated step: `repeat` (the solver takes the same
-    step again) restores X from Xbak, else Xbak saves X before the step."""
+    """`drive_step` (its status) with the drive state kept for a repeated step: `repeat` (the solver
+    takes the same step again) restores X from Xbak, else Xbak saves X before the step."""
     if repeat:
         X[:, :] = Xbak
     else:
@@ -662,6 +815,7 @@ def drive_prestep(
         masses,
         coms,
         inertias,
+        gravity,
         X,
         q,
         qd,

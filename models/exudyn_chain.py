@@ -18,6 +18,10 @@ from .mechanics import ChainArrays
 
 _EXU: Any = None
 
+#: m/s^2 in world axes. The models run in zero gravity (paper §5.2); the drives' in-step load
+#: predictor (drive.bias_forces) takes the same vector, so the two never disagree once it changes.
+GRAVITY = (0.0, 0.0, 0.0)
+
 
 def exudyn() -> Any:
     """The exudyn module, imported on first use; the faster build (no range checks) unless exudyn was
@@ -64,7 +68,7 @@ class ExudynChain:
                 linkCOMs=exu.Vector3DList([coms[i] for i in range(n)]),
                 linkMasses=list(masses),
                 jointForceVector=[0.0] * n,
-                gravity=[0.0, 0.0, 0.0],
+                gravity=list(GRAVITY),
             )
         )
         self.sens_p: list[Any] = []

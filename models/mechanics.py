@@ -114,9 +114,7 @@ def init_states(P: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         th_meas = th + P[j, dr.P_EM] * math.sin(p * th)
         te = p * th
         tem = p * th_meas
-        h3 = P[j, dr.P_H3]
-        sa = -(math.sin(te) + h3 * math.sin(3 * te))
-        sb = math.cos(te) + h3 * math.cos(3 * te)
+        sa, sb = dr.phase_shapes(P[j, dr.P_H3], math.sin(te), math.cos(te))
         ka = P[j, dr.P_KT] * (1 - 0.5 * P[j, dr.P_UNB])
         kb = P[j, dr.P_KT] * (1 + 0.5 * P[j, dr.P_UNB])
         ideal = P[j, dr.P_IDEAL] > 0.5

@@ -20,7 +20,7 @@ from simecs.mesh.kinematics import rot_rpy
 from . import drive as dr
 from .description import ArmDescription
 from .errors import SimulationError
-from .exudyn_chain import ExudynChain, exudyn
+from .exudyn_chain import GRAVITY, ExudynChain, exudyn
 from .mechanics import MECH_PREFIXES, chain_arrays, drive_array, init_states, tool_point, vec
 from .sensors import sensor_row
 
@@ -38,6 +38,7 @@ class Simulation:
         self.columns, self.units = columns.run_columns(self._desc)
         self.P = drive_array(self.n, self.values)
         self._mech = chain_arrays(package.spec, self.values)
+        self._gravity = np.array(GRAVITY, dtype=float)
         self.q0 = np.zeros(self.n)
         self.qd0 = np.zeros(self.n)
         self.X, self.hold = init_states(self.P, self.q0)
@@ -166,12 +167,13 @@ class Simulation:
         rows = []
         t = t0
         for dest, sp, ac in self._nodes:
-            # destinations are load angles; the set point is expressed in measured (resolver) angles
-            dest_m = dest + self.P[:, dr.P_EL] * np.sin(dest)
-            row = dr.plan_segment(q, dest_m, vmax * sp / 100.0, amax * ac / 100.0, t)
+            # The set point is the destination as commanded: the controller compares it with what its
+            # load resolver reads, so a resolver error shows as an error of the pose reached, as on
+            # a real arm (no controller knows its own sensor's error).
+            row = dr.plan_segment(q, dest, vmax * sp / 100.0, amax * ac / 100.0, t)
             rows.append(row)
             t += row[1]
-            q = dest_m
+            q = dest
         return np.array(rows) if rows else np.zeros((0, 3 + 2 * self.n))
 
     def jog(self, rates: np.ndarray, horizon: float) -> np.ndarray:
@@ -325,7 +327,7 @@ class Simulation:
         repeat = k <= self._last_k  # the same step again (a step reduction): restore the drive states
         self._last_k = k
         m = self._mech_arrays
-        ok = dr.drive_prestep(
+        status = dr.drive_prestep(
             self.P,
             self.seg,
             self.hold,
@@ -337,6 +339,7 @@ class Simulation:
             m[2],
             m[3],
             m[4],
+            self._gravity,
             self.X,
             self._Xbak,
             repeat,
@@ -348,13 +351,27 @@ class Simulation:
             self._tau,
             self._work,
         )
-        if not ok:
+        if status == dr.STEP_NOT_FINITE:
             bad = [j + 1 for j in range(self.n) if not np.all(np.isfinite(self.X[j, : dr.NS]))]
             self._fail = f"drive states of joint(s) {bad or '?'} not finite at t = {ts:.6f} s"
+            return False
+        if status == dr.STEP_FRICTION:
+            self._fail = self._friction_failure(ts)
             return False
         mbs.SetObjectParameter(self._kt, "jointForceVector", self._tau)
         self.timing["drive"] += _time.perf_counter() - t0 - (self.timing["output"] - out0)
         return True
+
+    def _friction_failure(self, ts: float) -> str:
+        """Why a step left the friction model's accuracy: wrong numbers are not returned as results."""
+        bad = [j for j in range(self.n) if abs(self.X[j, dr.S_Z]) > dr.friction_bound(self.P, j)]
+        j = bad[0] if bad else 0
+        return (
+            f"joint{j + 1}: the friction state left its physical bound at t = {ts:.6f} s "
+            f"(motor speed {self.X[j, dr.S_OM]:.1f} rad/s; up to {dr.MAX_SUBSTEP_FACTOR * self.nsub} drive "
+            f"substeps per step of {self.h:g} s were not enough for gear.sigma0 = {self.P[j, dr.P_S0]:g}): "
+            "take a smaller step (settings.step) or a softer gear.sigma0"
+        )
 
     def _emit_row(self, q: np.ndarray, qd: np.ndarray) -> bool:
         """The output row of sample `_k_next` (time `_t_next`) from the chain state q, qd and the drive
