@@ -353,7 +353,10 @@ class Simulation:
         )
         if status == dr.STEP_NOT_FINITE:
             bad = [j + 1 for j in range(self.n) if not np.all(np.isfinite(self.X[j, : dr.NS]))]
-            self._fail = f"drive states of joint(s) {bad or '?'} not finite at t = {ts:.6f} s"
+            self._fail = (
+                f"the drive integration broke down: drive states of joint(s) {bad or '?'} not finite at "
+                f"t = {ts:.6f} s: take a smaller step (settings.step)"
+            )
             return False
         if status == dr.STEP_FRICTION:
             self._fail = self._friction_failure(ts)
@@ -367,9 +370,9 @@ class Simulation:
         bad = [j for j in range(self.n) if abs(self.X[j, dr.S_Z]) > dr.friction_bound(self.P, j)]
         j = bad[0] if bad else 0
         return (
-            f"joint{j + 1}: the friction state left its physical bound at t = {ts:.6f} s "
-            f"(motor speed {self.X[j, dr.S_OM]:.1f} rad/s; up to {dr.MAX_SUBSTEP_FACTOR * self.nsub} drive "
-            f"substeps per step of {self.h:g} s were not enough for gear.sigma0 = {self.P[j, dr.P_S0]:g}): "
+            f"the drive integration broke down at t = {ts:.6f} s: joint{j + 1}'s friction state left its "
+            f"physical bound (motor speed {self.X[j, dr.S_OM]:.1f} rad/s, step {self.h:g} s with up to "
+            f"{dr.MAX_SUBSTEP_FACTOR * self.nsub} drive substeps, gear.sigma0 = {self.P[j, dr.P_S0]:g}): "
             "take a smaller step (settings.step) or a softer gear.sigma0"
         )
 

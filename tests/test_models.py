@@ -562,7 +562,7 @@ def test_a_run_past_its_friction_accuracy_fails_and_says_why():
     """A bristle stiffness no substep count can follow at this speed: the run stops with an error
     naming the joint and the parameter, rather than return wrong numbers."""
     with pytest.raises(
-        SimulationError, match=r"joint1: the friction state left its physical bound.*gear\.sigma0"
+        SimulationError, match=r"broke down.*joint1's friction state left its physical bound.*gear\.sigma0"
     ):
         puma_fast_move({"joint1.gear.sigma0": 1e6}, substeps=1)
 
