@@ -278,6 +278,13 @@ def mass_matrix(pre_R, pre_p, masses, coms, inertias, q, M):
     R_all = np.empty((n, 3, 3))
     p_all = np.empty((n, 3))
     chain_frames(pre_R, pre_p, q, R_all, p_all)
+    mass_matrix_at(R_all, p_all, masses, coms, inertias, M)
+
+
+@njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
+def mass_matrix_at(R_all, p_all, masses, coms, inertias, M):
+    """`mass_matrix` from the joint frames of `chain_frames` (computed once per step by the drives)."""
+    n = masses.shape[0]
     for a in range(n):
         for b in range(n):
             M[a, b] = 0.0
@@ -339,6 +346,13 @@ def bias_forces(pre_R, pre_p, masses, coms, inertias, gravity, q, qd, out):
     R_all = np.empty((n, 3, 3))
     p_all = np.empty((n, 3))
     chain_frames(pre_R, pre_p, q, R_all, p_all)
+    bias_forces_at(R_all, p_all, masses, coms, inertias, gravity, qd, out)
+
+
+@njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
+def bias_forces_at(R_all, p_all, masses, coms, inertias, gravity, qd, out):
+    """`bias_forces` from the joint frames of `chain_frames`."""
+    n = qd.shape[0]
     w = np.zeros(3)
     wd = np.zeros(3)
     a_o = np.empty(3)
@@ -721,13 +735,16 @@ def drive_step(
     tau_out = mean gear torque. STEP_OK, or STEP_NOT_FINITE / STEP_FRICTION when the states broke down."""
     nsub = substeps_for(P, X, h, nsub)
     n = q.shape[0]
+    R_all = np.empty((n, 3, 3))
+    p_all = np.empty((n, 3))
+    chain_frames(pre_R, pre_p, q, R_all, p_all)  # once, for the mass matrix and the bias
     M = np.empty((n, n))
-    mass_matrix(pre_R, pre_p, masses, coms, inertias, q, M)
+    mass_matrix_at(R_all, p_all, masses, coms, inertias, M)
     Minv = np.linalg.inv(M)
     # The load side within the step: M qdd = tau_gear - bias, the bias (velocity terms, gravity) held
     # at the step start; without it the gear torques lag the chain's other forces by up to 8 %.
     bias = np.empty(n)
-    bias_forces(pre_R, pre_p, masses, coms, inertias, gravity, q, qd, bias)
+    bias_forces_at(R_all, p_all, masses, coms, inertias, gravity, qd, bias)
     for j in range(n):
         X[j, S_QL] = q[j]
         X[j, S_QDL] = qd[j]
