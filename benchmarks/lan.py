@@ -251,9 +251,9 @@ def wait_quiet() -> None:
 
 
 def standard_target() -> list[float]:
-    from simecs.models.spider import STANDARD_TARGET
+    from simecs.models import get_model
 
-    return list(STANDARD_TARGET)
+    return list(get_model("spider").spec.standard_target)
 
 
 def tls_ratio(plain: LanMesh, secured: LanMesh, password: str) -> dict[str, Any]:

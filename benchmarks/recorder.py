@@ -157,8 +157,9 @@ def replay_speed(mesh: LocalMesh, path: Path, speed: float) -> float:
 
 def standard_rtf(client: MeshClient, pid: int | None = None) -> tuple[float, float]:
     """RTF of one standard run, and the CPU seconds process `pid` spent from its start to its end."""
-    from simecs.models.spider import STANDARD_TARGET
+    from simecs.models import get_model
 
+    STANDARD_TARGET = get_model("spider").spec.standard_target
     s = client.create_session("bench", "spider")
     s.set_settings(stop_time=STOP, output_interval=OUTPUT, pacing="fast")
     s.set_joint_path([(list(STANDARD_TARGET), 100.0, 100.0)])

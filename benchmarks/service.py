@@ -40,9 +40,9 @@ LIVE_PERIOD = 0.025
 
 
 def standard_target() -> list[float]:
-    from simecs.models.spider import STANDARD_TARGET
+    from simecs.models import get_model
 
-    return list(STANDARD_TARGET)
+    return list(get_model("spider").spec.standard_target)
 
 
 def prepare(s: SessionClient, pacing: str, stop: float = STOP, **settings: Any) -> None:

@@ -24,7 +24,7 @@ from typing import Any
 from simecs.testing import browser
 from simecs.testing.launch import LocalMesh
 
-STANDARD_TARGET = (0.8, 0.6, -0.7, 1.0, 0.9, -0.8, 1.2)  # rad: models/spider.py STANDARD_TARGET
+STANDARD_TARGET = (0.8, 0.6, -0.7, 1.0, 0.9, -0.8, 1.2)  # rad: standard_target of models/library/spider
 MODEL_BUTTON = "Load Spider arm (joint-independent control)"
 TARGET_UPDATES_PER_S = 30.0
 TARGET_FIRST_FRAME_S = 1.0

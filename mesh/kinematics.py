@@ -71,7 +71,7 @@ def link_frames(
     if len(q) != len(model.links):
         raise ValueError(f"expected {len(model.links)} joint positions, got {len(q)}")
     pos = np.asarray(model.base_translation, dtype=float)
-    rot = np.eye(3)
+    rot = rot_rpy(model.base_rotation_rpy)
     frames = []
     for link, qi in zip(model.links, q, strict=True):
         rot = rot @ rot_z(float(qi)) @ rot_rpy(link.initial_rotation_rpy)

@@ -138,6 +138,9 @@ class ModelDescription(Message, tag="model"):
     command_levels: Annotated[list[Name], Meta(description="the robot command kinds the model accepts")]
     environment: Annotated[list[Shape], Meta(description="floor, bench, obstacles (link -1)")] = []
     home: Annotated[list[float], Meta(max_length=64, description="rad: the `home` action's posture")] = []
+    base_rotation_rpy: Annotated[
+        Vec3, Meta(description="rad: joint 1's frame turned from the world's (roll, pitch, yaw)")
+    ] = msgspec.field(default_factory=lambda: [0.0, 0.0, 0.0])
 
     def summary_entry(self) -> ModelSummary:
         return ModelSummary(self.id, self.name, self.summary, len(self.links), list(self.command_levels))

@@ -5,17 +5,22 @@ pkg = get_model("spider"); sim = pkg.build({}); sim.set_initial([0]*7)
 sim.set_joint_path([([0.5]*7, 100, 100)]); sim.start(5.0, 0.01); rows = sim.advance(0.02) ...
 
 The modules, from the data a model author writes to the running simulation (docs/MODELS.md):
-spec (ArmSpec), spider/puma (the models), drives_catalog (drive size classes), description (what
+model_file (a model directory: model.json5, read into an ArmSpec), urdf and urdf_chain (a URDF's
+serial chain), library/ (the shipped model directories), spec (ArmSpec), drives_catalog (drive size
+classes and the sizing rule), description (what
 clients see), docs (its hypertext pages), mechanics (arrays and initial states), drive (numba
 kernels), exudyn_chain (the Exudyn system), simulation (one run), package (ModelPackage).
 """
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 from simecs.mesh.model import ModelSummary
 
 from .errors import CommandError, ParameterError, SimulationError
+from .model_file import MODEL_FILE, ModelFileError, load_model_dir
 from .package import ModelPackage
 from .simulation import Simulation
 
@@ -27,18 +32,29 @@ __all__ = [
     "CommandError",
     "ParameterError",
     "SimulationError",
+    "ModelFileError",
+    "load_model_dir",
     "warmup",
     "costs",
 ]
 
 _REGISTRY: dict[str, ModelPackage] = {}
 
+#: The shipped models, one directory each (model_file.py reads them; docs/MODELS.md says how to write one).
+LIBRARY = Path(__file__).parent / "library"
+
+
+def library_dirs() -> list[Path]:
+    """The model directories of the shipped library, in the order clients list them."""
+    order = ["spider", "puma560", "panda", "ur5", "jaco2"]
+    found = sorted(p for p in LIBRARY.iterdir() if (p / MODEL_FILE).is_file())
+    return sorted(found, key=lambda p: (order.index(p.name) if p.name in order else len(order), p.name))
+
 
 def _load() -> dict[str, ModelPackage]:
     if not _REGISTRY:
-        from . import puma, spider
-
-        for spec in (spider.spec(), puma.spec()):
+        for directory in library_dirs():
+            spec = load_model_dir(directory)
             _REGISTRY[spec.id] = ModelPackage(spec)
     return _REGISTRY
 
@@ -65,8 +81,9 @@ def costs(seconds: float = 0.25) -> dict[str, float]:
     for model_id, package in _load().items():
         sim = package.build({})
         try:
-            sim.set_initial([0.0] * sim.n)
-            sim.set_joint_path([([0.05] * sim.n, 100.0, 100.0)])
+            home = package.home()
+            sim.set_initial(list(home))
+            sim.set_joint_path([(list(package.spec.standard_target), 100.0, 100.0)])
             sim.start(seconds, 0.002)
             t0 = time.process_time()
             sim.advance(seconds)

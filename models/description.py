@@ -225,6 +225,7 @@ class ArmDescription:
                 command_levels=list(COMMAND_LEVELS),
                 home=list(self.home()),
                 environment=list(s.environment),
+                base_rotation_rpy=list(s.base_rpy),
             )
         return self._description
 

@@ -137,7 +137,6 @@ def size_class(
     backlash: float,
     fc: float,
     i_max: float,
-    load_inertia: float,
     max_speed: float,
     max_acc: float,
     efficiency: float = 0.85,
@@ -197,3 +196,50 @@ def size_class(
         traj_max_speed=max_speed,
         traj_max_acc=max_acc,
     )
+
+
+#: The sizing rule's choices (docs/MODELS.md, "Drives sized from a URDF's limits").
+TOP_MOTOR_SPEED = 300.0  # rad/s of the motor at the joint's URDF velocity limit (about 2900 rpm)
+RATIO_RANGE = (20.0, 200.0)
+
+
+def size_for_limits(effort: float, velocity: float, u_max: float = 48.0) -> dict[str, float]:
+    """`size_class` arguments for a joint that must give `effort` N m at up to `velocity` rad/s (a
+    URDF's <limit>): a documented rule, so an imported model runs before its modeller tunes it.
+
+    The gear turns the velocity limit into TOP_MOTOR_SPEED; the motor's back-EMF at that speed is half
+    the bus (kt); its peak current gives `effort` through the gear (i_max); a quarter of the bus drops
+    over the winding at peak current (R) with a 1 ms electrical time constant (L); rotor inertia,
+    friction and cogging scale with the peak motor torque, gear stiffness with `effort` (800 N m/rad per
+    N m, harmonic-drive class), like the Spider's drives.
+    """
+    if not (effort > 0 and velocity > 0):
+        raise ValueError("the sizing rule needs a positive effort and velocity limit")
+    ratio = float(min(max(round(TOP_MOTOR_SPEED / velocity), RATIO_RANGE[0]), RATIO_RANGE[1]))
+    efficiency = 0.85 if effort >= 20.0 else 0.8
+    tau_motor = effort / (ratio * efficiency)
+    kt = 0.5 * u_max / (ratio * velocity)
+    i_max = tau_motor / kt
+    R = 0.25 * u_max / i_max
+    J_rotor = 8e-5 * tau_motor
+    stiffness = 800.0 * effort
+    return {
+        "R": R,
+        "L": R * 1e-3,
+        "kt": kt,
+        "poles": 4,
+        "J_rotor": J_rotor,
+        "ratio": ratio,
+        "J_gear": 0.3 * J_rotor,
+        "stiffness": stiffness,
+        "damping": 7e-4 * stiffness,
+        "backlash": 1e-4,
+        "fc": 0.03 * tau_motor,
+        "i_max": i_max,
+        "max_speed": velocity,
+        "max_acc": 2.0 * velocity,
+        "efficiency": efficiency,
+        "detent": 0.005 * tau_motor,
+        "kp_pos": 8.0,
+        "u_max": u_max,
+    }

@@ -43,7 +43,7 @@ def chain_arrays(spec: ArmSpec, values: Mapping[str, float]) -> ChainArrays:
     masses = np.zeros(n)
     coms = np.zeros((n, 3))
     inertias = np.zeros((n, 3, 3))
-    prev_R = np.eye(3)
+    prev_R = rot_rpy(spec.base_rpy)
     prev_off = vec(spec.base_translation)
     for i, lk in enumerate(spec.links):
         pre_R[i] = prev_R
@@ -61,7 +61,7 @@ def chain_arrays(spec: ArmSpec, values: Mapping[str, float]) -> ChainArrays:
             I_l = np.diag([ixx, iyy, iyy])
         else:
             c_l = vec(lk.com)
-            I_l = np.diag(vec(lk.inertia))
+            I_l = np.asarray(lk.inertia_matrix(), dtype=float)
         if i == n - 1:
             mp = float(values["payload.mass"])
             if mp > 0:

@@ -8,6 +8,7 @@ named arguments only: a link has nine numbers and names, and a positional slip w
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from pathlib import Path
 
 from simecs.mesh.model import Shape
 
@@ -41,12 +42,23 @@ class LinkSpec:
     drive: str  # key into ArmSpec.drives
     length_max: float = 3.0
     com: Vec3 | None = None  # fixed COM in the link frame; None: uniform tube
-    inertia: Vec3 | None = None  # principal inertia at COM (link axes); None: tube
+    # inertia at the COM in link axes: (ixx, iyy, izz) or (ixx, iyy, izz, ixy, ixz, iyz); None: tube
+    inertia: tuple[float, ...] | None = None
     color: tuple[int, int, int] = (200, 200, 210)
+    source_joint: str = ""  # the joint's name in the file it came from (a URDF), for the docs
 
     def __post_init__(self) -> None:
         if (self.com is None) != (self.inertia is None):
             raise ValueError(f"{self.name}: com and inertia are given together or not at all")
+        if self.inertia is not None and len(self.inertia) not in (3, 6):
+            raise ValueError(f"{self.name}: inertia has 3 (principal) or 6 (ixx iyy izz ixy ixz iyz) values")
+
+    def inertia_matrix(self) -> tuple[tuple[float, float, float], ...] | None:
+        """The inertia at the COM in link axes as a 3x3 (rows), or None for a tube."""
+        if self.inertia is None:
+            return None
+        ixx, iyy, izz, ixy, ixz, iyz = (*self.inertia, 0.0, 0.0, 0.0)[:6]
+        return ((ixx, ixy, ixz), (ixy, iyy, iyz), (ixz, iyz, izz))
 
 
 @dataclass(kw_only=True)
@@ -59,6 +71,7 @@ class ArmSpec:
     links: list[LinkSpec]
     drives: dict[str, dict[str, ParamInfo]]  # size class -> DRIVE_PARAMS name -> info
     base_translation: Vec3 = (0.0, 0.0, 0.0)
+    base_rpy: Vec3 = (0.0, 0.0, 0.0)  # joint 1's frame in the world (its z is joint 1's axis)
     tool_translation: Vec3 = (0.0, 0.0, 0.0)
     payload_mass: float = 0.0
     payload_size: float = 0.2
@@ -74,3 +87,4 @@ class ArmSpec:
     cart_max_rot_speed: float = 0.5  # rad/s of the tool orientation
     cart_max_rot_acc: float = 1.0  # rad/s^2
     environment: list[Shape] = field(default_factory=list)
+    source: Path | None = None  # the model directory it was read from

@@ -235,6 +235,40 @@ def cmd_bench(args: argparse.Namespace) -> int:
     return 0 if result is not None else 1
 
 
+def cmd_model(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
+    """`simecs model check DIR` and `simecs model import URDF --out DIR`."""
+    from simecs.models.model_file import ModelFileError
+    from simecs.models.model_import import check_model, import_urdf, read_drive_table
+    from simecs.models.urdf import UrdfError
+
+    if args.action == "check":
+        return 0 if check_model(args.path, run=not args.no_run) else 1
+    if not args.out:
+        parser.error("model import needs --out DIR")
+    locks = {}
+    for item in args.lock:
+        name, _, value = item.partition("=")
+        try:
+            locks[name] = float(value)
+        except ValueError:
+            parser.error(f"--lock {item!r}: give JOINT=VALUE with a number")
+    try:
+        table = None if args.drives == "auto" else read_drive_table(args.drives)
+        out = import_urdf(
+            args.path,
+            args.out,
+            model_id=args.id,
+            base_link=args.base_link,
+            tool_link=args.tool_link,
+            locked=locks,
+            drives=table,
+        )
+    except (UrdfError, ModelFileError) as exc:
+        print(f"refused: {exc}", file=sys.stderr)
+        return 1
+    return 0 if check_model(out, run=True) else 1
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="simecs",
@@ -298,6 +332,29 @@ def build_parser() -> argparse.ArgumentParser:
         help="placement of the live path, as the nodes' --cpu: auto, none or a CPU number",
     )
 
+    model = sub.add_parser(
+        "model", help="check a model directory (model.json5), or import a URDF as a new one (docs/MODELS.md)"
+    )
+    model.add_argument("action", choices=["check", "import"])
+    model.add_argument("path", help="check: a model directory or its model.json5; import: a URDF file")
+    model.add_argument("--no-run", action="store_true", help="check: do not run the standard move")
+    model.add_argument("--out", default="", help="import: the model directory to write")
+    model.add_argument("--id", default="", help="import: the model id (default: from the URDF's robot name)")
+    model.add_argument(
+        "--base-link", default="", help="import: the link the arm stands on (default: the root)"
+    )
+    model.add_argument(
+        "--tool-link", default="", help="import: the tool frame's link (default: the chain's end)"
+    )
+    model.add_argument(
+        "--lock", action="append", default=[], metavar="JOINT=VALUE", help="import: hold a joint at a value"
+    )
+    model.add_argument(
+        "--drives",
+        default="auto",
+        help="import: auto (sized from the URDF's limits) or a JSON5 drive table {drives, joints}",
+    )
+
     from simecs.nodes import batch
 
     run = sub.add_parser("run", help="one simulation from files, to a recording or CSV (no browser)")
@@ -337,6 +394,8 @@ def main(argv: list[str] | None = None) -> None:
         sys.exit(cmd_users(args))
     if args.command == "bench":
         sys.exit(cmd_bench(args))
+    if args.command == "model":
+        sys.exit(cmd_model(args, parser))
     if args.command in ("run", "sweep"):
         from simecs.nodes import batch
 

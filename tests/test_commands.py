@@ -86,6 +86,35 @@ def test_a_ptp_move_to_a_pose_reaches_it_on_the_puma(service: Service) -> None:
     assert np.max(np.linalg.norm(rel - np.outer(rel @ chord, chord), axis=1)) > 5e-3
 
 
+IMPORTED = ["panda", "ur5", "jaco2"]
+
+
+@pytest.mark.parametrize("model_id", IMPORTED)
+def test_an_imported_model_runs_a_joint_and_a_cartesian_move(service: Service, model_id: str) -> None:
+    """Each model imported from URDF takes the same commands as the Spider, through the service."""
+    pkg = models.get_model(model_id)
+    home, target = list(pkg.home()), list(pkg.spec.standard_target)
+    s = service.client.create_session("ann", model_id)
+    s.set_initial(home)
+    plan = s.set_command(m.JointPath([m.PathNode(target)]))
+    cols, rows = run_to_end(s, plan, after=0.5)
+    q_end = [rows[-1, cols.index(f"joint{j}.q")] for j in range(1, len(home) + 1)]
+    assert np.max(np.abs(np.array(q_end) - target)) < 2e-3
+    s.set_initial(target)
+    kin = kinematics(model_id)
+    p0, R0 = kin.tool_pose(np.array(target))
+    p1 = p0 + np.array([0.05, -0.04, 0.03])
+    rpy1 = rpy_of(rot_rpy([0.0, 0.1, 0.0]) @ R0)
+    plan = s.set_command(m.CartesianPath([m.CartesianNode(list(p1), list(rpy1), "lin", 50.0, 50.0)]))
+    cols, rows = run_to_end(s, plan)
+    end = rows[-1, tool_columns(cols)]
+    assert np.linalg.norm(end[:3] - p1) < 2e-3, (
+        f"{model_id}: LIN ends {np.linalg.norm(end[:3] - p1) * 1e3:.2f} mm off"
+    )
+    angle = np.arccos(np.clip((np.trace(matrix_from_quat(end[3:]).T @ rot_rpy(rpy1)) - 1) / 2, -1, 1))
+    assert angle < 5e-3
+
+
 def test_an_open_loop_current_step_moves_the_joint_as_its_inertia_predicts(service: Service) -> None:
     s = service.client.create_session("ann", "spider")
     s.set_initial(SPIDER_Q0)

@@ -375,12 +375,14 @@ def test_specs_are_keyword_only_and_docs_need_no_package(spider):
     assert [p.markdown for p in pages] == [p.markdown for p in d.docs]
 
 
-def test_puma_runs_same_drive_family():
-    pkg = get_model("puma560")
+@pytest.mark.parametrize("model_id", [m.id for m in list_models()])
+def test_every_model_runs_the_same_drive_family(model_id):
+    """Each model of the library (hand-written or imported from URDF) reaches its standard target from
+    home under its drives, and its streamed poses are those of its description's kinematics."""
+    pkg = get_model(model_id)
     d = pkg.describe()
     sim = pkg.build({})
-    q0 = np.zeros(len(d.links))
-    sim.set_initial(q0)
+    sim.set_initial(list(pkg.home()))
     target = list(pkg.spec.standard_target)
     sim.set_joint_path([(target, 100, 100)])
     data = run(sim, sim.path_duration() + 0.7, out=0.01)

@@ -155,8 +155,9 @@ def test_real_run_leaves_a_valid_recording(mesh: Mesh) -> None:
     client = service.client
     s = client.create_session(USER, "spider")
     s.set_settings(stop_time=0.5, output_interval=0.002, pacing="fast")
-    from simecs.models.spider import STANDARD_TARGET
+    from simecs.models import get_model
 
+    STANDARD_TARGET = get_model("spider").spec.standard_target
     s.set_joint_path([(list(STANDARD_TARGET), 100.0, 100.0)])
     run_id = s.run()
     s.wait_for(["finished", "failed", "aborted"], 90, run_id)

@@ -1,0 +1,299 @@
+"""Model files and URDF import: the shipped library, refusals that name their element, the CLI.
+
+The imported chains are judged against yourdfpy (an independent reading of the same URDF): tool
+poses on random configurations, and the mass, centre of mass and inertia of the moving arm.
+"""
+
+from __future__ import annotations
+
+import math
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yourdfpy
+from simecs import models
+from simecs.mesh.kinematics import link_frames, rot_rpy
+from simecs.models.model_file import ModelFileError, load_model_dir
+from simecs.models.urdf import UrdfError, read_urdf, resolve_uri
+
+URDF_MODELS = [p.name for p in models.library_dirs() if models.get_model(p.name).spec.links[0].source_joint]
+
+
+def test_the_library_holds_five_models_defined_one_way() -> None:
+    ids = [m.id for m in models.list_models()]
+    assert ids[:2] == ["spider", "puma560"] and len(ids) >= 5
+    assert set(URDF_MODELS) >= {"panda", "ur5", "jaco2"}
+    for directory in models.library_dirs():
+        assert (directory / "model.json5").is_file()
+        assert models.get_model(directory.name).spec.source == directory
+
+
+def _reference(model_id: str) -> tuple[models.ModelPackage, yourdfpy.URDF, dict]:
+    pkg = models.get_model(model_id)
+    source = load_model_source(pkg)
+    urdf = yourdfpy.URDF.load(
+        str(source["path"]), load_meshes=False, build_scene_graph=True, load_collision_meshes=False
+    )
+    return pkg, urdf, source
+
+
+def load_model_source(pkg: models.ModelPackage) -> dict:
+    import json5
+
+    assert pkg.spec.source is not None
+    raw = json5.loads((pkg.spec.source / "model.json5").read_text())["urdf"]
+    raw["path"] = resolve_uri(raw["file"], pkg.spec.source)
+    return raw
+
+
+@pytest.mark.parametrize("model_id", URDF_MODELS)
+def test_imported_kinematics_match_an_independent_urdf_reader(model_id: str) -> None:
+    pkg, urdf, source = _reference(model_id)
+    d = pkg.describe()
+    values = d.default_values()
+    names = [lk.source_joint for lk in pkg.spec.links]
+    rng = np.random.default_rng(7)
+    worst = 0.0
+    for _ in range(40):
+        q = [rng.uniform(lk.joint_min, lk.joint_max) for lk in pkg.spec.links]
+        urdf.update_cfg({**dict(zip(names, q, strict=True)), **source.get("locked_joints", {})})
+        T = urdf.get_transform(source["tool_link"], source.get("base_link") or urdf.base_link)
+        p, R = link_frames(d, values, q)[-1]
+        worst = max(worst, float(np.abs(p - T[:3, 3]).max()), float(np.abs(R - T[:3, :3]).max()))
+    assert worst < 1e-9, f"{model_id}: tool pose {worst:.2e} off yourdfpy's"
+
+
+def _moving_links(urdf: yourdfpy.URDF, first_joint: str) -> list[str]:
+    todo = [urdf.joint_map[first_joint].child]
+    out = []
+    while todo:
+        link = todo.pop()
+        out.append(link)
+        todo.extend(j.child for j in urdf.robot.joints if j.parent == link)
+    return out
+
+
+@pytest.mark.parametrize("model_id", URDF_MODELS)
+def test_imported_masses_and_inertias_match_the_urdf(model_id: str) -> None:
+    """The merged bodies carry the URDF's mass, centre of mass and inertia (about the world origin) in
+    every posture: what the dynamics needs of the conversion."""
+    pkg, urdf, source = _reference(model_id)
+    d = pkg.describe()
+    values = d.default_values()
+    names = [lk.source_joint for lk in pkg.spec.links]
+    base = source.get("base_link") or urdf.base_link
+    rng = np.random.default_rng(3)
+    for _ in range(5):
+        q = [rng.uniform(lk.joint_min, lk.joint_max) for lk in pkg.spec.links]
+        urdf.update_cfg({**dict(zip(names, q, strict=True)), **source.get("locked_joints", {})})
+        ref_m, ref_c, ref_I = 0.0, np.zeros(3), np.zeros((3, 3))
+        for link in _moving_links(urdf, names[0]):
+            inertial = urdf.link_map[link].inertial
+            if inertial is None or inertial.mass == 0:
+                continue
+            T = urdf.get_transform(link, base) @ (
+                inertial.origin if inertial.origin is not None else np.eye(4)
+            )
+            c = T[:3, 3]
+            ref_m += inertial.mass
+            ref_c += inertial.mass * c
+            ref_I += T[:3, :3] @ inertial.inertia @ T[:3, :3].T + inertial.mass * (
+                c @ c * np.eye(3) - np.outer(c, c)
+            )
+        m, c_sum, inertia = 0.0, np.zeros(3), np.zeros((3, 3))
+        for lk, (p, R) in zip(pkg.spec.links, link_frames(d, values, q)[:-1], strict=True):
+            c = p + R @ np.array(lk.com)
+            m += lk.mass
+            c_sum += lk.mass * c
+            inertia += R @ np.array(lk.inertia_matrix()) @ R.T + lk.mass * (
+                c @ c * np.eye(3) - np.outer(c, c)
+            )
+        assert abs(m - ref_m) < 1e-12
+        assert np.abs(c_sum - ref_c).max() < 1e-9
+        assert np.abs(inertia - ref_I).max() < 1e-9
+
+
+def test_the_puma_file_holds_exudyns_puma_560() -> None:
+    """The PUMA's rows in its model file are exudyn.robotics' DH table and link data, converted: the
+    standard DH row [theta, d, a, alpha] is Rx(alpha), length a, final (0, d sin alpha, d cos alpha)."""
+    from exudyn.robotics.models import ManipulatorPuma560
+
+    spec = models.get_model("puma560").spec
+    for lk, ref in zip(spec.links, ManipulatorPuma560()["links"], strict=True):
+        theta, dd, a, alpha = (float(v) for v in ref["stdDH"])
+        final = np.array([0.0, dd * math.sin(alpha), dd * math.cos(alpha)])
+        assert lk.rpy == (alpha, 0.0, 0.0) and lk.length == a
+        assert np.allclose(lk.final, final, atol=1e-15)
+        assert np.allclose(lk.com, np.asarray(ref["COM"], float) + np.array([a, 0, 0]) + final, atol=1e-15)
+        assert np.allclose(lk.inertia, np.diag(np.asarray(ref["inertia"], float)))
+        assert lk.mass == ref["mass"] and [lk.joint_min, lk.joint_max] == list(ref["jointLimits"])
+
+
+# -- refusals --------------------------------------------------------------------------------------
+ARM = """<?xml version="1.0"?>
+<robot name="arm3">
+  <link name="base"/>
+  <link name="l1"><inertial><mass value="2"/><inertia ixx="0.02" iyy="0.02" izz="0.01"/></inertial></link>
+  <link name="l2"><inertial><origin xyz="0.15 0 0"/><mass value="1.5"/>
+    <inertia ixx="0.002" iyy="0.015" izz="0.015"/></inertial></link>
+  <link name="l3"><inertial><mass value="0.5"/><inertia ixx="0.001" iyy="0.001" izz="0.001"/></inertial>
+    <visual><geometry><cylinder radius="0.03" length="0.1"/></geometry></visual></link>
+  <link name="tool"/>
+  <joint name="j1" type="revolute"><parent link="base"/><child link="l1"/><origin xyz="0 0 0.3"/>
+    <axis xyz="0 0 1"/><limit lower="-3" upper="3" effort="40" velocity="2"/></joint>
+  <joint name="j2" type="revolute"><parent link="l1"/><child link="l2"/>
+    <origin xyz="0 0 0.1" rpy="1.5708 0 0"/>
+    <axis xyz="0 0 1"/><limit lower="-2" upper="2" effort="40" velocity="2"/></joint>
+  <joint name="j3" type="revolute"><parent link="l2"/><child link="l3"/><origin xyz="0.3 0 0"/>
+    <axis xyz="0 1 0"/><limit lower="-2" upper="2" effort="10" velocity="3"/></joint>
+  <joint name="flange" type="fixed"><parent link="l3"/><child link="tool"/><origin xyz="0.1 0 0"/></joint>
+</robot>
+"""
+
+BAD_URDFS = [
+    ('<axis xyz="0 1 0"/>', '<axis xyz="0 0 0"/>', 'joint "j3": axis [0, 0, 0] is not a unit vector'),
+    (
+        'name="j2" type="revolute"',
+        'name="j2" type="prismatic"',
+        'joint "j2": prismatic joints are not supported',
+    ),
+    ('<parent link="l2"/>', '<parent link="nope"/>', 'joint "j3": parent link "nope" is not defined'),
+    ('<mass value="1.5"/>', '<mass value="-1.5"/>', 'link "l2": mass -1.5 kg is negative'),
+    ('lower="-2" upper="2" effort="10"', 'lower="2" upper="-2" effort="10"', 'joint "j3": limit lower 2'),
+    ('<origin xyz="0.3 0 0"/>', '<origin xyz="0.3 0"/>', "joint \"j3\": origin xyz '0.3 0' is not 3 numbers"),
+    (
+        "</robot>",
+        '<joint name="loop" type="fixed"><parent link="l3"/><child link="l1"/></joint></robot>',
+        "closed loops are not supported",
+    ),
+    (
+        "</robot>",
+        '<link name="l4"/><joint name="j4" type="revolute"><parent link="l1"/><child link="l4"/>'
+        '<axis xyz="1 0 0"/><limit lower="-1" upper="1" effort="1" velocity="1"/></joint></robot>',
+        'link "l1": the chain branches here',
+    ),
+    (
+        'iyy="0.015" izz="0.015"',
+        'iyy="0.015" izz="0.1"',
+        'link "l2": inertia violates the triangle inequality',
+    ),
+    ("</robot>", "</robt>", "not well-formed XML"),
+]
+
+
+def _model_dir(tmp_path: Path, urdf_text: str, extra: str = "") -> Path:
+    (tmp_path / "arm3.urdf").write_text(urdf_text)
+    (tmp_path / "assumptions.md").write_text("A three-joint test arm.\n")
+    (tmp_path / "model.json5").write_text(
+        '{format: 1, id: "arm3", name: "Arm 3", summary: "test arm", docs: {assumptions: "assumptions.md"},'
+        f' urdf: {{file: "arm3.urdf"}}, {extra}}}'
+    )
+    return tmp_path
+
+
+@pytest.mark.parametrize("old,new,message", BAD_URDFS)
+def test_a_malformed_urdf_is_refused_naming_its_element(
+    tmp_path: Path, old: str, new: str, message: str
+) -> None:
+    assert old in ARM
+    directory = _model_dir(tmp_path, ARM.replace(old, new, 1))
+    with pytest.raises(ModelFileError) as refused:
+        load_model_dir(directory)
+    assert message in str(refused.value) and "arm3.urdf" in str(refused.value)
+
+
+def test_a_good_urdf_loads_and_its_chain_is_what_the_file_says(tmp_path: Path) -> None:
+    spec = load_model_dir(_model_dir(tmp_path, ARM))
+    assert [lk.source_joint for lk in spec.links] == ["j1", "j2", "j3"]
+    assert spec.base_translation == (0.0, 0.0, 0.3)
+    # joint 1 to joint 2 is 0.1 m across joint 2's axis: a length, like a DH row's a
+    assert [round(lk.length, 9) for lk in spec.links] == [0.1, 0.3, 0.1]
+    assert all(abs(lk.final[2]) < 1e-5 for lk in spec.links)  # rpy 1.5708 is not quite pi/2
+    assert sum(lk.mass for lk in spec.links) == 4.0
+    # joint 3 turns about l2's y axis: its frame's z is that axis
+    pkg = models.ModelPackage(spec)
+    frames = link_frames(pkg.describe(), pkg.describe().default_values(), [0.0, 0.0, 0.0])
+    assert np.allclose(frames[-1][0], [0.4, 0.0, 0.4], atol=1e-4)  # the flange, 0.3 + 0.1 along l2's x
+    with pytest.raises(UrdfError, match='locked_joints "j9": is not a joint'):
+        from simecs.models.urdf_chain import serial_chain
+
+        serial_chain(read_urdf(tmp_path / "arm3.urdf"), locked_joints={"j9": 0.0})
+
+
+@pytest.mark.parametrize(
+    "extra,message",
+    [
+        ("mas: 1", "model.json5: mas: unknown field"),
+        ('joints: {j2: {drive: "big"}}', "joints.j2.drive: 'big' is not one of the drives"),
+        ('joints: {j7: {drive: "auto"}}', "joints.j7: is not a movable joint"),
+        ("home: [0, 0]", "home: 2 values for a 3-joint arm"),
+        ("home: [0, 0, 2.5]", "home[2]: 2.5 rad is outside joint 3's range"),
+        ("links: [], drives: {}", "give the chain as either `links` or `urdf`"),
+        ('urdf: {file: "missing.urdf"}', "urdf.file: no such file"),
+        ("payload: {mass: -1}", "payload.mass"),
+    ],
+)
+def test_a_bad_model_file_is_refused_naming_its_field(tmp_path: Path, extra: str, message: str) -> None:
+    directory = _model_dir(tmp_path, ARM, extra)
+    if "urdf:" in extra:  # replace, not repeat, the urdf entry
+        text = (directory / "model.json5").read_text().replace(' urdf: {file: "arm3.urdf"},', "")
+        (directory / "model.json5").write_text(text)
+    with pytest.raises(ModelFileError) as refused:
+        load_model_dir(directory)
+    assert message in str(refused.value)
+
+
+def test_a_model_file_of_another_format_is_refused(tmp_path: Path) -> None:
+    directory = _model_dir(tmp_path, ARM)
+    (directory / "model.json5").write_text(
+        (directory / "model.json5").read_text().replace("format: 1", "format: 2")
+    )
+    with pytest.raises(ModelFileError, match="format: 2 is not a format this simecs reads"):
+        load_model_dir(directory)
+
+
+# -- the command line ------------------------------------------------------------------------------
+def simecs(*args: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, "-m", "simecs.nodes.cli", *args], capture_output=True, text=True, timeout=300
+    )
+
+
+def test_model_import_writes_a_model_that_checks_and_runs(tmp_path: Path) -> None:
+    (tmp_path / "arm3.urdf").write_text(ARM)
+    out = tmp_path / "arm3_model"
+    done = simecs("model", "import", str(tmp_path / "arm3.urdf"), "--out", str(out), "--tool-link", "tool")
+    assert done.returncode == 0, done.stdout + done.stderr
+    assert "standard move" in done.stdout and "ok" in done.stdout
+    spec = load_model_dir(out)
+    assert spec.id == "arm3" and [lk.drive for lk in spec.links] == ["j1_drive", "j2_drive", "j3_drive"]
+    # the sized drives are written out in full, for the modeller to tune
+    text = (out / "model.json5").read_text()
+    assert '"ratio": 150.0' in text and '"auto"' not in text
+    checked = simecs("model", "check", str(out), "--no-run")
+    assert checked.returncode == 0 and "3 joints" in checked.stdout
+
+
+def test_model_check_names_what_it_refuses(tmp_path: Path) -> None:
+    directory = _model_dir(tmp_path, ARM.replace('<axis xyz="0 1 0"/>', '<axis xyz="0 0 0"/>'))
+    done = simecs("model", "check", str(directory))
+    assert done.returncode == 1
+    assert 'refused: arm3.urdf: joint "j3": axis [0, 0, 0] is not a unit vector' in done.stdout
+
+
+def test_the_shipped_models_check(tmp_path: Path) -> None:
+    done = simecs("model", "check", str(models.LIBRARY / "ur5"))
+    assert done.returncode == 0, done.stdout
+    assert "shoulder_pan" in done.stdout and "largest miss" in done.stdout
+
+
+def test_rpy_round_trip() -> None:
+    from simecs.models.urdf import matrix_to_rpy
+
+    rng = np.random.default_rng(0)
+    for rpy in [*rng.uniform(-3, 3, (50, 3)), (0.3, math.pi / 2, 0.2), (0.1, -math.pi / 2, 0.4)]:
+        R = rot_rpy(rpy)
+        assert np.abs(rot_rpy(matrix_to_rpy(R)) - R).max() < 1e-12
