@@ -1,6 +1,7 @@
-"""`simecs bench model`: the standard case, its real-time factor, its cost per part and its error.
+"""`simecs bench model`: the standard case, its real-time factor, its cost per part and its error;
+then the same figures for every model of the library, and the imported kinematics against yourdfpy.
 
-Standard case: the Spider, all 7 joints, from q = 0 at rest to `spider.STANDARD_TARGET` at 100 % speed
+Standard case: the Spider, all 7 joints, from home (q = 0) at rest to its `standard_target` at 100 % speed
 and 100 % acceleration, 5 s simulated, full drive fidelity (default parameters), output every 10 ms.
 Error: max over joints and output samples of |q - q_ref_run| against the same run at a 10x finer
 mechanics step (and so 10x finer drive substeps).
@@ -8,6 +9,12 @@ mechanics step (and so 10x finer drive substeps).
 The machine may be shared: the case is timed REPEATS times (bounded by TIME_BUDGET_S of wall time) at
 output 10 ms and at output 2 ms (the live service's interval); `rtf` is the best, `rtf_median` the
 median of the 10 ms runs, `rtf_output_2ms` the best at 2 ms output.
+
+Per model of the library (its own standard case, from its home): `rtf_<model>` (best of LIBRARY_REPEATS,
+one core, target >= 10) and `max_joint_error_mrad_<model>` against a 10x finer step; and
+`fk_vs_reference_m`: the largest tool-pose difference (m, and rotation-matrix entries) between our
+chain and yourdfpy's reading of the URDF of every imported model on FK_SAMPLES random configurations
+each (target <= 1e-9).
 """
 
 from __future__ import annotations
@@ -23,6 +30,8 @@ OUT = 0.01
 OUT_LIVE = 0.002  # the live service's output interval
 REPEATS = 5
 TIME_BUDGET_S = 30.0  # wall time for the timed runs of one output interval, at least 2 runs
+LIBRARY_REPEATS = 3
+FK_SAMPLES = 200
 
 
 def run_case(
@@ -36,7 +45,7 @@ def run_case(
 
     pkg = get_model(model)
     sim = pkg.build(values or {})
-    sim.set_initial([0.0] * sim.n)
+    sim.set_initial(list(pkg.home()))
     sim.set_joint_path([(list(pkg.spec.standard_target), 100.0, 100.0)])
     sim.start(STOP, out, step, substeps)
     t0 = time.perf_counter()
@@ -63,6 +72,43 @@ def timed_runs(step: float, model: str, out: float) -> list[tuple]:
     return sorted(runs, key=lambda r: r[2])
 
 
+def joint_error(data: np.ndarray, ref: np.ndarray, cols: list[str], n: int) -> np.ndarray:
+    """Per joint, the largest |q - q of the finer run| over the output samples (rad)."""
+    qi = [cols.index(f"joint{j}.q") for j in range(1, n + 1)]
+    return np.abs(data[:, qi] - ref[:, qi]).max(axis=0)
+
+
+def library_figures(done: dict[str, tuple[float, float]]) -> dict[str, float]:
+    """rtf_<model> and max_joint_error_mrad_<model> for every model (`done` holds those measured
+    already), then fk_vs_reference_m over the imported ones."""
+    from simecs.models import get_model, list_models
+    from simecs.testing.urdf_reference import UrdfReference, urdf_models
+
+    out: dict[str, float] = {}
+    for summary in list_models():
+        model = summary.id
+        if model in done:
+            rtf, err = done[model]
+        else:
+            step = get_model(model).spec.default_step
+            runs = [run_case(step, model) for _ in range(LIBRARY_REPEATS)]
+            data, cols, wall, _ = min(runs, key=lambda r: r[2])
+            ref, _, _, _ = run_case(step / 10.0, model)
+            rtf, err = STOP / wall, float(joint_error(data, ref, cols, summary.joints).max())
+        out[f"rtf_{model}"] = round(rtf, 2)
+        out[f"max_joint_error_mrad_{model}"] = round(err * 1e3, 4)
+        print(f"  {model:10s} RTF {rtf:6.2f}   max joint error vs 10x finer step {err * 1e3:.4f} mrad")
+    rng = np.random.default_rng(2026)
+    worst = 0.0
+    for model in urdf_models():
+        ref_model = UrdfReference(model)
+        worst_model = max(ref_model.tool_error(ref_model.random_q(rng)) for _ in range(FK_SAMPLES))
+        print(f"  {model:10s} tool pose vs yourdfpy, {FK_SAMPLES} random configurations: {worst_model:.2e}")
+        worst = max(worst, worst_model)
+    out["fk_vs_reference_m"] = float(f"{worst:.3g}")
+    return out
+
+
 def run_model_bench(json_out: bool = False, model: str = "spider") -> dict:
     from simecs.models import get_model, warmup
 
@@ -77,10 +123,7 @@ def run_model_bench(json_out: bool = False, model: str = "spider") -> dict:
     data_live, _, wall_live, timing_live = runs_live[0]
     wall_live_median = float(np.median([r[2] for r in runs_live]))
     ref, _, wall_ref, _ = run_case(step / 10.0, model)
-    n = pkg.n
-    qi = [cols.index(f"joint{j}.q") for j in range(1, n + 1)]
-    err = np.abs(data[:, qi] - ref[:, qi])
-    per_joint = err.max(axis=0)
+    per_joint = joint_error(data, ref, cols, pkg.n)
     # the output interval only picks samples: the 2 ms run holds the 10 ms rows, identical
     k = int(round(OUT / OUT_LIVE))
     same_rows = data_live.shape[0] == (data.shape[0] - 1) * k + 1
@@ -116,7 +159,7 @@ def run_model_bench(json_out: bool = False, model: str = "spider") -> dict:
         "warmup_s": round(t_warm, 2),
         "cores_used": 1,
         "cpu_count": os.cpu_count(),
-        "target": {"rtf_min": 10, "max_joint_error_mrad_max": 1.0},
+        "target": {"rtf_min": 10, "max_joint_error_mrad_max": 1.0, "fk_vs_reference_m_max": 1e-9},
     }
     res["pass"] = bool(res["rtf"] >= 10 and res["max_joint_error_mrad"] <= 1.0)
     print(f"model bench: {res['case']}")
@@ -140,6 +183,11 @@ def run_model_bench(json_out: bool = False, model: str = "spider") -> dict:
     )
     print("  per joint (mrad): " + " ".join(f"{e:.4f}" for e in res["joint_error_mrad"]))
     print(f"  reference run wall time {res['reference_wall_s']} s; warm-up {res['warmup_s']} s")
+    print("library: each model's standard case (from home, 5 s, output 10 ms, one core)")
+    library = library_figures({model: (STOP / wall, float(per_joint.max()))})
+    res.update(library)
+    library_pass = all(v >= 10 for k, v in library.items() if k.startswith("rtf_"))
+    res["pass"] = bool(res["pass"] and library_pass and library["fk_vs_reference_m"] <= 1e-9)
     print(f"  {'PASS' if res['pass'] else 'FAIL'}")
     if json_out:
         print(json.dumps(res))

@@ -1,7 +1,7 @@
 """Model files and URDF import: the shipped library, refusals that name their element, the CLI.
 
-The imported chains are judged against yourdfpy (an independent reading of the same URDF): tool
-poses on random configurations, and the mass, centre of mass and inertia of the moving arm.
+The imported chains are judged against yourdfpy (testing/urdf_reference.py, an independent reading
+of the same URDF): tool poses on random configurations, and the mass, COM and inertia of the arm.
 """
 
 from __future__ import annotations
@@ -13,13 +13,16 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import yourdfpy
 from simecs import models
+from simecs.mesh.client import RemoteError
 from simecs.mesh.kinematics import link_frames, rot_rpy
 from simecs.models.model_file import ModelFileError, load_model_dir
-from simecs.models.urdf import UrdfError, read_urdf, resolve_uri
+from simecs.models.urdf import UrdfError, read_urdf
+from simecs.testing.urdf_reference import UrdfReference, urdf_models
 
-URDF_MODELS = [p.name for p in models.library_dirs() if models.get_model(p.name).spec.links[0].source_joint]
+from tests.conftest import Service
+
+URDF_MODELS = urdf_models()
 
 
 def test_the_library_holds_five_models_defined_one_way() -> None:
@@ -31,89 +34,24 @@ def test_the_library_holds_five_models_defined_one_way() -> None:
         assert models.get_model(directory.name).spec.source == directory
 
 
-def _reference(model_id: str) -> tuple[models.ModelPackage, yourdfpy.URDF, dict]:
-    pkg = models.get_model(model_id)
-    source = load_model_source(pkg)
-    urdf = yourdfpy.URDF.load(
-        str(source["path"]), load_meshes=False, build_scene_graph=True, load_collision_meshes=False
-    )
-    return pkg, urdf, source
-
-
-def load_model_source(pkg: models.ModelPackage) -> dict:
-    import json5
-
-    assert pkg.spec.source is not None
-    raw = json5.loads((pkg.spec.source / "model.json5").read_text())["urdf"]
-    raw["path"] = resolve_uri(raw["file"], pkg.spec.source)
-    return raw
-
-
 @pytest.mark.parametrize("model_id", URDF_MODELS)
 def test_imported_kinematics_match_an_independent_urdf_reader(model_id: str) -> None:
-    pkg, urdf, source = _reference(model_id)
-    d = pkg.describe()
-    values = d.default_values()
-    names = [lk.source_joint for lk in pkg.spec.links]
+    ref = UrdfReference(model_id)
     rng = np.random.default_rng(7)
-    worst = 0.0
-    for _ in range(40):
-        q = [rng.uniform(lk.joint_min, lk.joint_max) for lk in pkg.spec.links]
-        urdf.update_cfg({**dict(zip(names, q, strict=True)), **source.get("locked_joints", {})})
-        T = urdf.get_transform(source["tool_link"], source.get("base_link") or urdf.base_link)
-        p, R = link_frames(d, values, q)[-1]
-        worst = max(worst, float(np.abs(p - T[:3, 3]).max()), float(np.abs(R - T[:3, :3]).max()))
+    worst = max(ref.tool_error(ref.random_q(rng)) for _ in range(40))
     assert worst < 1e-9, f"{model_id}: tool pose {worst:.2e} off yourdfpy's"
-
-
-def _moving_links(urdf: yourdfpy.URDF, first_joint: str) -> list[str]:
-    todo = [urdf.joint_map[first_joint].child]
-    out = []
-    while todo:
-        link = todo.pop()
-        out.append(link)
-        todo.extend(j.child for j in urdf.robot.joints if j.parent == link)
-    return out
 
 
 @pytest.mark.parametrize("model_id", URDF_MODELS)
 def test_imported_masses_and_inertias_match_the_urdf(model_id: str) -> None:
     """The merged bodies carry the URDF's mass, centre of mass and inertia (about the world origin) in
     every posture: what the dynamics needs of the conversion."""
-    pkg, urdf, source = _reference(model_id)
-    d = pkg.describe()
-    values = d.default_values()
-    names = [lk.source_joint for lk in pkg.spec.links]
-    base = source.get("base_link") or urdf.base_link
+    ref = UrdfReference(model_id)
     rng = np.random.default_rng(3)
     for _ in range(5):
-        q = [rng.uniform(lk.joint_min, lk.joint_max) for lk in pkg.spec.links]
-        urdf.update_cfg({**dict(zip(names, q, strict=True)), **source.get("locked_joints", {})})
-        ref_m, ref_c, ref_I = 0.0, np.zeros(3), np.zeros((3, 3))
-        for link in _moving_links(urdf, names[0]):
-            inertial = urdf.link_map[link].inertial
-            if inertial is None or inertial.mass == 0:
-                continue
-            T = urdf.get_transform(link, base) @ (
-                inertial.origin if inertial.origin is not None else np.eye(4)
-            )
-            c = T[:3, 3]
-            ref_m += inertial.mass
-            ref_c += inertial.mass * c
-            ref_I += T[:3, :3] @ inertial.inertia @ T[:3, :3].T + inertial.mass * (
-                c @ c * np.eye(3) - np.outer(c, c)
-            )
-        m, c_sum, inertia = 0.0, np.zeros(3), np.zeros((3, 3))
-        for lk, (p, R) in zip(pkg.spec.links, link_frames(d, values, q)[:-1], strict=True):
-            c = p + R @ np.array(lk.com)
-            m += lk.mass
-            c_sum += lk.mass * c
-            inertia += R @ np.array(lk.inertia_matrix()) @ R.T + lk.mass * (
-                c @ c * np.eye(3) - np.outer(c, c)
-            )
-        assert abs(m - ref_m) < 1e-12
-        assert np.abs(c_sum - ref_c).max() < 1e-9
-        assert np.abs(inertia - ref_I).max() < 1e-9
+        theirs, ours = ref.mass_properties(ref.random_q(rng))
+        assert abs(theirs[0] - ours[0]) < 1e-12
+        assert np.abs(np.array(theirs) - np.array(ours)).max() < 1e-9
 
 
 def test_the_puma_file_holds_exudyns_puma_560() -> None:
@@ -297,3 +235,19 @@ def test_rpy_round_trip() -> None:
     for rpy in [*rng.uniform(-3, 3, (50, 3)), (0.3, math.pi / 2, 0.2), (0.1, -math.pi / 2, 0.4)]:
         R = rot_rpy(rpy)
         assert np.abs(rot_rpy(matrix_to_rpy(R)) - R).max() < 1e-12
+
+
+def test_the_proxy_serves_each_mesh_a_model_names(service: Service) -> None:
+    client = service.client
+    desc = client.describe("panda")
+    names = desc.mesh_names()
+    assert "link1.0" in names and "base.0" in names
+    data = client.model_mesh("panda", "link4.0")
+    assert data[:4] == b"glTF" and int.from_bytes(data[4:8], "little") == 2
+    with pytest.raises(RemoteError) as missing:
+        client.model_mesh("panda", "link9.0")
+    assert missing.value.code == "not_found" and "link1.0" in str(missing.value)
+    with pytest.raises(RemoteError) as unknown:
+        client.model_mesh("nope", "link1.0")
+    assert unknown.value.code == "not_found"
+    assert client.describe("spider").mesh_names() == []
