@@ -214,23 +214,31 @@ class RunTracker:
                     self.store.publish_params(rec, [])
             self.admission.update()
 
+    def _stored_end(self, user: str, sid: str, run_id: str) -> m.RunInfo | None:
+        """How a run ended as its stored results say (a worker stores them before its last report and
+        before its token goes), or None when no host holds them. Asks the mesh: call without the lock."""
+        selector = keys.results(user, sid, run_id) + "?t0=-1;t1=-1"  # no rows: the description only
+        try:
+            _, att = MeshClient(self.z(), timeout=3.0).request_binary(selector, m.ResultsAttachment)
+            info: m.RunInfo = att.run
+        except (RemoteError, NoReply, codec.DecodeError, zenoh.ZError, AttributeError):
+            return None
+        return info if info.phase in phases.ENDED else None
+
     def _settle_ended_run(
         self, rec: SessionRecord, lost: str = "the run was lost while the proxy was down"
     ) -> None:
         """A run that ended while the proxy could not hear it: its stored results tell how it ended."""
-        run_id = rec.state.run_id
-        try:
-            selector = (
-                keys.results(rec.user, rec.id, run_id) + "?t0=-1;t1=-1"
-            )  # no rows: the description only
-            _, att = MeshClient(self.z(), timeout=3.0).request_binary(selector, m.ResultsAttachment)
-            info: m.RunInfo = att.run
-        except (RemoteError, NoReply, codec.DecodeError, zenoh.ZError, AttributeError):
+        self._settle_from(rec, self._stored_end(rec.user, rec.id, rec.state.run_id), lost)
+
+    def _settle_from(self, rec: SessionRecord, info: m.RunInfo | None, lost: str) -> None:
+        """End `rec`'s run as its stored results `info` say, or as failed for `lost` without them."""
+        if info is None:
             self.end_run(rec, "failed", lost)
             return
         rec.state.sim_time = info.sim_time
         rec.state.progress = min(1.0, info.sim_time / info.stop_time) if info.stop_time else 0.0
-        self.end_run(rec, info.phase if info.phase in phases.ENDED else "failed", info.reason)
+        self.end_run(rec, info.phase, info.reason)
 
     # -- reports from workers ------------------------------------------------------------------------
     def on_run_status(self, st: m.RunStatus, key: str) -> None:
@@ -332,8 +340,10 @@ class RunTracker:
                 self._check_when_hub_back()
                 return
             attempt, host = rec.state.attempt, rec.state.host
-        # The worker is gone: with its host (restart the run elsewhere), or alone (it crashed).
+        # The worker is gone: with its host (restart the run elsewhere), or alone: it ended and its last
+        # report is still on its way on a busy mesh (its stored results say how), or it crashed.
         host_up = bool(host) and self._token_up_at(keys.node_token("simulator", host))
+        stored = self._stored_end(user, sid, run_id) if host_up or not host else None
         with self.lock:
             rec = self.store.owned(user, sid)
             if rec is None or rec.state.run_id != run_id or rec.phase not in phases.GOING:
@@ -343,9 +353,10 @@ class RunTracker:
             if host and not host_up:
                 self.host_lost(host)
                 return
-            self.end_run(
-                rec, "failed", f"the simulator process of run {run_id} disappeared (crashed or killed)"
-            )
+            crashed = f"the simulator process of run {run_id} disappeared (crashed or killed)"
+            if stored is not None:
+                self.log.info("session %s run %s: its token went before its last report", sid, run_id)
+            self._settle_from(rec, stored, crashed)
             self.admission.update()
 
     def host_lost(self, host: str) -> None:

@@ -182,8 +182,10 @@ def test_decimated_rate_holds_from_the_first_frame_and_the_final_frame_goes(
     # on arrival, so the network's jitter (a few ms) is allowed for.
     first_second = np.count_nonzero(times < times[0] + 1.0 - 0.05)
     assert first_second <= rate_hz, f"{first_second} live frames in the run's first second at {rate_hz} Hz"
+    # Any second of arrivals: R frames, and one late frame at either end of the window (a loaded CI
+    # machine delivered 22 at 20 Hz once: two late frames bunched onto punctual ones).
     for start in times:
-        assert np.count_nonzero((times >= start) & (times < start + 1.0)) <= rate_hz + 1
+        assert np.count_nonzero((times >= start) & (times < start + 1.0)) <= rate_hz + 2
     # One frame late on the wire makes the next gap short (CI saw 17 ms at 20 Hz); a sender that bursts
     # puts three frames within one period, which no single late arrival can fake.
     spans = times[2:] - times[:-2]
