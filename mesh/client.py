@@ -130,6 +130,10 @@ class MeshClient:
     def doc(self, model_id: str, page: str) -> DocPage:
         return self.request(keys.doc(model_id, page), reply=DocPage)
 
+    def model_mesh(self, model_id: str, mesh: str, timeout: float = 30.0) -> bytes:
+        """The binary glTF of a `mesh` shape of the model."""
+        return self.request_binary(keys.model_mesh(model_id, mesh), None, timeout=timeout)[0]
+
     # -- sessions -------------------------------------------------------------------------------
     def create_session(self, user: str, model_id: str) -> SessionClient:
         """A new session of `user` on a model (the user is part of every key of the session)."""

@@ -37,7 +37,8 @@ class KeySpec:
     answers a query. Roles: client, proxy, simulator, worker (a simulator's run process), hotfeedback,
     recorder, any node. `payload` and `reply` name what travels: a message type of mesh/messages.py or
     mesh/model.py (replies are `Ok{data: <type>}` or an `Error`), `frame` (a binary frame, §6),
-    `mcap` (the bytes of an MCAP file), or `per command` (messages.REPLIES); `|` separates choices.
+    `mcap` (the bytes of an MCAP file), `glb` (binary glTF 2.0), or `per command` (messages.REPLIES);
+    `|` separates choices.
     """
 
     name: str
@@ -84,6 +85,16 @@ _TABLE = (
         answerer="proxy",
         reply="DocPage",
         meaning="one page of the model's hypertext documentation",
+    ),
+    KeySpec(
+        name="model_mesh",
+        pattern="simecs/library/<model>/mesh/<mesh>",
+        kind="query",
+        writer="client",
+        answerer="proxy",
+        reply="glb",
+        meaning="the triangle mesh a `mesh` shape of the model names, as binary glTF 2.0 (binary reply; "
+        "colours as face colours; decimated to about 4000 triangles), for drawing",
     ),
     KeySpec(
         name="sessions",
@@ -318,6 +329,7 @@ ALL_RESULTS = wildcard("results")
 ALL_RESULTS_LIST = wildcard("results_list")
 ALL_DOCS = wildcard("doc")
 ALL_MODELS = wildcard("model")
+ALL_MESHES = wildcard("model_mesh")
 ALL_RECORDING_LISTS = wildcard("recordings")
 ALL_RECORDINGS = wildcard("recording")
 ALL_RECORDING_INFOS = wildcard("recording_info")
@@ -393,6 +405,10 @@ def model(model_id: str) -> str:
 
 def doc(model_id: str, page: str) -> str:
     return build("doc", model=model_id, page=page)
+
+
+def model_mesh(model_id: str, mesh: str) -> str:
+    return build("model_mesh", model=model_id, mesh=mesh)
 
 
 def sessions(user: str) -> str:

@@ -10,6 +10,7 @@ so a changed length reshapes the arm without a new model. `shapes.py` says how a
 from __future__ import annotations
 
 import math
+import re
 from collections.abc import Mapping, Sequence
 from typing import Annotated, Literal
 
@@ -17,9 +18,10 @@ import msgspec
 from msgspec import Meta
 
 from .codec import DecodeError
-from .primitives import FieldProblem, Message, Name, Record, Text
+from .primitives import NAME_PATTERN, FieldProblem, Message, Name, Record, Text
 
-ShapeKind = Literal["cylinder", "pipe", "box", "beam", "sphere"]
+NAME_RE = re.compile(NAME_PATTERN)
+ShapeKind = Literal["cylinder", "pipe", "box", "beam", "sphere", "mesh"]
 Vec3 = Annotated[list[float], Meta(min_length=3, max_length=3)]
 Size = Annotated[float, Meta(ge=0.0, le=1000.0, description="m")]
 
@@ -57,6 +59,8 @@ class Shape(Record):
     Sizes in metres: cylinder/pipe use `radius` (`inner_radius` for pipe) and `length` along `axis`;
     box/beam use `length` along `axis` and `width`, `height` across it; sphere uses `radius`.
     `origin` is the start point in the link frame; the solid extends from there along `axis`.
+    A mesh is the triangle mesh `mesh` of the model (binary glTF at simecs/library/<model>/mesh/<mesh>),
+    its frame at `origin` turned by `rotation_rpy` and its coordinates multiplied by `scale`.
     If `resizable` is true its `length` is the link length parameter of that link at every moment.
     `scales_with` maps a dimension (length, radius, inner_radius, width, height) to a parameter: the
     dimension is multiplied by value / default of that parameter. With `anchor` "end", the x of
@@ -80,6 +84,17 @@ class Shape(Record):
         dict[Literal["length", "radius", "inner_radius", "width", "height"], Name], Meta(max_length=5)
     ] = {}
     anchor: Literal["start", "end"] = "start"
+    mesh: Annotated[str, Meta(max_length=64, description="kind mesh: the mesh's name in the model")] = ""
+    rotation_rpy: Annotated[Vec3, Meta(description="kind mesh: rad, its frame in the link frame")] = (
+        msgspec.field(default_factory=lambda: [0.0, 0.0, 0.0])
+    )
+    scale: Annotated[Vec3, Meta(description="kind mesh: factors on its x, y, z")] = msgspec.field(
+        default_factory=lambda: [1.0, 1.0, 1.0]
+    )
+
+    def __post_init__(self) -> None:
+        if self.kind == "mesh" and not NAME_RE.match(self.mesh):
+            raise FieldProblem("mesh", "a mesh shape names its mesh (letters, digits, _ . -)")
 
 
 class Link(Record):
@@ -137,10 +152,17 @@ class ModelDescription(Message, tag="model"):
     docs: list[DocPage]
     command_levels: Annotated[list[Name], Meta(description="the robot command kinds the model accepts")]
     environment: Annotated[list[Shape], Meta(description="floor, bench, obstacles (link -1)")] = []
-    home: Annotated[list[float], Meta(max_length=64, description="rad: the `home` action's posture")] = []
+    home: Annotated[
+        list[float],
+        Meta(max_length=64, description="rad: the `home` action's posture and a new session's initial pose"),
+    ] = []
     base_rotation_rpy: Annotated[
         Vec3, Meta(description="rad: joint 1's frame turned from the world's (roll, pitch, yaw)")
     ] = msgspec.field(default_factory=lambda: [0.0, 0.0, 0.0])
+
+    def mesh_names(self) -> list[str]:
+        """The meshes its mesh shapes name (each fetched from simecs/library/<model>/mesh/<name>)."""
+        return sorted({s.mesh for s in [*self.shapes, *self.environment] if s.kind == "mesh"})
 
     def summary_entry(self) -> ModelSummary:
         return ModelSummary(self.id, self.name, self.summary, len(self.links), list(self.command_levels))

@@ -36,6 +36,7 @@ ALIASES = {"RunList": m.RunList}
 BINARY = {
     "frame": "a binary sample frame (PROTOCOL.md §6): a 40-byte header (x-simecs-frame), then float64 rows",
     "mcap": "the bytes of an MCAP file (docs/RECORDINGS.md)",
+    "glb": "a triangle mesh as binary glTF 2.0 (a GLB file: magic 'glTF', version 2)",
 }
 REF = "#/$defs/{name}"
 

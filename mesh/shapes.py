@@ -17,6 +17,7 @@ from dataclasses import dataclass
 import msgspec
 import numpy as np
 
+from .kinematics import quat_from_matrix, rot_rpy
 from .model import ModelDescription, Shape
 
 WORLD = "world"
@@ -36,8 +37,9 @@ SCALABLE = ("length", "radius", "inner_radius", "width", "height")
 class ShapeGeometry:
     """Where and how big one solid is in its parent frame: what a renderer needs to draw it.
 
-    `kind` is cylinder, pipe, box or sphere (a beam is a box; a pipe without a usable bore a cylinder).
-    Cylinders and pipes have their axis along the local z of `wxyz`; boxes are axis-aligned."""
+    `kind` is cylinder, pipe, box, sphere or mesh (a beam is a box; a pipe without a usable bore a
+    cylinder). Cylinders and pipes have their axis along the local z of `wxyz`; boxes are axis-aligned;
+    a mesh's frame is at `position` turned by `wxyz`, its coordinates scaled by `dimensions`."""
 
     kind: str
     position: np.ndarray  # centre of the solid
@@ -45,11 +47,12 @@ class ShapeGeometry:
     radius: float = 0.0
     inner_ratio: float = 0.0  # pipe: inner radius / radius
     length: float = 0.0  # along the axis (cylinder, pipe)
-    dimensions: tuple[float, float, float] = (0.0, 0.0, 0.0)  # box: x, y, z in the parent frame
+    dimensions: tuple[float, float, float] = (0.0, 0.0, 0.0)  # box: x, y, z in the parent frame; mesh: scale
+    mesh: str = ""  # mesh: its name in the model
 
     @property
     def visible(self) -> bool:
-        return self.kind in ("box", "sphere") or self.length > 1e-6
+        return self.kind in ("box", "sphere", "mesh") or self.length > 1e-6
 
 
 def effective_shape(
@@ -78,6 +81,11 @@ def shape_geometry(shape: Shape) -> ShapeGeometry:
     centre = origin.copy()
     if shape.kind == "sphere":
         return ShapeGeometry("sphere", centre, AXIS_WXYZ["z"], radius=float(shape.radius))
+    if shape.kind == "mesh":
+        q = quat_from_matrix(rot_rpy(shape.rotation_rpy))
+        scale = (float(shape.scale[0]), float(shape.scale[1]), float(shape.scale[2]))
+        wxyz = (float(q[0]), float(q[1]), float(q[2]), float(q[3]))
+        return ShapeGeometry("mesh", centre, wxyz, dimensions=scale, mesh=shape.mesh)
     centre[k] += length / 2.0
     if shape.kind in ("box", "beam"):
         dims = [0.0, 0.0, 0.0]
@@ -131,6 +139,8 @@ def shape_bottom(geom: ShapeGeometry) -> float:
         return z - geom.dimensions[2] / 2
     if geom.kind == "sphere":
         return z - geom.radius
+    if geom.kind == "mesh":  # its extent is in the mesh data: its origin stands for it
+        return z
     if geom.wxyz == AXIS_WXYZ["z"]:
         return z - geom.length / 2
     return z - geom.radius

@@ -28,7 +28,9 @@ from simecs.mesh.robot_commands import COMMAND_LEVELS
 from . import drive as dr
 from .docs import build_docs
 from .errors import ParameterError
+from .meshes import MeshStore
 from .spec import ArmSpec
+from .urdf import matrix_to_rpy
 
 # variable catalog per joint: (unit, description, sub-component); the order is drive.OUTPUTS
 VAR_INFO = {
@@ -73,6 +75,7 @@ class ArmDescription:
         self.n = len(spec.links)
         self._params = self._make_parameters()
         self._description: ModelDescription | None = None
+        self._meshes: MeshStore | None = None
 
     # ---- parameters ----
     def _make_parameters(self) -> list[Parameter]:
@@ -224,10 +227,16 @@ class ArmDescription:
                 docs=build_docs(s, self._params, self.init_equations()),
                 command_levels=list(COMMAND_LEVELS),
                 home=list(self.home()),
-                environment=list(s.environment),
+                environment=list(s.environment) + self._mesh_shapes(-1),
                 base_rotation_rpy=list(s.base_rpy),
             )
         return self._description
+
+    def mesh_store(self) -> MeshStore:
+        """The GLBs of the model's mesh shapes, made on first request."""
+        if self._meshes is None:
+            self._meshes = MeshStore(self.spec.visuals)
+        return self._meshes
 
     def home(self) -> tuple[float, ...]:
         """The posture the `home` action goes to."""
@@ -282,11 +291,36 @@ class ArmDescription:
         ]
         return eqs
 
+    def _mesh_shapes(self, link: int) -> list[Shape]:
+        """The drawn parts (URDF visuals) of one link, or of the world for -1, as mesh shapes."""
+        out = []
+        for v in self.spec.visuals:
+            if v.link != link:
+                continue
+            pose = v.geometry.pose
+            out.append(
+                Shape(
+                    "mesh",
+                    link,
+                    [float(a) for a in pose[:3, 3]],
+                    color=list(v.color),
+                    mesh=v.name,
+                    rotation_rpy=list(matrix_to_rpy(pose[:3, :3])),
+                    scale=[float(a) for a in v.geometry.scale],
+                )
+            )
+        return out
+
     def _shapes(self) -> list[Shape]:
-        """Joint housings, link tubes (resizable), offset beams, tool flange and payload box."""
+        """Per link its drawn parts (URDF visuals) where it has some, else a joint housing, a link tube
+        (resizable) and an offset beam; then the tool flange and the payload box."""
         s = self.spec
         shapes: list[Shape] = []
         for i, lk in enumerate(s.links):
+            meshes = self._mesh_shapes(i)
+            if meshes:
+                shapes.extend(meshes)
+                continue
             col = list(lk.color)
             r = lk.radius
             # joint housing: a cylinder about this link's joint axis, centred on the link frame origin

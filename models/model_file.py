@@ -21,7 +21,7 @@ from simecs.mesh.model import Shape
 from simecs.mesh.primitives import Name, Record, Text
 
 from .drives_catalog import size_class, size_for_limits
-from .spec import ArmSpec, LinkSpec
+from .spec import ArmSpec, LinkSpec, Visual
 from .urdf import UrdfError, read_urdf, resolve_uri
 from .urdf_chain import UrdfChain, serial_chain
 
@@ -185,6 +185,7 @@ def load_model_dir(directory: str | Path) -> ArmSpec:
         if file
     }
     chain: UrdfChain | None = None
+    visuals: list[Visual] = []
     if model.links is not None:
         links, drives = _links_from_rows(model, where)
         base_rpy = (0.0, 0.0, 0.0)
@@ -192,8 +193,9 @@ def load_model_dir(directory: str | Path) -> ArmSpec:
         tool_translation = _t3(model.tool_translation)
     else:
         assert model.urdf is not None
-        chain = _urdf_chain(directory, model.urdf, where)
+        chain, urdf_dir = _urdf_chain(directory, model.urdf, where)
         links, drives = _links_from_urdf(model, chain, where)
+        visuals = _visuals(chain, links, urdf_dir)
         base_rpy = chain.base_rpy
         base_translation = chain.base_translation
         tool_translation = tuple(
@@ -236,6 +238,7 @@ def load_model_dir(directory: str | Path) -> ArmSpec:
             cart_max_rot_acc=model.cart.max_rot_acc,
             environment=list(model.environment),
             source=directory,
+            visuals=visuals,
         )
     except ValueError as exc:
         raise ModelFileError(where, str(exc)) from None
@@ -330,14 +333,27 @@ def _links_from_rows(model: ModelFile, where: str) -> tuple[list[LinkSpec], dict
     return links, drives
 
 
-def _urdf_chain(directory: Path, source: UrdfSource, where: str) -> UrdfChain:
+def _visuals(chain: UrdfChain, links: list[LinkSpec], near: Path) -> list[Visual]:
+    """The URDF's visuals as drawn parts: those fixed to the world, then each link's."""
+    out = []
+    parts = [(-1, "base", chain.base_visuals, (150, 150, 160))]
+    parts += [(i, f"link{i + 1}", lk.visuals, links[i].color) for i, lk in enumerate(chain.links)]
+    for link, prefix, geometries, color in parts:
+        for k, geo in enumerate(geometries):
+            out.append(
+                Visual(link=link, name=f"{prefix}.{k}", geometry=geo, near=near, color=geo.color or color)
+            )
+    return out
+
+
+def _urdf_chain(directory: Path, source: UrdfSource, where: str) -> tuple[UrdfChain, Path]:
     try:
         path = resolve_uri(source.file, directory)
     except UrdfError as exc:
         raise ModelFileError(f"{where}: urdf.file", exc.reason) from None
     try:
         robot = read_urdf(path)
-        return serial_chain(robot, source.base_link, source.tool_link, source.locked_joints)
+        return serial_chain(robot, source.base_link, source.tool_link, source.locked_joints), path.parent
     except UrdfError as exc:
         raise ModelFileError(path.name, str(exc)) from None
 

@@ -12,6 +12,8 @@ from pathlib import Path
 
 from simecs.mesh.model import Shape
 
+from .urdf import Geometry
+
 Vec3 = tuple[float, float, float]
 
 
@@ -62,6 +64,18 @@ class LinkSpec:
 
 
 @dataclass(kw_only=True)
+class Visual:
+    """One drawn part of an imported model (a URDF <visual>): on link `link` (-1: fixed to the world),
+    its pose in that frame in `geometry.pose`; meshes.py makes its GLB, named `name` on the mesh."""
+
+    link: int
+    name: str
+    geometry: Geometry
+    near: Path  # the URDF's folder: where relative mesh paths start
+    color: tuple[int, int, int]
+
+
+@dataclass(kw_only=True)
 class ArmSpec:
     """A whole model: its links, its drive size classes, defaults of the run and documentation text."""
 
@@ -88,3 +102,4 @@ class ArmSpec:
     cart_max_rot_acc: float = 1.0  # rad/s^2
     environment: list[Shape] = field(default_factory=list)
     source: Path | None = None  # the model directory it was read from
+    visuals: list[Visual] = field(default_factory=list)  # drawn instead of a link's tubes where given

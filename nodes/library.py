@@ -36,6 +36,22 @@ class ModelLibrary:
             )
         return desc
 
+    def mesh(self, model_id: str, name: str) -> bytes:
+        """The binary glTF of a mesh shape of the model (made on the first ask, then kept)."""
+        from simecs.models.meshes import MeshError
+
+        self.describe(model_id)
+        store = self._packages[model_id].mesh_store()
+        try:
+            return bytes(store.glb(name))
+        except KeyError:
+            known = ", ".join(store.names()) or "none"
+            raise RequestError(
+                "not_found", f"model {model_id} has no mesh {name!r} (meshes: {known})", "mesh"
+            ) from None
+        except MeshError as exc:
+            raise RequestError("internal", str(exc), "mesh") from None
+
     def doc(self, model_id: str, page: str) -> DocPage:
         desc = self.describe(model_id)
         for doc in desc.docs:

@@ -21,6 +21,7 @@ initial pose, command, settings, replayed recording), `simecs.end` (how the file
 
 from __future__ import annotations
 
+import base64
 import functools
 import json
 import re
@@ -296,13 +297,29 @@ def _pose(center: Iterable[float], wxyz: Iterable[float]) -> dict[str, Any]:
     return {"position": {"x": x, "y": y, "z": z}, "orientation": {"x": qx, "y": qy, "z": qz, "w": qw}}
 
 
-def scene_primitive(solid: shapes.Solid) -> tuple[str, dict[str, Any]]:
-    """(entity list name, Foxglove primitive) of one solid, from the geometry the viewer draws too.
+def scene_primitive(solid: shapes.Solid, meshes: Mapping[str, bytes]) -> tuple[str, dict[str, Any]] | None:
+    """(entity list name, Foxglove primitive) of one solid, from the geometry the viewer draws too;
+    None for a mesh whose GLB is not in `meshes`.
 
-    Foxglove has no pipe: a pipe is drawn as a cylinder of its outer radius (the same outside)."""
+    Foxglove has no pipe: a pipe is drawn as a cylinder of its outer radius (the same outside). A mesh
+    is a model primitive with its GLB embedded (its own colours, not overridden)."""
     g = solid.geometry
     color = _color(solid.shape.color)
     pose = _pose(g.position, g.wxyz)
+    if g.kind == "mesh":
+        data = meshes.get(g.mesh)
+        if data is None:
+            return None
+        sx, sy, sz = g.dimensions
+        return "models", {
+            "pose": pose,
+            "scale": {"x": sx, "y": sy, "z": sz},
+            "color": color,
+            "override_color": False,
+            "url": "",
+            "media_type": "model/gltf-binary",
+            "data": base64.b64encode(data).decode("ascii"),
+        }
     if g.kind in ("cylinder", "pipe"):
         d = 2 * g.radius
         size = {"x": d, "y": d, "z": g.length}
@@ -322,9 +339,15 @@ def scene_primitive(solid: shapes.Solid) -> tuple[str, dict[str, Any]]:
     raise FormatError(f"shape kind {g.kind!r} has no Foxglove primitive")
 
 
-def scene_update(model: ModelDescription, values: Mapping[str, float], stamp_ns: int) -> dict[str, Any]:
+def scene_update(
+    model: ModelDescription,
+    values: Mapping[str, float],
+    stamp_ns: int,
+    meshes: Mapping[str, bytes] | None = None,
+) -> dict[str, Any]:
     """foxglove.SceneUpdate: one frame-locked entity per link (frame = link name), plus the world's
-    solids (environment and base) in one entity, all shaped by the run's parameter values."""
+    solids (environment and base) in one entity, all shaped by the run's parameter values; a mesh
+    shape carries the GLB of `meshes` (left out when it is missing)."""
     entities: dict[str, dict[str, Any]] = {}
     for solid in shapes.solids(model, values):
         if not solid.geometry.visible:
@@ -348,8 +371,9 @@ def scene_update(model: ModelDescription, values: Mapping[str, float], stamp_ns:
                 "texts": [],
                 "models": [],
             }
-        kind, prim = scene_primitive(solid)
-        entities[eid][kind].append(prim)
+        drawn = scene_primitive(solid, meshes or {})
+        if drawn is not None:
+            entities[eid][drawn[0]].append(drawn[1])
     return {"deletions": [], "entities": list(entities.values())}
 
 

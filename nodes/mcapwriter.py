@@ -323,8 +323,10 @@ class RunWriter:
         self.messages += 1
         self.dirty = True
 
-    def write_scene(self, model: ModelDescription, values: Mapping[str, float]) -> None:
-        self.write_json(self.ch_scene, scene_update(model, values, self.t0), self.t0)
+    def write_scene(
+        self, model: ModelDescription, values: Mapping[str, float], meshes: Mapping[str, bytes] | None = None
+    ) -> None:
+        self.write_json(self.ch_scene, scene_update(model, values, self.t0, meshes), self.t0)
 
     def write_log(self, level: int, text: str, sim_time: float | None = None, name: str = "recorder") -> None:
         """A lifecycle event on /log, at the run's simulated time when known, else at wall time."""

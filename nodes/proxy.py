@@ -25,7 +25,7 @@ from simecs.mesh import messages as m
 from simecs.mesh.client import MeshClient, NoReply, RemoteError
 from simecs.mesh.hublink import HubLink
 from simecs.mesh.model import DocPage, ModelDescription, check_joints
-from simecs.mesh.runtime import Node, NotMine, Request, RequestError, main_for, mesh_from_args
+from simecs.mesh.runtime import Binary, Node, NotMine, Request, RequestError, main_for, mesh_from_args
 
 from .library import ModelLibrary
 from .quotas import QuotaCheck, Quotas
@@ -149,6 +149,7 @@ class Proxy(Node):
         self.serve(keys.LIBRARY, lambda _req: self.models.summaries())
         self.serve(keys.ALL_MODELS, self._on_model)
         self.serve(keys.ALL_DOCS, self._on_doc)
+        self.serve(keys.ALL_MESHES, self._on_mesh, threaded=True)  # the first ask makes the mesh
         self.serve(keys.ALL_SESSION_REQUESTS, self._on_sessions, threaded=True)
         self.serve(keys.ALL_CMD, self._on_cmd, threaded=True)
         self.serve(keys.ALL_RESULTS_LIST, self._on_results_list, threaded=True)
@@ -212,6 +213,10 @@ class Proxy(Node):
     def _on_doc(self, req: Request) -> DocPage:
         where = keys.parse("doc", req.key)
         return self.models.doc(where["model"], where["page"])
+
+    def _on_mesh(self, req: Request) -> Binary:
+        where = keys.parse("model_mesh", req.key)
+        return Binary(self.models.mesh(where["model"], where["mesh"]))
 
     # -- sessions ----------------------------------------------------------------------------------
     def _on_sessions(self, req: Request) -> Any:

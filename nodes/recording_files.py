@@ -35,6 +35,9 @@ PENDING_FRAMES = 256  # frames kept per session while its layout has not arrived
 PENDING_SESSIONS = 64  # sessions whose frames wait for a layout
 VIZ_RATE_HZ = 50.0  # /tf and /joint_states samples per simulated second
 FILL_WAIT_S = 20.0  # how long a run's file waits for the samples of its gaps before it closes anyway
+#: How long a run's file waits for its model (description and meshes: the /scene) before it closes
+#: anyway; a short run can end before the first ask for a model's meshes is answered.
+MODEL_WAIT_S = 15.0
 Owner = tuple[str, str]  # (user, session): where a session's keys are
 LOG_LEVEL = {"running": fmt.LOG_INFO, "paused": fmt.LOG_INFO, "finished": fmt.LOG_INFO}
 
@@ -97,6 +100,7 @@ class Active:
     filled_rows: int = 0
     closing_by: str = ""  # set while the file waits for the samples of its gaps
     fill_deadline: float = 0.0
+    model_pending: bool = True  # its model lookup (the /scene) has not come back yet
 
 
 class RunFiles:
@@ -122,7 +126,8 @@ class RunFiles:
         self.pending: dict[Owner, collections.deque[bytes]] = {}
         self.done: collections.OrderedDict[tuple[Owner, str], None] = collections.OrderedDict()
         self.ignored: set[Owner] = set()  # sessions whose current run is not recorded (replay, quota)
-        self.models: dict[str, tuple[ModelDescription, bytes]] = {}
+        # model id -> description, its JSON, the GLB of each of its mesh shapes
+        self.models: dict[str, tuple[ModelDescription, bytes, dict[str, bytes]]] = {}
         self.stats = {"rows": 0, "messages": 0, "files": 0, "dropped_frames": 0, "filled_rows": 0}
         self._last_drop_status = 0.0
 
@@ -320,12 +325,13 @@ class RunFiles:
         rec = self.active.get(owner)
         if rec is None or rec.layout.run_id != run_id:
             return
+        rec.model_pending = False
         model = self.models.get(model_id)
         if model is None:
             rec.writer.write_log(fmt.LOG_WARNING, f"no model description of {model_id}: no /scene", 0.0)
             return
-        desc, desc_json = model
-        rec.writer.write_scene(desc, rec.layout.context.values or desc.default_values())
+        desc, desc_json, meshes = model
+        rec.writer.write_scene(desc, rec.layout.context.values or desc.default_values(), meshes)
         rec.writer.write_attachment(fmt.ATTACH_MODEL, "application/json", desc_json)
 
     # -- closing ---------------------------------------------------------------------------------------
@@ -361,6 +367,8 @@ class RunFiles:
             self.mesh.status_changed()
         for rec in list(self.active.values()):
             if rec.close_at is not None and now >= rec.close_at:
+                if rec.model_pending and now < rec.close_at + MODEL_WAIT_S:
+                    continue  # its /scene is on the way
                 self.close(rec, "final frame" if rec.final_seen else "run ended")
                 continue
             if rec.writer.dirty and now - rec.writer.last_flush >= fmt.FLUSH_S:

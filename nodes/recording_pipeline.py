@@ -27,6 +27,7 @@ import zenoh.ext
 from simecs.mesh import codec, frames, keys
 from simecs.mesh import messages as m
 from simecs.mesh.client import MeshClient, NoReply, RemoteError
+from simecs.mesh.model import ModelDescription
 from simecs.mesh.seal import Seal
 
 from .recording_files import VIZ_RATE_HZ, Gap, Owner, RunFiles
@@ -255,13 +256,24 @@ class RecordingPipeline:
                 if arg not in self.files.models:
                     try:
                         desc = client.describe(arg)
-                        self.files.models[arg] = (desc, codec.dumps(desc))
+                        meshes = self._fetch_meshes(client, desc)
+                        self.files.models[arg] = (desc, codec.dumps(desc), meshes)
                     except (RemoteError, NoReply, codec.DecodeError, ValueError, zenoh.ZError) as exc:
                         self.log.warning("model %s: %s", arg, exc)
                 self.ingest.put("model", "", (owner, run_id, arg))
             else:
                 pieces, problem = self._fetch_gaps(client, owner, run_id, *arg)
                 self.ingest.put("fill", "", (owner, run_id, pieces, problem))
+
+    def _fetch_meshes(self, client: MeshClient, desc: ModelDescription) -> dict[str, bytes]:
+        """The GLB of each mesh shape of a model, for its recordings' /scene (a missing one is logged)."""
+        out = {}
+        for name in desc.mesh_names():
+            try:
+                out[name] = client.model_mesh(desc.id, name)
+            except (RemoteError, NoReply, zenoh.ZError) as exc:
+                self.log.warning("model %s: mesh %s not in its recordings' /scene: %s", desc.id, name, exc)
+        return out
 
     def _fetch_gaps(
         self, client: MeshClient, owner: Owner, run_id: str, gaps: list[Gap], columns: list[str]

@@ -146,7 +146,7 @@ class SessionStore:
             user=user,
             model_id=desc.id,
             values=desc.default_values(),
-            initial=[0.0] * len(desc.links),
+            initial=list(desc.home) if desc.home else [0.0] * len(desc.links),  # within every range
             command=None,
             settings=m.RunSettings(),
             state=m.SessionState(session=sid, phase="created"),

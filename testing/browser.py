@@ -3,7 +3,8 @@ tests and `simecs bench viewer`.
 
 viser's websocket lives in a Web Worker, out of Playwright's sight (STACK-NOTES), so `PROBE_JS`
 wraps the page's `Worker` before viser creates it and timestamps every message batch that moves a
-link of the 3D arm: those are the pose updates the tab actually received.
+link of the 3D arm: those are the pose updates the tab actually received. It also notes every
+binary glTF mesh (an imported model's links) the tab received.
 """
 
 from __future__ import annotations
@@ -26,7 +27,7 @@ VIEWPORT = {"width": 1600, "height": 1000}
 
 PROBE_JS = """
 (() => {
-  const rec = window.__simecs = {batches: [], clicks: [], plots: []};
+  const rec = window.__simecs = {batches: [], clicks: [], plots: [], glbs: []};
   const Base = window.Worker;
   if (!Base) return;
   class Probed extends Base {
@@ -39,6 +40,9 @@ PROBE_JS = """
         for (const m of d.messages) {
           if ((m.type === 'SetPositionMessage' || m.type === 'SetOrientationMessage')
               && typeof m.name === 'string' && m.name.startsWith('/arm/')) poses++;
+          else if (m.type === 'GlbMessage' && m.props && m.props.glb_data) {
+            rec.glbs.push([m.name, m.props.glb_data.byteLength || m.props.glb_data.length || 0]);
+          }
           else if (m.type === 'GuiUpdateMessage' && m.updates && Array.isArray(m.updates.data)) {
             const x = m.updates.data[0];
             rec.plots.push([performance.now(), x ? (x.length || x.byteLength / 8 || 0) : 0]);
@@ -92,6 +96,11 @@ def pose_batches(page: Any) -> list[tuple[float, int]]:
     return [
         (float(t), int(n)) for t, n in page.evaluate("() => window.__simecs ? window.__simecs.batches : []")
     ]
+
+
+def glbs(page: Any) -> list[tuple[str, int]]:
+    """(scene node name, bytes) of every binary glTF mesh the tab received."""
+    return [(str(n), int(b)) for n, b in page.evaluate("() => (window.__simecs || {glbs: []}).glbs")]
 
 
 def plot_points(page: Any) -> list[tuple[float, int]]:

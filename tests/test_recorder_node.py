@@ -3,6 +3,7 @@ loses at most the last second; the files are listed, downloaded and uploaded ove
 
 from __future__ import annotations
 
+import base64
 import json
 import signal
 import struct
@@ -147,18 +148,21 @@ def test_sigkill_mid_run_keeps_everything_up_to_the_last_flush(mesh: Mesh) -> No
 
 
 @pytest.mark.timeout(120)
-def test_real_run_leaves_a_valid_recording(mesh: Mesh) -> None:
-    """A Spider run through the whole service: the recording equals the simulator's own results."""
+@pytest.mark.parametrize("model_id", ["spider", "ur5"])
+def test_real_run_leaves_a_valid_recording(mesh: Mesh, model_id: str) -> None:
+    """A run through the whole service: the recording equals the simulator's own results, and its
+    /scene draws the arm (the UR5 with its URDF meshes embedded, as the proxy serves them)."""
+    from simecs.models import get_model
+
     service = start_service(mesh)
     rec_dir = mesh.folder / "rec"
     mesh.start("recorder", "--dir", str(rec_dir))
     client = service.client
-    s = client.create_session(USER, "spider")
+    s = client.create_session(USER, model_id)
     s.set_settings(stop_time=0.5, output_interval=0.002, pacing="fast")
-    from simecs.models import get_model
-
-    STANDARD_TARGET = get_model("spider").spec.standard_target
-    s.set_joint_path([(list(STANDARD_TARGET), 100.0, 100.0)])
+    pkg = get_model(model_id)
+    s.set_initial(list(pkg.home()))
+    s.set_joint_path([(list(pkg.spec.standard_target), 100.0, 100.0)])
     run_id = s.run()
     s.wait_for(["finished", "failed", "aborted"], 90, run_id)
     path = rec_dir / USER / f"{keys.recording_name(s.id, run_id)}.mcap"
@@ -171,13 +175,18 @@ def test_real_run_leaves_a_valid_recording(mesh: Mesh) -> None:
     # /tf and /joint_states at the documented default of 50 per simulated second: 0.5 s -> 26 samples
     assert v.per_topic[fmt.TOPIC_TF] == v.per_topic[fmt.TOPIC_JOINTS] == 26
     assert rec.metadata[fmt.META_END]["phase"] == "finished"
-    assert rec.metadata[fmt.META_RUN]["model_id"] == "spider"
+    assert rec.metadata[fmt.META_RUN]["model_id"] == model_id
     assert json.loads(rec.metadata[fmt.META_SESSION]["command"])["kind"] == "joint_path"
-    assert len(rec.params()) == len(client.describe("spider").parameters)
+    desc = client.describe(model_id)
+    assert len(rec.params()) == len(desc.parameters)
     sc = mcapread.scan(path)
-    scene = next(msg for msg in sc.messages if sc.channels[msg.channel_id].topic == fmt.TOPIC_SCENE)
-    ids = {e["id"] for e in json.loads(scene.data)["entities"]}
-    assert {f"link{i}" for i in range(1, 8)} <= ids
+    scene = next((msg for msg in sc.messages if sc.channels[msg.channel_id].topic == fmt.TOPIC_SCENE), None)
+    assert scene is not None, mesh.log("recorder")
+    entities = {e["id"]: e for e in json.loads(scene.data)["entities"]}
+    assert {link.name for link in desc.links} <= set(entities)
+    embedded = [base64.b64decode(p["data"]) for e in entities.values() for p in e["models"]]
+    served = [client.model_mesh(model_id, name) for name in desc.mesh_names()]
+    assert sorted(embedded) == sorted(served) and (model_id == "spider" or len(embedded) >= len(desc.links))
     name = path.stem
     assert name in {r.name for r in client.recordings(USER)}
     data = client.download_recording(USER, name)

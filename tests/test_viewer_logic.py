@@ -301,6 +301,9 @@ class FakeHost:
     def describe(self, model_id: str) -> ModelDescription:
         return self.mc.describe(model_id)
 
+    def meshes(self, model: ModelDescription) -> dict[str, bytes]:
+        return {}
+
     def login(self, user: str, password: str) -> Any:
         if self.passwords.get(user) != password:
             raise ValueError(f"the hub did not let {user} in: wrong user name or password?")
@@ -1525,3 +1528,49 @@ def test_notifications_show_plain_text_not_markdown_marks() -> None:
         "Run r1 assigned; see joint2.q and both marks."
     )
     assert browser.plain("2 * 3 ** 2") == "2 * 3 ** 2"
+
+
+def test_an_imported_models_meshes_are_drawn_where_its_description_puts_them(server: Any) -> None:
+    """Each mesh shape becomes a GLB node with the bytes the proxy would serve, at its pose on its
+    link frame, and the same mesh goes into the recording's /scene, embedded; a mesh the server did not
+    give leaves an empty node (the indices stay whole)."""
+    import base64
+    import json
+
+    import jsonschema
+    from simecs.models import get_model
+    from simecs.nodes import mcapfmt
+
+    pkg = get_model("ur5")
+    desc = pkg.describe()
+    store = pkg.mesh_store()
+    meshes = {name: store.glb(name) for name in store.names()}
+    assert all(data[:4] == b"glTF" for data in meshes.values())
+    values = desc.default_values()
+    arm_scene = scene.ArmScene(server.scene, desc, values, root="/t_meshes", meshes=meshes)
+    arm_scene.build()
+    try:
+        drawn = {i: h for i, (h, kind) in arm_scene.solids.items() if kind == "mesh"}
+        mesh_shapes = {i: s for i, s in enumerate(desc.shapes) if s.kind == "mesh"}
+        assert set(drawn) == set(mesh_shapes) and len(drawn) == len(desc.links)
+        for i, shape in mesh_shapes.items():
+            geom = shapes.shape_geometry(shape)
+            assert np.allclose(drawn[i].position, geom.position) and np.allclose(drawn[i].wxyz, geom.wxyz)
+        update = mcapfmt.scene_update(desc, values, 1, meshes)
+        schema = json.loads(mcapfmt.foxglove_schema("foxglove.SceneUpdate"))
+        jsonschema.Draft202012Validator(schema).validate(update)
+        entities = {e["id"]: e for e in update["entities"]}
+        for link in desc.links:
+            models = entities[link.name]["models"]
+            assert len(models) == 1 and models[0]["media_type"] == "model/gltf-binary"
+            assert base64.b64decode(models[0]["data"])[:4] == b"glTF"
+        # without the meshes: nothing drawn, nothing embedded, nothing broken
+        assert not any(e["models"] for e in mcapfmt.scene_update(desc, values, 1)["entities"])
+    finally:
+        arm_scene.remove()
+    bare = scene.ArmScene(server.scene, desc, values, root="/t_bare")
+    bare.build()
+    try:
+        assert sum(1 for _h, kind in bare.solids.values() if kind == "mesh") == len(desc.links)
+    finally:
+        bare.remove()

@@ -15,7 +15,7 @@ import threading
 from typing import Any
 
 import viser
-from simecs.mesh.client import MeshClient
+from simecs.mesh.client import MeshClient, NoReply, RemoteError
 from simecs.mesh.config import open_session
 from simecs.mesh.model import ModelDescription
 from simecs.mesh.runtime import Node, main_for, mesh_from_args
@@ -52,6 +52,7 @@ class Viewer(Node):
         self.tabs: dict[int, Tab] = {}
         self.claims = Claims(self._live)
         self._models: dict[str, ModelDescription] = {}
+        self._meshes: dict[tuple[str, str], bytes] = {}
         self._models_lock = threading.Lock()
 
     @staticmethod
@@ -141,6 +142,23 @@ class Viewer(Node):
             with self._models_lock:
                 self._models[model_id] = desc
         return desc
+
+    def meshes(self, model: ModelDescription) -> dict[str, bytes]:
+        """The GLB of every mesh shape of the model, asked once per viewer; missing ones left out."""
+        out = {}
+        for name in model.mesh_names():
+            with self._models_lock:
+                data = self._meshes.get((model.id, name))
+            if data is None:
+                try:
+                    data = self.mc.model_mesh(model.id, name)
+                except (RemoteError, NoReply) as exc:
+                    self.log.warning("model %s: mesh %s not drawn: %s", model.id, name, exc)
+                    continue
+                with self._models_lock:
+                    self._meshes[(model.id, name)] = data
+            out[name] = data
+        return out
 
     # -- one tab per session ------------------------------------------------------------------------
     def _live(self, claimant: Claimant) -> bool:

@@ -88,3 +88,8 @@ class Host(Protocol):
     def describe(self, model_id: str) -> ModelDescription:
         """A model's description (cached by the viewer: it only changes with a server restart)."""
         ...
+
+    def meshes(self, model: ModelDescription) -> dict[str, bytes]:
+        """The binary glTF of every mesh shape of the model that could be had (cached like the
+        descriptions); a mesh the server could not give is left out (and logged)."""
+        ...

@@ -61,7 +61,7 @@ class ModelPage:
             self.results = ResultsPanel(gui, self._results_action, c.results.upload)
             self.results.show_runs(c.runs)
 
-        self.scene = ArmScene(client.scene, model, c.values)
+        self.scene = ArmScene(client.scene, model, c.values, meshes=c.meshes)
         self.scene.q = list(c.initial)
         self.scene.build()
         reach = self.scene.extent()

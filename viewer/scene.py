@@ -29,8 +29,10 @@ class ArmScene:
         values: Mapping[str, float],
         root: str = "/arm",
         shadows: bool = False,
+        meshes: Mapping[str, bytes] | None = None,
     ):
         self.scene = scene
+        self.meshes = dict(meshes or {})  # GLB of each mesh shape (a missing one is not drawn)
         self.model = model
         self.root = root
         self.shadows = shadows
@@ -89,7 +91,14 @@ class ArmScene:
     def _add_solid(self, name: str, shape: Shape, geom: ShapeGeometry) -> tuple[Any, str]:
         color = tuple(int(c) for c in shape.color[:3])
         light = {"cast_shadow": self.shadows, "receive_shadow": self.shadows}
-        if geom.kind == "box":
+        if geom.kind == "mesh":
+            data = self.meshes.get(geom.mesh)
+            if data is None:  # the server did not give it: an empty node keeps the indices whole
+                return self.scene.add_frame(name, show_axes=False, position=geom.position), "mesh"
+            h = self.scene.add_glb(
+                name, data, scale=geom.dimensions, wxyz=geom.wxyz, position=geom.position, **light
+            )
+        elif geom.kind == "box":
             h = self.scene.add_box(
                 name, color=color, dimensions=geom.dimensions, position=geom.position, **light
             )

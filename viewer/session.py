@@ -51,6 +51,7 @@ class SessionController(Dispatcher):
         self._remembered = ""  # the session the tab had, reopened once its user logged in
         self.session: SessionClient | None = None
         self.model: ModelDescription | None = None
+        self.meshes: dict[str, bytes] = {}  # the GLB of each mesh shape of the model (host.meshes)
         self.values: dict[str, float] = {}
         self.initial: list[float] = []
         self.shown_q: list[float] = []  # the pose the arm shows: what Teach records
@@ -233,6 +234,15 @@ class SessionController(Dispatcher):
         try:
             snap = snapshot or sc.snapshot()
             model = self.host.describe(snap.model_id)
+            meshes = self.host.meshes(model)
+            missing = set(model.mesh_names()) - set(meshes)
+            if missing:
+                self.notify(
+                    "Some parts are not drawn",
+                    f"The server did not give {len(missing)} of the model's meshes; "
+                    "the arm is drawn without them.",
+                    "warning",
+                )
         except (RemoteError, NoReply) as exc:
             claims.release(sid, self)
             if quiet_missing and isinstance(exc, RemoteError) and exc.code == "not_found":
@@ -249,6 +259,7 @@ class SessionController(Dispatcher):
             if self.session is not None and self.session.id != sid:
                 claims.release(self.session.id, self)
             self.session = sc
+            self.meshes = meshes
             self._take(model, snap)
         self.emit(ev.SessionRemembered(sid))
         self.emit(ev.ModelLoaded(model, sid))
