@@ -43,6 +43,7 @@ def test_every_key_of_the_table_is_built_and_parsed_by_the_table() -> None:
         "run": "r3",
         "role": "proxy",
         "node": "n1",
+        "mesh": "link1.0",
     }
     for name, spec in keys.KEYS.items():
         key = keys.build(name, **{c: chunks[c] for c in spec.chunks})
