@@ -37,7 +37,8 @@ class KeySpec:
     answers a query. Roles: client, proxy, simulator, worker (a simulator's run process), hotfeedback,
     recorder, any node. `payload` and `reply` name what travels: a message type of mesh/messages.py or
     mesh/model.py (replies are `Ok{data: <type>}` or an `Error`), `frame` (a binary frame, §6),
-    `mcap` (the bytes of an MCAP file), `glb` (binary glTF 2.0), or `per command` (messages.REPLIES);
+    `mcap` (the bytes of an MCAP file), `glb` (binary glTF 2.0), `bundle` (a model directory as a
+    gzip-compressed tar, models/bundle.py), or `per command` (messages.REPLIES);
     `|` separates choices.
     """
 
@@ -155,6 +156,16 @@ _TABLE = (
         payload="RunRequest",
         reply="Accepted",
         meaning="hand one run to a simulator host, which starts it in a worker process",
+    ),
+    KeySpec(
+        name="simulator_model",
+        pattern="simecs/simulators/<node>/models/<model>",
+        kind="query",
+        writer="proxy",
+        answerer="simulator",
+        reply="bundle",
+        meaning="a model the host offers (its status lists it), as a bundle of its model directory: how a "
+        "host's own model reaches the proxy's library",
     ),
     KeySpec(
         name="node_status",
@@ -467,6 +478,15 @@ def node_status(role: str, node_id: str) -> str:
 
 def simulator_run(host_id: str) -> str:
     return build("simulator_run", node=host_id)
+
+
+def simulator_model(host_id: str, model_id: str) -> str:
+    return build("simulator_model", node=host_id, model=model_id)
+
+
+def simulator_models(host_id: str) -> str:
+    """Every model bundle one host serves."""
+    return KEYS["simulator_model"].pattern.replace("<node>", _check("node", host_id)).replace("<model>", "*")
 
 
 def run_token(user: str, session: str, run_id: str) -> str:

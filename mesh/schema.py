@@ -37,6 +37,7 @@ BINARY = {
     "frame": "a binary sample frame (PROTOCOL.md §6): a 40-byte header (x-simecs-frame), then float64 rows",
     "mcap": "the bytes of an MCAP file (docs/RECORDINGS.md)",
     "glb": "a triangle mesh as binary glTF 2.0 (a GLB file: magic 'glTF', version 2)",
+    "bundle": "a model directory as a gzip-compressed tar (docs/MODELS.md, 'A host's own models')",
 }
 REF = "#/$defs/{name}"
 

@@ -14,6 +14,7 @@ kernels), exudyn_chain (the Exudyn system), simulation (one run), package (Model
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import numpy as np
@@ -44,6 +45,11 @@ _REGISTRY: dict[str, ModelPackage] = {}
 LIBRARY = Path(__file__).parent / "library"
 
 
+#: Where a host's own models are: model directories, or folders of them, separated by os.pathsep.
+EXTRA_ENV = "SIMECS_MODELS"
+_PROBLEMS: list[str] = []
+
+
 def library_dirs() -> list[Path]:
     """The model directories of the shipped library, in the order clients list them."""
     order = ["spider", "puma560", "panda", "ur5", "jaco2"]
@@ -51,12 +57,52 @@ def library_dirs() -> list[Path]:
     return sorted(found, key=lambda p: (order.index(p.name) if p.name in order else len(order), p.name))
 
 
+def extra_dirs() -> list[Path]:
+    """The model directories named by SIMECS_MODELS (a host's own models, offered on the mesh)."""
+    out = []
+    for entry in os.environ.get(EXTRA_ENV, "").split(os.pathsep):
+        if not entry:
+            continue
+        path = Path(entry)
+        if (path / MODEL_FILE).is_file():
+            out.append(path)
+        elif path.is_dir():
+            out.extend(sorted(p for p in path.iterdir() if (p / MODEL_FILE).is_file()))
+        else:
+            _PROBLEMS.append(f"{EXTRA_ENV}: {entry} is neither a model directory nor a folder of them")
+    return out
+
+
 def _load() -> dict[str, ModelPackage]:
     if not _REGISTRY:
         for directory in library_dirs():
             spec = load_model_dir(directory)
             _REGISTRY[spec.id] = ModelPackage(spec)
+        for directory in extra_dirs():  # a bad one is reported and left out: the host runs on
+            try:
+                spec = load_model_dir(directory)
+            except ModelFileError as exc:
+                _PROBLEMS.append(str(exc))
+                continue
+            if spec.id in _REGISTRY:
+                _PROBLEMS.append(f"{directory}: model id {spec.id!r} is already in the library")
+                continue
+            _REGISTRY[spec.id] = ModelPackage(spec)
     return _REGISTRY
+
+
+def add_model(directory: Path) -> ModelPackage:
+    """Load a model directory into this process's library (the proxy, for a host's own model);
+    ModelFileError if it is refused. A model of the same id is replaced."""
+    spec = load_model_dir(directory)
+    _load()[spec.id] = package = ModelPackage(spec)
+    return package
+
+
+def load_problems() -> list[str]:
+    """Why model directories of SIMECS_MODELS were left out."""
+    _load()
+    return list(_PROBLEMS)
 
 
 def list_models() -> list[ModelSummary]:

@@ -87,7 +87,11 @@ def cmd_up(args: argparse.Namespace) -> int:
         ),
         Child(
             "simulator",
-            node_argv(NODES["simulator"], [*common, "--results-dir", os.path.join(data, "results")]),
+            node_argv(
+                NODES["simulator"],
+                [*common, "--results-dir", os.path.join(data, "results")]
+                + [arg for d in args.models for arg in ("--models", os.path.abspath(d))],
+            ),
         ),
         Child("hotfeedback", node_argv(NODES["hotfeedback"], common)),
     ]
@@ -292,6 +296,13 @@ def build_parser() -> argparse.ArgumentParser:
         "--max-running", type=int, default=None, help="a ceiling of runs at once (default: by capacity)"
     )
     up.add_argument("--no-viewer", action="store_true", help="headless: no web viewer")
+    up.add_argument(
+        "--models",
+        action="append",
+        default=[],
+        metavar="DIR",
+        help="more models: a model directory or a folder of them (repeatable; docs/MODELS.md)",
+    )
     up.add_argument("--no-recorder", action="store_true", help="do not record runs")
     up.add_argument(
         "--secure",

@@ -3,27 +3,71 @@ parameter values against a model (its bounds, then the model's own cross-checks)
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Iterator, Mapping, Sequence
 from contextlib import contextmanager
+from pathlib import Path
 from typing import Any
 
 from simecs.mesh import messages as m
 from simecs.mesh.model import DocPage, ModelDescription, check_values
 from simecs.mesh.runtime import RequestError
 
+log = logging.getLogger("simecs.proxy")
+
 
 class ModelLibrary:
-    def __init__(self) -> None:
-        # The models installed with this server: the proxy uses their descriptions and value checks
-        # only; simulations run in simulator nodes, reached over the mesh.
+    def __init__(self, hosted_dir: Path | None = None) -> None:
+        # The models installed with this server, and those simulator hosts brought (kept in
+        # `hosted_dir` over restarts): the proxy uses their descriptions, value checks and planners;
+        # simulations run in simulator nodes, reached over the mesh.
         from simecs import models
         from simecs.models.planner import warmup
 
         self._packages: dict[str, Any] = {s.id: models.get_model(s.id) for s in models.list_models()}
+        self.hosted_dir = hosted_dir
+        if hosted_dir is not None and hosted_dir.is_dir():
+            for directory in sorted(hosted_dir.iterdir()):
+                try:
+                    package = models.add_model(directory)
+                except ValueError as exc:
+                    log.warning("a host's model kept in %s is left out: %s", directory, exc)
+                    continue
+                self._packages.setdefault(package.id, package)
         warmup()  # the kinematics kernels, so the first command is planned at once
         self.descriptions: dict[str, ModelDescription] = {
             model_id: pkg.describe() for model_id, pkg in self._packages.items()
         }
+
+    def knows(self, model_id: str) -> bool:
+        return model_id in self.descriptions
+
+    def add_bundle(self, data: bytes) -> ModelDescription:
+        """A host's model, from its bundle: unpacked into `hosted_dir` and added to the library.
+        ValueError (models.ModelFileError) says what was refused; a known model is not replaced."""
+        import shutil
+        import tempfile
+
+        from simecs import models
+        from simecs.models.bundle import unpack
+
+        assert self.hosted_dir is not None, "the proxy keeps hosts' models in its data folder"
+        self.hosted_dir.mkdir(parents=True, exist_ok=True)
+        staging = Path(tempfile.mkdtemp(prefix=".incoming-", dir=self.hosted_dir))
+        try:
+            directory = unpack(data, staging)
+            spec = models.load_model_dir(directory)
+            if self.knows(spec.id):
+                return self.descriptions[spec.id]
+            final = self.hosted_dir / spec.id
+            shutil.rmtree(final, ignore_errors=True)
+            directory.rename(final)
+            package = models.add_model(final)
+        finally:
+            shutil.rmtree(staging, ignore_errors=True)
+        self._packages[package.id] = package
+        self.descriptions[package.id] = package.describe()
+        return self.descriptions[package.id]
 
     def summaries(self) -> m.ModelList:
         return m.ModelList(models=[d.summary_entry() for d in self.descriptions.values()])

@@ -33,6 +33,9 @@ from .runs import LAST_REPORT_GRACE_S, RunTracker
 from .sessions import SessionRecord, SessionStore
 from .user_library import UserLibrary
 
+#: How long before a host's model that could not be fetched (or was refused) is asked for again.
+MODEL_RETRY_S = 60.0
+
 
 class Proxy(Node):
     """Sessions, validation, parameter sets, model library and documentation, admission."""
@@ -55,6 +58,8 @@ class Proxy(Node):
         self._expiry_checked = 0.0
         self.lock = threading.RLock()
         self.library: ModelLibrary | None = None
+        self.hosted_models = data / "models"  # models simulator hosts brought (kept over restarts)
+        self._asked: dict[str, float] = {}  # model id -> when it was last asked of a host
         self.store = SessionStore(
             data / "sessions", lambda key: self.publisher(key, latched=True), self._release
         )
@@ -141,7 +146,7 @@ class Proxy(Node):
 
     # -- startup ---------------------------------------------------------------------------------
     def start(self) -> None:
-        self.library = ModelLibrary()
+        self.library = ModelLibrary(self.hosted_models)
         self.store.load(self.library.descriptions)
         # Tells a hub restart (every run token disappears, the workers run on) from a lost worker.
         self.hub = HubLink(self.z)
@@ -194,6 +199,32 @@ class Proxy(Node):
         with self.lock:
             self.admission.hosts.status(host, status.load)
             self.admission.update()
+            now = time.monotonic()
+            wanted = [
+                model_id
+                for model_id in status.load.models
+                if not self.models.knows(model_id) and now - self._asked.get(model_id, -1e9) > MODEL_RETRY_S
+            ]
+            for model_id in wanted:
+                self._asked[model_id] = now
+        for model_id in wanted:  # a host's own model: fetched aside (a bundle may take a while)
+            threading.Thread(target=self._fetch_model, args=(host, model_id), daemon=True).start()
+
+    def _fetch_model(self, host: str, model_id: str) -> None:
+        """Bring a model a host offers into the library (its bundle, unpacked and checked)."""
+        try:
+            data, _ = MeshClient(self.z, timeout=60.0).request_binary(
+                keys.simulator_model(host, model_id), None
+            )
+            with self.lock:
+                desc = self.models.add_bundle(data)
+        except (RemoteError, NoReply, zenoh.ZError) as exc:
+            self.log.warning("model %s of host %s not fetched: %s", model_id, host, exc)
+            return
+        except ValueError as exc:  # the bundle refused (models.ModelFileError), or its model
+            self.log.error("model %s of host %s refused: %s", model_id, host, exc)
+            return
+        self.log.info("model %s (%s) added to the library by host %s", desc.id, desc.name, host)
 
     @property
     def models(self) -> ModelLibrary:

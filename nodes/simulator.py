@@ -16,6 +16,7 @@ import subprocess
 import sys
 import threading
 import time
+from pathlib import Path
 from typing import Any
 
 from simecs.mesh import codec, keys
@@ -48,8 +49,10 @@ class Simulator(Node):
     ) -> None:
         super().__init__(mesh, node_id)
         self.store = ResultsStore(results_dir)
-        from simecs.models import list_models
+        from simecs.models import list_models, load_problems
 
+        for problem in load_problems():
+            self.log.error("model left out: %s", problem)
         #: What this host carries and can carry: runs are refused by it, the proxy places runs by it.
         self.load = HostLoad([s.id for s in list_models()], max_runs or 0)
         self.warm_target = warm
@@ -62,6 +65,7 @@ class Simulator(Node):
         self.busy: dict[str, subprocess.Popen[str]] = {}
         self.fast: set[str] = set()  # busy runs paced as fast as possible (CPU-bound)
         self.mesh_config_path = ""
+        self._bundles: dict[str, bytes] = {}  # model id -> its bundle, made on the first ask
 
     @staticmethod
     def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -74,9 +78,22 @@ class Simulator(Node):
             "--max-runs", type=int, default=None, help="a ceiling of runs at once (default: by capacity)"
         )
         parser.add_argument("--warm", type=int, default=2, help="idle worker processes kept ready")
+        parser.add_argument(
+            "--models",
+            action="append",
+            default=[],
+            metavar="DIR",
+            help="this host's own models: a model directory or a folder of them (repeatable; adds to "
+            "SIMECS_MODELS); the host offers them on the mesh",
+        )
 
     @classmethod
     def from_args(cls, args: argparse.Namespace) -> Simulator:
+        if args.models:  # read by simecs.models here and in every worker (they inherit the environment)
+            from simecs.models import EXTRA_ENV
+
+            extra = [str(Path(d).resolve()) for d in args.models]
+            os.environ[EXTRA_ENV] = os.pathsep.join([*extra, os.environ.get(EXTRA_ENV, "")]).strip(os.pathsep)
         node = cls(mesh_from_args(args), args.node_id, args.results_dir, args.max_runs, args.warm)
         node.mesh_config_path = args.mesh_config or ""
         return node
@@ -93,6 +110,7 @@ class Simulator(Node):
         self.store.folder.mkdir(parents=True, exist_ok=True)
         self.serve(keys.simulator_run(self.node_id), self._on_run)
         self.serve(keys.ALL_RESULTS, self._on_results, threaded=True)
+        self.serve(keys.simulator_models(self.node_id), self._on_model_bundle, threaded=True)
         # A closed session (by its user, or expired) takes its results with it (mesh/limits.py).
         self.subscribe_messages(keys.ALL_STATE, m.SessionState, self._on_state, maxlen=1024, sealed=True)
         self._refill()
@@ -248,6 +266,26 @@ class Simulator(Node):
                 del self.closed[next(iter(self.closed))]
         if self.store.remove(user, sid):
             self.log.info("session %s of %s closed: its results removed", sid, user)
+
+    def _on_model_bundle(self, req: Request) -> Binary:
+        """A model this host offers, as a bundle of its directory (the proxy adds it to the library)."""
+        from simecs import models
+        from simecs.models.bundle import bundle
+
+        model_id = keys.parse("simulator_model", req.key)["model"]
+        try:
+            package = models.get_model(model_id)
+        except KeyError:
+            raise RequestError(
+                "not_found", f"host {self.node_id} has no model {model_id!r}", "model"
+            ) from None
+        with self.lock:
+            data = self._bundles.get(model_id)
+        if data is None:
+            data = bundle(package.spec)
+            with self.lock:
+                self._bundles[model_id] = data
+        return Binary(data)
 
     def _on_results(self, req: Request) -> Binary:
         """A run's results if this host holds them; other hosts (and the proxy, for runs it knows)

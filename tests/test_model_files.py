@@ -20,7 +20,7 @@ from simecs.models.model_file import ModelFileError, load_model_dir
 from simecs.models.urdf import UrdfError, read_urdf
 from simecs.testing.urdf_reference import UrdfReference, urdf_models
 
-from tests.conftest import Service
+from tests.conftest import Mesh, Service, start_service, wait_until
 
 URDF_MODELS = urdf_models()
 
@@ -251,3 +251,75 @@ def test_the_proxy_serves_each_mesh_a_model_names(service: Service) -> None:
         client.model_mesh("nope", "link1.0")
     assert unknown.value.code == "not_found"
     assert client.describe("spider").mesh_names() == []
+
+
+def test_a_hosts_own_model_joins_the_library_and_runs(mesh: Mesh, tmp_path: Path) -> None:
+    """A simulator started with --models offers its model: the proxy fetches it (a bundle of the
+    directory with its URDF), lists and describes it, keeps it over its restart, and runs go to the
+    host; a broken model directory beside it is left out, and the host runs on."""
+    own = tmp_path / "own"
+    (own / "arm3").mkdir(parents=True)
+    _model_dir(own / "arm3", ARM)
+    broken = own / "broken"
+    broken.mkdir()
+    (broken / "model.json5").write_text("{format: 1, id: 'broken'")
+    data = start_service(mesh, extra_simulator=("--models", str(own))).data_dir
+    client = mesh.client()
+    wait_until(lambda: "arm3" in [m.id for m in client.list_models()], timeout=60, what="arm3 in the library")
+    desc = client.describe("arm3")
+    assert [lk.joint for lk in desc.links] == ["joint1", "joint2", "joint3"] and desc.docs
+    assert (data / "models" / "arm3" / "urdf" / "robot.urdf").is_file()
+    assert "broken" in mesh.log("simulator") and "model left out" in mesh.log("simulator")
+    s = client.create_session("ann", "arm3")
+    target = [0.4, -0.3, 0.5]
+    s.set_joint_path([(target, 100.0, 100.0)])
+    s.set_settings(stop_time=2.5, output_interval=0.01, pacing="fast")
+    run_id = s.run()
+    state = s.wait_for(["finished", "failed"], 60, run_id)
+    assert state.phase == "finished", state.reason
+    columns, rows = s.results(run_id)
+    q = [rows[-1, columns.index(f"joint{j}.q")] for j in (1, 2, 3)]
+    assert np.max(np.abs(np.array(q) - target)) < 2e-3
+    # the proxy keeps it: after a restart it describes it before any host says a word
+    mesh.stop("simulator")
+    mesh.stop("proxy")
+    mesh.start("proxy", "--data-dir", str(data), "--max-running", "4")
+    assert client.describe("arm3").id == "arm3"
+
+
+def test_a_bundle_carries_a_urdf_model_whole_and_hostile_ones_are_refused(tmp_path: Path) -> None:
+    import io
+    import tarfile
+
+    from simecs.models.bundle import bundle, unpack
+
+    data = bundle(models.get_model("ur5").spec)
+    directory = unpack(data, tmp_path / "in")
+    spec = load_model_dir(directory)  # none of example-robot-data needed: its meshes came along
+    assert spec.id == "ur5" and len(spec.visuals) == len(models.get_model("ur5").spec.visuals)
+    assert all(v.near == directory / "urdf" for v in spec.visuals)
+    assert models.ModelPackage(spec).mesh_store().glb("link2.0")[:4] == b"glTF"
+
+    def tar_of(*members: tuple[str, bytes], link: str = "") -> bytes:
+        out = io.BytesIO()
+        with tarfile.open(fileobj=out, mode="w:gz") as tar:
+            for name, body in members:
+                info = tarfile.TarInfo(name)
+                info.size = len(body)
+                tar.addfile(info, io.BytesIO(body))
+            if link:
+                info = tarfile.TarInfo("m/evil")
+                info.type, info.linkname = tarfile.SYMTYPE, link
+                tar.addfile(info)
+        return out.getvalue()
+
+    for bad, why in [
+        (b"not a tar at all", "not a gzip-compressed tar"),
+        (tar_of(("m/../../escape", b"x")), "is not a plain file inside the model"),
+        (tar_of(("/abs/model.json5", b"x")), "is not a plain file inside the model"),
+        (tar_of(("m/model.json5", b"{}"), link="/etc/passwd"), "is not a plain file inside the model"),
+        (tar_of(("a/model.json5", b"{}"), ("b/model.json5", b"{}")), "must hold one model directory"),
+    ]:
+        with pytest.raises(ModelFileError, match=why):
+            unpack(bad, tmp_path / "bad")
+    assert not (tmp_path.parent / "escape").exists()
