@@ -7,6 +7,7 @@ motors through harmonic-drive-like reducers; docs/MODELS.md lists the reasoning.
 from __future__ import annotations
 
 import math
+from typing import Any
 
 from .drive import DRIVE_PARAMS
 from .spec import ParamInfo
@@ -203,7 +204,7 @@ TOP_MOTOR_SPEED = 300.0  # rad/s of the motor at the joint's URDF velocity limit
 RATIO_RANGE = (20.0, 200.0)
 
 
-def size_for_limits(effort: float, velocity: float, u_max: float = 48.0) -> dict[str, float]:
+def size_for_limits(effort: float, velocity: float, u_max: float = 48.0) -> dict[str, Any]:
     """`size_class` arguments for a joint that must give `effort` N m at up to `velocity` rad/s (a
     URDF's <limit>): a documented rule, so an imported model runs before its modeller tunes it.
 

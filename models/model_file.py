@@ -21,7 +21,7 @@ from simecs.mesh.model import Shape
 from simecs.mesh.primitives import Name, Record, Text
 
 from .drives_catalog import size_class, size_for_limits
-from .spec import ArmSpec, LinkSpec, Visual
+from .spec import ArmSpec, LinkSpec, ParamInfo, Visual
 from .urdf import UrdfError, read_urdf, resolve_uri
 from .urdf_chain import UrdfChain, serial_chain
 
@@ -32,6 +32,8 @@ MODEL_FILE = "model.json5"
 Vec3 = Annotated[list[float], Meta(min_length=3, max_length=3)]
 Positive = Annotated[float, Meta(gt=0.0)]
 NonNegative = Annotated[float, Meta(ge=0.0)]
+#: Drive size class name -> DRIVE_PARAMS name -> its value and metadata (as ArmSpec.drives).
+DriveTables = dict[str, dict[str, ParamInfo]]
 RGB = Annotated[list[Annotated[int, Meta(ge=0, le=255)]], Meta(min_length=3, max_length=3)]
 
 
@@ -198,9 +200,9 @@ def load_model_dir(directory: str | Path) -> ArmSpec:
         visuals = _visuals(chain, links, urdf_dir)
         base_rpy = chain.base_rpy
         base_translation = chain.base_translation
-        tool_translation = tuple(
-            a + b for a, b in zip(chain.tool_translation, model.tool_translation, strict=True)
-        )  # type: ignore[assignment]
+        tool_translation = _t3(
+            [a + b for a, b in zip(chain.tool_translation, model.tool_translation, strict=True)]
+        )
     n = len(links)
     for field_name in ("standard_target", "home"):
         values = getattr(model, field_name)
@@ -271,7 +273,7 @@ def _read_doc(directory: Path, where: str, name: str, file: str) -> str:
         raise ModelFileError(f"{where}: docs.{name}", f"cannot read {file!r} ({exc})") from None
 
 
-def _drive_tables(model: ModelFile, where: str) -> dict[str, dict]:  # type: ignore[type-arg]
+def _drive_tables(model: ModelFile, where: str) -> DriveTables:
     tables = {}
     for name, drive in model.drives.items():
         try:
@@ -287,7 +289,7 @@ def _drive_tables(model: ModelFile, where: str) -> dict[str, dict]:  # type: ign
     return tables
 
 
-def _links_from_rows(model: ModelFile, where: str) -> tuple[list[LinkSpec], dict[str, dict]]:  # type: ignore[type-arg]
+def _links_from_rows(model: ModelFile, where: str) -> tuple[list[LinkSpec], DriveTables]:
     assert model.links is not None
     drives = _drive_tables(model, where)
     if model.joints:
@@ -358,9 +360,7 @@ def _urdf_chain(directory: Path, source: UrdfSource, where: str) -> tuple[UrdfCh
         raise ModelFileError(path.name, str(exc)) from None
 
 
-def _links_from_urdf(
-    model: ModelFile, chain: UrdfChain, where: str
-) -> tuple[list[LinkSpec], dict[str, dict]]:  # type: ignore[type-arg]
+def _links_from_urdf(model: ModelFile, chain: UrdfChain, where: str) -> tuple[list[LinkSpec], DriveTables]:
     drives = _drive_tables(model, where)
     known = {lk.joint for lk in chain.links}
     for name in model.joints:
@@ -380,7 +380,7 @@ def _links_from_urdf(
                     "name a drive class",
                 )
             drive = f"auto_{lk.joint}"
-            drives[drive] = size_class(**size_for_limits(lk.effort, lk.velocity))  # type: ignore[arg-type]
+            drives[drive] = size_class(**size_for_limits(lk.effort, lk.velocity))
         elif drive not in drives:
             raise ModelFileError(
                 f"{where}: joints.{lk.joint}.drive",

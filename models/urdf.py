@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import math
 import xml.etree.ElementTree as ET
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -253,6 +254,18 @@ def _joint(element: str, node: ET.Element, name: str) -> UrdfJoint:
     return joint
 
 
+def _named(node: ET.Element, where: str, seen: Mapping[str, object]) -> tuple[str, str]:
+    """A <link> or <joint>'s name, and how refusals name it (`joint "j4"`); refused without a name
+    or when one of its kind already has it."""
+    name = node.get("name")
+    if not name:
+        raise UrdfError(where, f"a <{node.tag}> has no name")
+    element = f'{node.tag} "{name}"'
+    if name in seen:
+        raise UrdfError(element, "is defined twice")
+    return name, element
+
+
 def read_urdf(path: str | Path) -> UrdfRobot:
     """The links and joints of a URDF file, checked: UrdfError names the first element refused."""
     path = Path(path)
@@ -274,12 +287,7 @@ def read_urdf(path: str | Path) -> UrdfRobot:
             materials[node.get("name", "")] = color
     links: dict[str, UrdfLink] = {}
     for node in top.findall("link"):
-        name = node.get("name")
-        if not name:
-            raise UrdfError(where, "a <link> has no name")
-        element = f'link "{name}"'
-        if name in links:
-            raise UrdfError(element, "is defined twice")
+        name, element = _named(node, where, links)
         link = UrdfLink(name)
         inertial = node.find("inertial")
         if inertial is not None:
@@ -293,12 +301,7 @@ def read_urdf(path: str | Path) -> UrdfRobot:
     joints: dict[str, UrdfJoint] = {}
     parents: dict[str, str] = {}
     for node in top.findall("joint"):
-        name = node.get("name")
-        if not name:
-            raise UrdfError(where, "a <joint> has no name")
-        element = f'joint "{name}"'
-        if name in joints:
-            raise UrdfError(element, "is defined twice")
+        name, element = _named(node, where, joints)
         joint = _joint(element, node, name)
         for role, link_name in (("parent", joint.parent), ("child", joint.child)):
             if link_name not in links:

@@ -16,6 +16,7 @@ the tool frame the modeller chose.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 
@@ -333,16 +334,5 @@ def _geometries(
         if b != body:
             continue
         for geo in getattr(robot.links[name], kind):
-            out.append(
-                Geometry(
-                    geo.kind,
-                    to_link @ pose[name] @ geo.pose,
-                    filename=geo.filename,
-                    scale=geo.scale,
-                    size=geo.size,
-                    radius=geo.radius,
-                    length=geo.length,
-                    color=geo.color,
-                )
-            )
+            out.append(dataclasses.replace(geo, pose=to_link @ pose[name] @ geo.pose))
     return out
