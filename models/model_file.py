@@ -188,6 +188,7 @@ def load_model_dir(directory: str | Path) -> ArmSpec:
     }
     chain: UrdfChain | None = None
     visuals: list[Visual] = []
+    collisions: list[Visual] = []
     if model.links is not None:
         links, drives = _links_from_rows(model, where)
         base_rpy = (0.0, 0.0, 0.0)
@@ -198,6 +199,7 @@ def load_model_dir(directory: str | Path) -> ArmSpec:
         chain, urdf_dir = _urdf_chain(directory, model.urdf, where)
         links, drives = _links_from_urdf(model, chain, where)
         visuals = _visuals(chain, links, urdf_dir)
+        collisions = _visuals(chain, links, urdf_dir, collision=True)
         base_rpy = chain.base_rpy
         base_translation = chain.base_translation
         tool_translation = _t3(
@@ -241,6 +243,7 @@ def load_model_dir(directory: str | Path) -> ArmSpec:
             environment=list(model.environment),
             source=directory,
             visuals=visuals,
+            collisions=collisions,
         )
     except ValueError as exc:
         raise ModelFileError(where, str(exc)) from None
@@ -335,11 +338,12 @@ def _links_from_rows(model: ModelFile, where: str) -> tuple[list[LinkSpec], Driv
     return links, drives
 
 
-def _visuals(chain: UrdfChain, links: list[LinkSpec], near: Path) -> list[Visual]:
-    """The URDF's visuals as drawn parts: those fixed to the world, then each link's."""
+def _visuals(chain: UrdfChain, links: list[LinkSpec], near: Path, collision: bool = False) -> list[Visual]:
+    """The URDF's visuals (or collision solids) as parts: those fixed to the world, then each link's."""
     out = []
-    parts = [(-1, "base", chain.base_visuals, (150, 150, 160))]
-    parts += [(i, f"link{i + 1}", lk.visuals, links[i].color) for i, lk in enumerate(chain.links)]
+    kind = "collisions" if collision else "visuals"
+    parts = [(-1, "base", getattr(chain, f"base_{kind}"), (150, 150, 160))]
+    parts += [(i, f"link{i + 1}", getattr(lk, kind), links[i].color) for i, lk in enumerate(chain.links)]
     for link, prefix, geometries, color in parts:
         for k, geo in enumerate(geometries):
             out.append(

@@ -103,3 +103,4 @@ class ArmSpec:
     environment: list[Shape] = field(default_factory=list)
     source: Path | None = None  # the model directory it was read from
     visuals: list[Visual] = field(default_factory=list)  # drawn instead of a link's tubes where given
+    collisions: list[Visual] = field(default_factory=list)  # a URDF's <collision> solids, for contact

@@ -298,6 +298,8 @@ def test_a_bundle_carries_a_urdf_model_whole_and_hostile_ones_are_refused(tmp_pa
     spec = load_model_dir(directory)  # none of example-robot-data needed: its meshes came along
     assert spec.id == "ur5" and len(spec.visuals) == len(models.get_model("ur5").spec.visuals)
     assert all(v.near == directory / "urdf" for v in spec.visuals)
+    assert 0 < len(spec.collisions) == len(models.get_model("ur5").spec.collisions)
+    assert all((v.near / v.geometry.filename).is_file() for v in spec.collisions if v.geometry.kind == "mesh")
     assert models.ModelPackage(spec).mesh_store().glb("link2.0")[:4] == b"glTF"
 
     def tar_of(*members: tuple[str, bytes], link: str = "") -> bytes:
