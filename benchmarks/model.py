@@ -15,6 +15,10 @@ one core, target >= 10) and `max_joint_error_mrad_<model>` against a 10x finer s
 `fk_vs_reference_m`: the largest tool-pose difference (m, and rotation-matrix entries) between our
 chain and yourdfpy's reading of the URDF of every imported model on FK_SAMPLES random configurations
 each (target <= 1e-9).
+
+Convergence (CONVERGENCE_CASES: a fast large PUMA move, a slow small Spider move): the joint error
+against a 10x finer step over every sample of the move and of 4 s at rest after it, and the limit
+cycle at rest (peak-to-peak over the last 2 s, at both steps; docs/MODELS.md explains it).
 """
 
 from __future__ import annotations
@@ -76,6 +80,64 @@ def joint_error(data: np.ndarray, ref: np.ndarray, cols: list[str], n: int) -> n
     """Per joint, the largest |q - q of the finer run| over the output samples (rad)."""
     qi = [cols.index(f"joint{j}.q") for j in range(1, n + 1)]
     return np.abs(data[:, qi] - ref[:, qi]).max(axis=0)
+
+
+#: Convergence cases (issue 17's defect 5): (model, target rad, speed %, acceleration %); the slow
+#: small Spider move starts from its home, the target is relative to it.
+CONVERGENCE_CASES = {
+    "puma_fast_large": ("puma560", (2.5, -2.0, 2.0, 2.5, 1.5, 3.0), 100.0, 100.0),
+    "spider_slow_small": ("spider", (0.05, -0.04, 0.03, 0.05, -0.05, 0.04, 0.05), 20.0, 20.0),
+}
+REST_S = 4.0  # simulated after the move ends: the limit cycle at rest is measured over its last REST_WINDOW_S
+REST_WINDOW_S = 2.0  # the settling is over by then (the cycle is the same 6-8 s after the move)
+
+
+def move_case(model: str, target: tuple[float, ...], speed: float, acc: float, step: float, substeps: int):
+    """One move from home, `REST_S` at rest after it; (rows, columns, when the move ends)."""
+    from simecs.models import get_model
+
+    pkg = get_model(model)
+    sim = pkg.build({})
+    try:
+        sim.set_initial(list(pkg.home()))
+        sim.set_joint_path([(list(target), speed, acc)])
+        moving = sim.path_duration()
+        sim.start(moving + REST_S, 0.002, step, substeps)
+        rows = sim.advance(moving + REST_S)
+        return rows, list(sim.columns), moving
+    finally:
+        sim.close()
+
+
+def convergence_figures() -> dict[str, float]:
+    """Per case: the largest joint error against a 10x finer step over the whole move and its rest
+    (`convergence_error_mrad_<case>`), and the largest peak-to-peak of a joint at rest over the last
+    REST_WINDOW_S, at the default step and at the fine one (`rest_limit_cycle_urad_<case>`, `..._fine`): the
+    same at both steps means the cycle is the drive's (backlash, stiction, integral action), not the
+    integrator's."""
+    from simecs.models import get_model
+
+    out: dict[str, float] = {}
+    for name, (model, target, speed, acc) in CONVERGENCE_CASES.items():
+        spec = get_model(model).spec
+        rows, cols, moving = move_case(model, target, speed, acc, spec.default_step, spec.substeps)
+        fine, _, _ = move_case(model, target, speed, acc, spec.default_step / 10, spec.substeps)
+        n = len(spec.links)
+        err = float(joint_error(rows, fine, cols, n).max())
+        qi = [cols.index(f"joint{j}.q") for j in range(1, n + 1)]
+        cycles = []
+        for data in (rows, fine):
+            rest = data[data[:, 0] >= moving + REST_S - REST_WINDOW_S][:, qi]
+            cycles.append(float((rest.max(axis=0) - rest.min(axis=0)).max()))
+        out[f"convergence_error_mrad_{name}"] = round(err * 1e3, 4)
+        out[f"rest_limit_cycle_urad_{name}"] = round(cycles[0] * 1e6, 1)
+        out[f"rest_limit_cycle_urad_{name}_fine"] = round(cycles[1] * 1e6, 1)
+        print(
+            f"  {name:18s} ({model}, {speed:g} %, {moving:.2f} s + {REST_S:g} s at rest): error vs 10x finer "
+            f"step {err * 1e3:.4f} mrad; at rest {cycles[0] * 1e6:.1f} urad peak-to-peak "
+            f"({cycles[1] * 1e6:.1f} at the fine step)"
+        )
+    return out
 
 
 def library_figures(done: dict[str, tuple[float, float]]) -> dict[str, float]:
@@ -186,6 +248,8 @@ def run_model_bench(json_out: bool = False, model: str = "spider") -> dict:
     print("library: each model's standard case (from home, 5 s, output 10 ms, one core)")
     library = library_figures({model: (STOP / wall, float(per_joint.max()))})
     res.update(library)
+    print("convergence over whole moves (error vs 10x finer step) and the limit cycle at rest")
+    res.update(convergence_figures())
     library_pass = all(v >= 10 for k, v in library.items() if k.startswith("rtf_"))
     res["pass"] = bool(res["pass"] and library_pass and library["fk_vs_reference_m"] <= 1e-9)
     print(f"  {'PASS' if res['pass'] else 'FAIL'}")
