@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import importlib.util
 import math
+import re
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -129,14 +130,19 @@ def use_case(mesh: Mesh, browser: Any) -> None:
     session = client.session(USER, sid)
     assert session.snapshot().model_id == "spider"
 
-    # 2. parameters in place: a valid length reshapes the arm at once; an invalid mass is refused
+    # 2. parameters in place: a valid length, applied, reshapes the arm; an invalid mass is refused
+    #    beside the field before anything is sent, and discarded
     page.get_by_role("button", name="link2 (3)").click()
     t = now_ms(page)
     chromium.set_field(page, page.get_by_label("length [m]"), "0.5")
+    page.get_by_role("button", name="Apply edits").click()
     wait_until(lambda: session.snapshot().values["link2.length"] == 0.5, timeout=10, what="length stored")
     wait_until(lambda: poses_since(page, t) > 0, timeout=10, what="the 3D arm reshaped")
     chromium.set_field(page, page.get_by_label("mass [kg]"), "9999")
     text_appears(page, "outside [0, 500] kg")
+    assert page.get_by_role("button", name="Apply edits").is_disabled()
+    page.get_by_role("button", name="Discard edits").click()
+    wait_until(lambda: page.get_by_label("mass [kg]").input_value() == "6", timeout=10, what="mass back")
     assert session.snapshot().values["link2.mass"] == 6.0
 
     # 2. documentation: hypertext, follow a link and come back
@@ -243,6 +249,41 @@ def use_case(mesh: Mesh, browser: Any) -> None:
     context.close()
 
 
+def test_a_value_typed_key_by_key_is_stored_exactly_when_applied(mesh: Mesh, browser: Any) -> None:
+    """Issue 12, 0: typing `0.00008` into J_rotor one key at a time sends nothing half-typed (no "0",
+    no clobbered field); Apply stores exactly the typed value, and the field shows the stored one."""
+    with logs_on_failure(mesh, "viewer", "proxy"):
+        service = start_service(mesh)
+        url = start_viewer(mesh)
+        client = service.client
+        context = browser.new_context(viewport=chromium.VIEWPORT)
+        page = new_page(context, url)
+        page.get_by_role("button", name=SPIDER).click()
+        text_appears(page, "Spider arm (joint-independent control)")
+        sid = wait_until(lambda: next(iter(sessions_of(client)), None), timeout=20, what="a session")
+        session = client.session(USER, sid)
+        search = text_field(page, "Find parameter")
+        search.fill("joint3 J_rotor")
+        # the label gains a mark as the value is typed (✎) and applied (•): found by its start
+        field = page.get_by_label(re.compile(r"^J_rotor \[kg\*m\^2\]"))
+        field.wait_for(timeout=20_000)
+        field.click()
+        field.press("Control+a")
+        field.press("Delete")
+        field.press_sequentially("0.00008", delay=200)
+        time.sleep(1.0)
+        assert session.snapshot().values["joint3.motor.J_rotor"] == 6e-5  # nothing sent while typing
+        assert field.input_value() == "0.00008"  # and nothing overwrote what was typed
+        page.get_by_role("button", name="Apply edits").click()
+        wait_until(
+            lambda: session.snapshot().values["joint3.motor.J_rotor"] == 8e-5, timeout=10, what="8e-5 stored"
+        )
+        wait_until(lambda: page.get_by_label("J_rotor [kg*m^2] •", exact=True).count() == 1, what="applied")
+        assert field.input_value() == "0.00008"
+        page.screenshot(path=str(ARTIFACTS / "viewer_param_applied.png"))
+        context.close()
+
+
 PANDA = "Load Franka Emika Panda (joint-independent control)"
 
 
@@ -298,6 +339,7 @@ def two_tabs(mesh: Mesh, browser: Any) -> None:
 
     a.get_by_role("button", name="link3 (3)").click()
     chromium.set_field(a, a.get_by_label("length [m]"), "0.9")
+    a.get_by_role("button", name="Apply edits").click()
     length_a = lambda: client.session(USER, sid_a).snapshot().values["link3.length"]  # noqa: E731
     wait_until(lambda: length_a() == 0.9, timeout=10, what="A")
     assert client.session(USER, sid_b).snapshot().values["link3.length"] == 0.7

@@ -727,14 +727,17 @@ def test_joint_sliders_are_in_degrees_within_limits(server: Any) -> None:
 
 
 # -- parameters / variables panels ------------------------------------------------------------------
-def test_param_panel_shows_a_component_and_sends_edits(server: Any) -> None:
+def test_param_panel_shows_a_component_and_sends_only_applied_edits(server: Any) -> None:
+    """Issue 12, 0: a value typed key by key is a draft (checked as typed, never sent half-typed,
+    never overwritten by the server's values); Apply sends the drafts at once; a refusal stays beside
+    the fields with the server's reason; Discard goes back to the stored values."""
     model = arm()
     sent, resets, ops = [], [], []
     panel = params.ParamPanel(
         server.gui,
         model,
         model.default_values(),
-        lambda n, v: sent.append((n, v)),
+        lambda changes: sent.append(dict(changes)),
         resets.append,
         lambda op, name: ops.append((op, name)),
     )
@@ -743,12 +746,29 @@ def test_param_panel_shows_a_component_and_sends_edits(server: Any) -> None:
     assert list(panel.fields) == ["joint1.motor.R", "joint1.motor.kt"]
     field = panel.fields["joint1.motor.R"]
     assert field.label == "R [ohm]" and "winding resistance" in field.hint
-    field.value = 2.5
-    panel._edited(Event(field), model.parameter("joint1.motor.R"))
-    assert sent == [("joint1.motor.R", 2.5)]
-    # the server's answer brings the fields back (e.g. after a refusal) and marks changed values
+    R = model.parameter("joint1.motor.R")
+    assert panel.apply.disabled and panel.discard.disabled
+    for typed in (0.0, 2.0, 2.5):  # "0" on the way is out of bounds: shown, not sent
+        field.value = typed
+        panel._edited(Event(field), R)
+        if typed == 0.0:
+            assert "outside" in panel.notice.content and panel.apply.disabled
+    assert sent == [] and field.label == "R [ohm]" + params.DRAFT_MARK and not panel.apply.disabled
+    # the server's values (another field changed meanwhile) leave the draft as typed
     panel.show_values({**model.default_values(), "joint1.motor.kt": 0.2})
-    assert panel.fields["joint1.motor.R"].value == 1.2 and panel.fields["joint1.motor.kt"].label.endswith("•")
+    assert field.value == 2.5 and panel.fields["joint1.motor.kt"].label.endswith("•")
+    panel._apply()
+    assert sent == [{"joint1.motor.R": 2.5}]
+    panel.refused("joint1.motor.R", "values.joint1.motor.R: too hot")
+    assert "too hot" in panel.notice.content and field.value == 2.5
+    panel.show_values({**model.default_values(), "joint1.motor.kt": 0.2, "joint1.motor.R": 2.5})
+    assert (
+        panel.drafts == {} and field.label == "R [ohm]" + params.CHANGED_MARK and panel.notice.content == ""
+    )
+    field.value = 3.0
+    panel._edited(Event(field), R)
+    panel._discard()
+    assert field.value == 2.5 and panel.drafts == {} and panel.apply.disabled
     panel.search.value = "torque"
     panel._on_search(Event(panel.search))
     assert list(panel.fields) == ["joint1.motor.kt"]

@@ -52,30 +52,39 @@ class Edits:
 
     # -- parameters --------------------------------------------------------------------------------
     def set_param(self, name: str, value: float) -> None:
-        """One value: the 3D arm reshapes at once, the server checks it (undone if refused)."""
+        """One value (see `set_params`)."""
+        self.set_params({name: value})
+
+    def set_params(self, changes: dict[str, float]) -> None:
+        """Values the user applied, all at once: the 3D arm reshapes at once, the server checks them
+        (all or none; a refusal names the culprit, and the arm comes back)."""
         c = self.c
         sc, model = c.session, c.model
-        if sc is None or model is None:
+        if sc is None or model is None or not changes:
             return
+        what = next(iter(changes)) if len(changes) == 1 else f"{len(changes)} parameters"
         why = c.refusal("set_params")
         if why:
-            c.notify(f"{name} not changed", why, "warning")
+            c.notify(f"{what} not changed", why, "warning")
+            c.emit(ev.ParamsRefused("", why))
             c.emit(ev.ValuesChanged(dict(c.values)))
             return
-        if name in appearance_parameters(model):
+        if set(changes) & appearance_parameters(model):
             c.replaying = None
-            c.emit(ev.ShapesChanged({**c.values, name: float(value)}))
+            c.emit(ev.ShapesChanged({**c.values, **{k: float(v) for k, v in changes.items()}}))
 
         def job() -> None:
             try:
-                values = sc.command(m.SetParams({name: float(value)}))
+                values = sc.command(m.SetParams({k: float(v) for k, v in changes.items()}))
             except (RemoteError, NoReply) as exc:
                 self.show_values(c.values)
-                c.fail(f"{name} not changed", exc)
+                if isinstance(exc, RemoteError):
+                    c.emit(ev.ParamsRefused(exc.field.removeprefix("values."), exc.error.message))
+                c.fail(f"{what} not changed", exc)
                 return
             self.show_values(values)
 
-        c.submit(f"{name} not changed", job)
+        c.submit(f"{what} not changed", job)
 
     def reset_params(self, names: list[str]) -> None:
         def job() -> None:

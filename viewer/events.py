@@ -83,6 +83,14 @@ class ValuesChanged:
 
 
 @dataclass
+class ParamsRefused:
+    """The server refused applied edits: `field` is the parameter it names ("" when none)."""
+
+    field: str
+    reason: str
+
+
+@dataclass
 class ShapesChanged:
     """The values the 3D arm's shapes follow: the session's, an edit not yet confirmed, or the
     recorded values of a replay being shown."""
@@ -184,6 +192,7 @@ Event = (
     | ModelLoaded
     | StateShown
     | ValuesChanged
+    | ParamsRefused
     | ShapesChanged
     | StreamedChanged
     | SettingsChanged

@@ -53,7 +53,7 @@ class ModelPage:
         self.handles += [self.header, tabs]
         with tabs.add_tab("Parameters"):
             self.params = ParamPanel(
-                gui, model, c.values, c.edits.set_param, c.edits.reset_params, c.edits.param_set
+                gui, model, c.values, c.edits.set_params, c.edits.reset_params, c.edits.param_set
             )
         with tabs.add_tab("Variables"):
             self.variables = VariablePanel(gui, model, c.streamed, self._set_streamed, self.open_plot)
@@ -99,6 +99,7 @@ class ModelPage:
         self.plots = PlotDock(gui, c.stream.units, actions)
         self._apply: dict[type, Callable[[Any], None]] = {
             ev.ValuesChanged: lambda e: self.params.show_values(e.values),
+            ev.ParamsRefused: lambda e: self.params.refused(e.field, e.reason),
             ev.ShapesChanged: self._show_shapes,
             ev.StreamedChanged: self._show_streamed,
             ev.RunsChanged: lambda e: self.results.show_runs(e.runs, e.newest),

@@ -3,20 +3,33 @@
 Both trees share the left panel on two tabs. A click on a component shows its items as a table
 below the tree (the paper's "table at the bottom left corner"), so a model with hundreds of
 parameters costs only the widgets of one component at a time. Parameter descriptions, units and
-bounds appear as hints; an edit goes to the server, which accepts it or refuses it with a reason.
+bounds appear as hints; an applied edit goes to the server, which accepts it or refuses it with a
+reason.
+
+A typed value is a draft until the user applies it (**Apply edits**): viser's number fields report
+every keystroke, and sending those would store half-typed values ("0" on the way to "0.00008") and
+overwrite the field under the user's fingers with the server's answer. Drafts are checked here as the
+user types (the protocol's own bounds check), kept when the server's values arrive, and sent all at
+once; a refusal is shown beside the fields with the server's reason.
 """
 
 from __future__ import annotations
 
 import math
+import time
 from collections.abc import Callable, Sequence
 from typing import Any
 
-from simecs.mesh.model import ModelDescription, Parameter, Variable
+from simecs.mesh.codec import DecodeError
+from simecs.mesh.model import ModelDescription, Parameter, Variable, check_values
 
 from . import tree as tr
 
 CHANGED_MARK = " •"  # appended to the label of a value that differs from its default
+DRAFT_MARK = " ✎"  # appended to the label of a typed value not applied yet
+#: Apply waits this long for the last keystrokes still on their way from the browser (viser sends a
+#: field's value as it changes, and a click may overtake the last of them).
+APPLY_GRACE_S = 0.3
 
 
 def number_step(p: Parameter, value: float) -> float:
@@ -60,8 +73,8 @@ class ComponentTree:
 class ParamPanel:
     """Edit parameter values in place, reset them, keep named sets.
 
-    The panel never changes a value by itself: `on_set(name, value)` asks the tab, which asks the
-    server; `show_values` then brings every visible field to the server's values.
+    The panel never changes a value by itself: `on_apply(changes)` asks the tab, which asks the
+    server; `show_values` then brings every visible field without a draft to the server's values.
     """
 
     def __init__(
@@ -69,7 +82,7 @@ class ParamPanel:
         gui: Any,
         model: ModelDescription,
         values: dict[str, float],
-        on_set: Callable[[str, float], None],
+        on_apply: Callable[[dict[str, float]], None],
         on_reset: Callable[[list[str]], None],
         on_set_op: Callable[[str, str], None],
     ) -> None:
@@ -77,7 +90,9 @@ class ParamPanel:
         self.model = model
         self.values = dict(values)
         self.defaults = model.default_values()
-        self.on_set = on_set
+        self.on_apply = on_apply
+        self.drafts: dict[str, float] = {}  # typed, not applied yet
+        self.refusal = ""  # the server's reason for the last refused apply
         self.on_reset = on_reset
         self.on_set_op = on_set_op  # (op, name): save / load / delete / refresh a parameter set
         self.fields: dict[str, Any] = {}
@@ -96,6 +111,13 @@ class ParamPanel:
         self.table = gui.add_folder("Values")
         with self.table:
             self.caption = gui.add_markdown("_No component chosen._")
+        self.notice = gui.add_markdown("")
+        self.apply = gui.add_button(
+            "Apply edits", color="green", disabled=True, hint="send the typed values (✎) to the server"
+        )
+        self.apply.on_click(lambda _e: self._apply())
+        self.discard = gui.add_button("Discard edits", disabled=True, hint="back to the stored values")
+        self.discard.on_click(lambda _e: self._discard())
         self.reset_shown = gui.add_button("Reset shown to defaults", hint="only the parameters listed above")
         self.reset_shown.on_click(lambda _e: self.on_reset([p.name for p in self.shown]))
         self.reset_all = gui.add_button("Reset all to defaults", color="orange", hint="every parameter")
@@ -132,7 +154,7 @@ class ParamPanel:
         self.caption.content = caption
         with self.table:
             for p in self.shown:
-                value = self.values.get(p.name, p.value)
+                value = self.drafts.get(p.name, self.values.get(p.name, p.value))
                 handle = self.gui.add_number(
                     self._label(p, value),
                     initial_value=value,
@@ -143,26 +165,95 @@ class ParamPanel:
                 self.fields[p.name] = handle
 
     def _label(self, p: Parameter, value: float) -> str:
+        if p.name in self.drafts:
+            return tr.param_label(p) + DRAFT_MARK
         changed = value != self.defaults.get(p.name, p.value)
         return tr.param_label(p) + (CHANGED_MARK if changed else "")
 
     def _edited(self, event: Any, p: Parameter) -> None:
         if event.client is None:  # our own assignment, not the user's
             return
-        self.on_set(p.name, float(event.target.value))
+        value = float(event.target.value)
+        if value == self.values.get(p.name, p.value):
+            self.drafts.pop(p.name, None)
+        else:
+            self.drafts[p.name] = value
+        self.refusal = ""
+        self._show_edits()
+
+    def problems(self) -> list[str]:
+        """What is wrong with the drafts, checked as the server will check it (bounds, whole numbers)."""
+        out = []
+        for name, value in self.drafts.items():
+            try:
+                check_values(self.model, {name: value}, self.values)
+            except DecodeError as exc:
+                out.append(f"**{name}**: {exc.problem}")
+        return out
+
+    def _show_edits(self) -> None:
+        """Labels, the notice beside the fields and the buttons, after the drafts changed."""
+        for name, handle in self.fields.items():
+            p = self.model.parameter(name)
+            label = self._label(p, self.drafts.get(name, self.values.get(name, p.value)))
+            if handle.label != label:
+                handle.label = label
+        problems = self.problems()
+        if problems:
+            text = "⚠ Not applicable yet: " + "; ".join(problems)
+        elif self.refusal:
+            text = f"✗ The server refused: {self.refusal}"
+        elif self.drafts:
+            text = f"{len(self.drafts)} typed value(s) ✎ not sent yet: **Apply edits** sends them."
+        else:
+            text = ""
+        if self.notice.content != text:
+            self.notice.content = text
+        self.apply.disabled = not self.drafts or bool(problems)
+        self.discard.disabled = not self.drafts
+
+    def _apply(self) -> None:
+        time.sleep(APPLY_GRACE_S)  # the last keystrokes may still be on their way
+        # viser sets a field's value as its message arrives, before the update callbacks run in its
+        # thread pool: the fields themselves say what was typed last
+        for name, handle in self.fields.items():
+            value = float(handle.value)
+            if value != self.values.get(name, self.model.parameter(name).value):
+                self.drafts[name] = value
+            else:
+                self.drafts.pop(name, None)
+        if not self.drafts or self.problems():
+            self._show_edits()
+            return
+        self.on_apply(dict(self.drafts))
+
+    def _discard(self) -> None:
+        self.drafts.clear()
+        self.refusal = ""
+        self.show_values(self.values)
+
+    def refused(self, field: str, reason: str) -> None:
+        """The server refused the applied drafts: they stay, with its reason beside them."""
+        self.refusal = reason
+        self._show_edits()
 
     # -- values from the server --------------------------------------------------------------------
     def show_values(self, values: dict[str, float]) -> None:
-        """Bring the visible fields to `values` (the server's truth, after a change or a refusal)."""
+        """Bring the visible fields to `values` (the server's truth, after a change or a refusal); a
+        draft the server now holds is done, the others stay as typed."""
         self.values = dict(values)
+        for name in [n for n, v in self.drafts.items() if self.values.get(n) == v]:
+            del self.drafts[name]
+        if not self.drafts:
+            self.refusal = ""
         for name, handle in self.fields.items():
+            if name in self.drafts:
+                continue
             p = self.model.parameter(name)
             value = self.values.get(name, p.value)
             if handle.value != value:
                 handle.value = value
-            label = self._label(p, value)
-            if handle.label != label:
-                handle.label = label
+        self._show_edits()
 
     def set_names(self, names: Sequence[str]) -> None:
         options = tuple(names) or ("(none)",)
