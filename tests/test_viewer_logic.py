@@ -1407,7 +1407,9 @@ def test_the_tab_applies_controller_events_to_its_panels(server: Any) -> None:
         # the toolbar follows the state; the pendant locks while a run goes on
         sc.watched["on_state"](state(sc, "running", progress=0.5, sim_time=0.5, rtf=1.0))
         assert tab.toolbar.status.content.startswith("**running** run r1")
-        assert tab.toolbar.runs.hint == "now: Pause, Abort" and page.pendant.locked
+        enabled = [label for label, b in tab.toolbar.run_buttons.items() if not b.disabled]
+        assert enabled == ["Pause", "Abort"] and page.pendant.locked
+        assert "not now" in tab.toolbar.run_buttons["Run"].hint
         # a replay run: the status names the recording, the arm takes the recorded link length
         sc.watched["on_state"](state(sc, "queued", "r2", seq=11))
         lay = layout(sc, model, "r2", "rec_r1", **{"link2.length": 1.0})

@@ -17,6 +17,12 @@ PACING_LABEL = {v: k for k, v in PACING.items()}
 TOOLBAR = ("Models", "Initialise", "Settings", "Documentation")
 #: Run buttons and the session command each sends (the phase table says when it applies).
 RUN_BUTTONS = {"Run": "run", "Pause": "pause", "Resume": "resume", "Abort": "abort"}
+RUN_HINTS = {
+    "Run": "start a run of the session (sends the pending edits first)",
+    "Pause": "hold the run where it is (the simulated time stops)",
+    "Resume": "go on with a paused run",
+    "Abort": "end the run now (its results so far are kept)",
+}
 
 
 def status_text(st: m.SessionState | None, replay: str = "") -> str:
@@ -56,18 +62,25 @@ class Toolbar:
         with tab:
             self.windows = gui.add_button_group("Windows", TOOLBAR)
             self.windows.on_click(lambda e: on_window(e.target.value))
-            self.runs = gui.add_button_group("Simulation", tuple(RUN_BUTTONS))
-            self.runs.on_click(lambda e: on_run(RUN_BUTTONS[e.target.value]))
+            # one button each, so each can be disabled, with the reason, when it does not apply
+            self.run_buttons: dict[str, Any] = {}
+            for label, op in RUN_BUTTONS.items():
+                button = gui.add_button(label, disabled=True, hint="load a model first")
+                button.on_click(lambda _e, op=op: on_run(op))
+                self.run_buttons[label] = button
             self.progress = gui.add_progress_bar(0.0, animated=False)
             self.status = gui.add_markdown("_Choose a model to start._")
         self.panel.float(x=-12, y=12, width=540)
 
     def show(self, st: m.SessionState | None, replay: str = "") -> None:
         self.status.content = status_text(st, replay)
-        now = ", ".join(applicable(st.phase)) if st is not None else ""
-        hint = f"now: {now}" if now else "load a model first"
-        if self.runs.hint != hint:
-            self.runs.hint = hint
+        for label, button in self.run_buttons.items():
+            why = "load a model first" if st is None else phases.refusal(RUN_BUTTONS[label], st.phase)
+            hint = f"{label}: not now ({why})" if why else RUN_HINTS[label]
+            if button.disabled != bool(why):
+                button.disabled = bool(why)
+            if button.hint != hint:
+                button.hint = hint
         progress = 0.0 if st is None else max(0.0, min(100.0, st.progress * 100.0))
         if abs(self.progress.value - progress) > 1e-6:
             self.progress.value = progress
