@@ -1596,3 +1596,23 @@ def test_an_imported_models_meshes_are_drawn_where_its_description_puts_them(ser
         assert sum(1 for _h, kind in bare.solids.values() if kind == "mesh") == len(desc.links)
     finally:
         bare.remove()
+
+
+def test_a_switch_parameter_is_a_check_box_and_applies_as_0_or_1(server: Any) -> None:
+    from simecs.models import get_model
+
+    desc = get_model("spider").describe()
+    sent: list[dict[str, float]] = []
+    panel = params.ParamPanel(server.gui, desc, desc.default_values(), sent.append, print, print)
+    drives = next(c for root in panel.roots for c in root.walk() if c.path == "drives")
+    panel.show_component(drives)
+    box = panel.fields["drives.enabled"]
+    assert box.value is True and not hasattr(box, "step")
+    box.value = False
+    panel._edited(Event(box), desc.parameter("drives.enabled"))
+    panel._apply()
+    assert sent == [{"drives.enabled": 0.0}]
+    panel.show_values({**desc.default_values(), "drives.enabled": 0.0})
+    assert box.value is False and panel.drafts == {}
+    panel.show_values(desc.default_values())
+    assert box.value is True

@@ -44,6 +44,11 @@ def number_step(p: Parameter, value: float) -> float:
     return 10.0 ** (-min(max(digits, 0), 7))
 
 
+def is_switch(p: Parameter) -> bool:
+    """A 0/1 parameter (drives.enabled, motor.ideal): shown as a check box, not a number."""
+    return p.integer and p.min == 0.0 and p.max == 1.0
+
+
 class ComponentTree:
     """Folders and buttons for a component tree; `on_pick(component)` when one is clicked."""
 
@@ -155,12 +160,13 @@ class ParamPanel:
         with self.table:
             for p in self.shown:
                 value = self.drafts.get(p.name, self.values.get(p.name, p.value))
-                handle = self.gui.add_number(
-                    self._label(p, value),
-                    initial_value=value,
-                    step=number_step(p, value),
-                    hint=tr.param_hint(p, self.defaults.get(p.name)),
-                )
+                hint = tr.param_hint(p, self.defaults.get(p.name))
+                if is_switch(p):
+                    handle = self.gui.add_checkbox(self._label(p, value), bool(value), hint=hint)
+                else:
+                    handle = self.gui.add_number(
+                        self._label(p, value), initial_value=value, step=number_step(p, value), hint=hint
+                    )
                 handle.on_update(lambda e, p=p: self._edited(e, p))
                 self.fields[p.name] = handle
 
@@ -251,8 +257,8 @@ class ParamPanel:
                 continue
             p = self.model.parameter(name)
             value = self.values.get(name, p.value)
-            if handle.value != value:
-                handle.value = value
+            if float(handle.value) != value:
+                handle.value = bool(value) if is_switch(p) else value
         self._show_edits()
 
     def set_names(self, names: Sequence[str]) -> None:
