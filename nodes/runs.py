@@ -315,13 +315,25 @@ class RunTracker:
             rec = self.store.owned(user, sid)
             if rec is None or rec.state.run_id != run_id or rec.phase not in phases.GOING:
                 return
-            if rec.reported != run_id:
-                # Tokens carry no seal: any peer may declare and drop one under a predictable name.
-                # Before its worker's first (sealed) report a run is the simulator's to report lost.
-                self.log.warning(
-                    "session %s run %s: a token vanished before the worker reported: ignored", sid, run_id
-                )
-                return
+            reported = rec.reported == run_id
+        if not reported:
+            # Tokens carry no seal: any peer may declare and drop one under a predictable name. Before
+            # its worker's first (sealed) report a run is the simulator's to report lost, unless its
+            # stored results say it ended (a proxy restarted late in a run hears no report at all).
+            stored = self._stored_end(user, sid, run_id)
+            with self.lock:
+                rec = self.store.owned(user, sid)
+                if rec is None or rec.state.run_id != run_id or rec.phase not in phases.GOING:
+                    return
+                if stored is None:
+                    self.log.warning(
+                        "session %s run %s: a token vanished before the worker reported: ignored", sid, run_id
+                    )
+                    return
+                self.log.info("session %s run %s: ended before this proxy heard from it", sid, run_id)
+                self._settle_from(rec, stored, "")
+                self.admission.update()
+            return
         if self._token_up(user, sid, run_id):
             self.log.warning(
                 "session %s run %s: a token vanished while the worker's is up (another peer's): ignored",
