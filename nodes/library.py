@@ -28,12 +28,14 @@ class ModelLibrary:
         self.hosted_dir = hosted_dir
         if hosted_dir is not None and hosted_dir.is_dir():
             for directory in sorted(hosted_dir.iterdir()):
+                if directory.name in self._packages or directory.name.startswith("."):
+                    continue  # a shipped model is never replaced; staging folders are leftovers
                 try:
                     package = models.add_model(directory)
                 except ValueError as exc:
                     log.warning("a host's model kept in %s is left out: %s", directory, exc)
                     continue
-                self._packages.setdefault(package.id, package)
+                self._packages[package.id] = package
         warmup()  # the kinematics kernels, so the first command is planned at once
         self.descriptions: dict[str, ModelDescription] = {
             model_id: pkg.describe() for model_id, pkg in self._packages.items()
