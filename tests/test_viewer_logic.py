@@ -1169,6 +1169,15 @@ def test_run_sends_the_pending_path_first_and_pause_resume_abort_go_through() ->
     assert [type(c) for c in sc.sent[-2:]] == [m.SetCommand, m.Run]
     assert sc.of(m.SetCommand)[-1].command.nodes[0].q == [0.1, 0.2, 0.3]
     assert got.of(events.Notice)[-1].body == "Run **r1** assigned."
+    # typed but not applied parameter values: the run would not take them, so it does not start
+    ctl.pending_params = lambda: ["link2.mass"]
+    sc.watched["on_state"](state(sc, "finished", seq=10))
+    sent = len(sc.sent)
+    ctl.control.run_action("run")
+    ctl.drain()
+    assert len(sc.sent) == sent and "not applied yet (link2.mass)" in got.of(events.Notice)[-1].body
+    ctl.pending_params = lambda: []
+    sc.watched["on_state"](state(sc, "running", seq=10))
     sc.watched["on_state"](state(sc, "running"))
     ctl.control.run_action("pause")
     sc.watched["on_state"](state(sc, "paused", seq=11))

@@ -61,6 +61,7 @@ class ModelPage:
             self.results = ResultsPanel(gui, self._results_action, c.results.upload)
             self.results.show_runs(c.runs)
 
+        c.pending_params = lambda: sorted(self.params.drafts)
         self.scene = ArmScene(client.scene, model, c.values, meshes=c.meshes)
         self.scene.q = list(c.initial)
         self.scene.build()

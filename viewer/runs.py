@@ -45,6 +45,15 @@ class RunControl:
         if why:
             c.notify(title, why, "warning")
             return
+        drafts = c.pending_params() if op == "run" else []
+        if drafts:  # the run would take the stored values, not the ones on the screen
+            shown = ", ".join(drafts[:3]) + (f" and {len(drafts) - 3} more" if len(drafts) > 3 else "")
+            c.notify(
+                title,
+                f"Typed values not applied yet ({shown}): Apply edits or Discard edits first.",
+                "warning",
+            )
+            return
         c.submit(f"{title} refused", partial(self._send, op))
 
     def _send(self, op: str) -> None:

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import logging
 import threading
+from collections.abc import Callable
 from functools import partial
 
 from simecs.mesh import frames, keys, phases
@@ -52,6 +53,8 @@ class SessionController(Dispatcher):
         self.session: SessionClient | None = None
         self.model: ModelDescription | None = None
         self.meshes: dict[str, bytes] = {}  # the GLB of each mesh shape of the model (host.meshes)
+        #: The parameters typed but not applied (the page's parameter panel answers it).
+        self.pending_params: Callable[[], list[str]] = lambda: []
         self.values: dict[str, float] = {}
         self.initial: list[float] = []
         self.shown_q: list[float] = []  # the pose the arm shows: what Teach records
@@ -235,13 +238,9 @@ class SessionController(Dispatcher):
             snap = snapshot or sc.snapshot()
             model = self.host.describe(snap.model_id)
             meshes = self.host.meshes(model)
-            missing = set(model.mesh_names()) - set(meshes)
-            if missing:
+            if missing := len(set(model.mesh_names()) - set(meshes)):
                 self.notify(
-                    "Some parts are not drawn",
-                    f"The server did not give {len(missing)} of the model's meshes; "
-                    "the arm is drawn without them.",
-                    "warning",
+                    "Some parts are not drawn", f"{missing} of the model's meshes did not come.", "warning"
                 )
         except (RemoteError, NoReply) as exc:
             claims.release(sid, self)
