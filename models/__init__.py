@@ -7,9 +7,9 @@ sim.set_joint_path([([0.5]*7, 100, 100)]); sim.start(5.0, 0.01); rows = sim.adva
 The modules, from the data a model author writes to the running simulation (docs/MODELS.md):
 model_file (a model directory: model.json5, read into an ArmSpec), urdf and urdf_chain (a URDF's
 serial chain), library/ (the shipped model directories), spec (ArmSpec), drives_catalog (drive size
-classes and the sizing rule), description (what
-clients see), docs (its hypertext pages), mechanics (arrays and initial states), drive (numba
-kernels), exudyn_chain (the Exudyn system), simulation (one run), package (ModelPackage).
+classes and the sizing rule), description (what clients see), docs (its hypertext pages), mechanics
+(arrays and initial states), chain_dynamics and drive (numba kernels: the rigid chain, the drive
+train), exudyn_chain (the Exudyn system), simulation (one run), package (ModelPackage).
 """
 
 from __future__ import annotations

@@ -13,13 +13,13 @@ from typing import Any
 
 import numpy as np
 
-from . import drive as dr
+from . import chain_dynamics
 from .mechanics import ChainArrays
 
 _EXU: Any = None
 
 #: m/s^2 in world axes. The models run in zero gravity (paper §5.2); the drives' in-step load
-#: predictor (drive.bias_forces) takes the same vector, so the two never disagree once it changes.
+#: predictor (chain_dynamics.bias_forces) takes the same vector, so the two never disagree once it changes.
 GRAVITY = (0.0, 0.0, 0.0)
 
 
@@ -124,7 +124,7 @@ class ExudynChain:
 
     def sensor_poses(self, Rrpy: np.ndarray) -> np.ndarray:
         """Link and tool poses now (rows x, y, z, qw, qx, qy, qz), read from the Exudyn sensors: the
-        cross-check of `drive.pose_rows`. `Rrpy` turns each joint frame into its link frame."""
+        cross-check of `chain_dynamics.pose_rows`. `Rrpy` turns each joint frame into its link frame."""
         mbs = self.mbs
         n = self.n
         Rs = np.zeros((n + 1, 3, 3))
@@ -135,7 +135,7 @@ class ExudynChain:
         Rs[n] = Rs[n - 1]
         out[n, :3] = mbs.GetSensorValues(self.sens_tool)
         quats = np.zeros((n + 1, 4))
-        dr.quats_from_matrices(Rs, quats)
+        chain_dynamics.quats_from_matrices(Rs, quats)
         out[:, 3:] = quats
         return out
 

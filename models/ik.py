@@ -1,7 +1,8 @@
 """Forward kinematics, Jacobian and inverse kinematics of the chain the simulator integrates.
 
 The chain is built from `mechanics.chain_arrays` and `mechanics.tool_point` and evaluated with
-`drive.chain_frames`, so the poses here are the `pose.*` rows of a run (`drive.pose_rows`, row n): the
+`chain_dynamics.chain_frames`, so the poses here are the `pose.*` rows of a run
+(`chain_dynamics.pose_rows`, row n): the
 tool point in the last joint frame, the tool orientation that of the last link frame,
 `R_all[n-1] @ rot_rpy(spec.links[-1].rpy)`. Cartesian commands (straight lines, point-to-point moves
 given as poses) go through `ArmKinematics.solve` (local, from a seed: resolved-rate steps) and
@@ -53,13 +54,11 @@ from numba import njit
 from scipy.optimize import minimize
 from simecs.mesh.kinematics import rot_rpy
 
-from . import drive as dr
-from .drive import chain_frames
+from .chain_dynamics import chain_frames
+from .jit import CACHE as _CACHE
+from .jit import FAST as _FAST
 from .mechanics import chain_arrays, tool_point
 from .spec import ArmSpec
-
-_CACHE = dr._CACHE
-_FAST = dr._FAST
 
 # ---- solver constants (dimensionless: position rows are divided by the reach) ---------------------------
 LAM_MIN = 1e-14  # smallest damping: a pure Gauss-Newton step near the solution
@@ -85,7 +84,8 @@ ST_MAX_ITER, ST_CONVERGED, ST_STALLED = 0, 1, 2
 # ---- compiled kernels --------------------------------------------------------------------------------------
 @njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
 def _fk(pre_R, pre_p, R_last, tool_local, q, R_all, p_all, p, R):
-    """Joint frames (R_all, p_all) and the tool pose (p, R), as `drive.pose_rows` row n computes them."""
+    """Joint frames (R_all, p_all) and the tool pose (p, R), as `chain_dynamics.pose_rows` row n
+    computes them."""
     chain_frames(pre_R, pre_p, q, R_all, p_all)
     k = q.shape[0] - 1
     for a in range(3):

@@ -17,6 +17,7 @@ import numpy as np
 from simecs.mesh import columns
 from simecs.mesh.kinematics import rot_rpy
 
+from . import chain_dynamics
 from . import drive as dr
 from .description import ArmDescription
 from .errors import SimulationError
@@ -423,7 +424,8 @@ class Simulation:
             raise SimulationError(self._fail)
 
     def _sensor_poses(self) -> np.ndarray:
-        """Link and tool poses now, read from the Exudyn sensors: the cross-check of `dr.pose_rows`."""
+        """Link and tool poses now, read from the Exudyn sensors: the cross-check of
+        `chain_dynamics.pose_rows`."""
         return self._chain.sensor_poses(self._Rrpy)
 
     def advance(self, until: float) -> np.ndarray:
@@ -505,7 +507,7 @@ class Simulation:
         """M(q) of the chain as the drive kernel sees it (energy checks, controller tuning)."""
         M = np.zeros((self.n, self.n))
         pre_R, pre_p, masses, coms, inertias = self._mech
-        dr.mass_matrix(pre_R, pre_p, masses, coms, inertias, vec(q), M)
+        chain_dynamics.mass_matrix(pre_R, pre_p, masses, coms, inertias, vec(q), M)
         return M
 
     def _finalize(self) -> None:

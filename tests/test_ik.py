@@ -11,8 +11,7 @@ import numpy as np
 import pytest
 from scipy.optimize import minimize
 from simecs.mesh.kinematics import link_frames, quat_from_matrix, rot_rpy
-from simecs.models import ModelPackage, get_model
-from simecs.models import drive as dr
+from simecs.models import ModelPackage, chain_dynamics, get_model
 from simecs.models.ik import ArmKinematics, IKResult, orientation_error, rpy_of
 from simecs.models.mechanics import chain_arrays, tool_point
 
@@ -88,7 +87,7 @@ def test_tool_pose_is_the_pose_row_and_the_link_frames(arm: Arm) -> None:
         q = random_q(k, rng)
         p, R = k.tool_pose(q)
         assert np.allclose(R @ R.T, np.eye(3), atol=1e-13)
-        dr.pose_rows(ch.pre_R, ch.pre_p, Rrpy, tool, q, rows)
+        chain_dynamics.pose_rows(ch.pre_R, ch.pre_p, Rrpy, tool, q, rows)
         assert np.max(np.abs(rows[k.n, :3] - p)) < 1e-12
         assert np.max(np.abs(rows[k.n, 3:] - quat_from_matrix(R))) < 1e-12
         p_lf, R_lf = link_frames(pkg.describe(), values, list(q))[-1]

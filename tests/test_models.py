@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from simecs.mesh.columns import pose_column_names
 from simecs.mesh.kinematics import link_poses
-from simecs.models import ParameterError, SimulationError, get_model, list_models
+from simecs.models import ParameterError, SimulationError, chain_dynamics, get_model, list_models
 from simecs.models import drive as dr
 
 Q0 = [0.3, -0.4, 0.5, 1.1, -0.6, 0.7, -0.2]
@@ -587,17 +587,19 @@ def test_bias_forces_agree_with_the_mass_matrix_and_the_potential(model):
 
     def mass(q):
         M = np.empty((n, n))
-        dr.mass_matrix(pre_R, pre_p, masses, coms, inertias, q, M)
+        chain_dynamics.mass_matrix(pre_R, pre_p, masses, coms, inertias, q, M)
         return M
 
     def bias(q, qd, gravity):
         out = np.empty(n)
-        dr.bias_forces(pre_R, pre_p, masses, coms, inertias, np.asarray(gravity, float), q, qd, out)
+        chain_dynamics.bias_forces(
+            pre_R, pre_p, masses, coms, inertias, np.asarray(gravity, float), q, qd, out
+        )
         return out
 
     def potential(q, gravity):
         R, p = np.empty((n, 3, 3)), np.empty((n, 3))
-        dr.chain_frames(pre_R, pre_p, q, R, p)
+        chain_dynamics.chain_frames(pre_R, pre_p, q, R, p)
         return -sum(masses[k] * gravity @ (p[k] + R[k] @ coms[k]) for k in range(n))
 
     for _ in range(5):
