@@ -69,11 +69,16 @@ def free_cores(load: m.SimulatorLoad, reserved: float = 0.0) -> float:
     return load.capacity - load.demand - reserved
 
 
+def offers(load: m.SimulatorLoad | None, model_id: str) -> bool:
+    """Whether a host can run the model at all (one that has not said which it runs may)."""
+    return load is None or not load.models or model_id in load.models
+
+
 def refusal(
     load: m.SimulatorLoad, request: m.RunRequest, reserved: float = 0.0, reserved_runs: int = 0
 ) -> str:
     """Why the host cannot take the run now ('' when it can)."""
-    if load.models and request.model_id not in load.models and not request.recording:
+    if not offers(load, request.model_id) and not request.recording:
         return f"it does not offer model {request.model_id}"
     if load.behind:
         return f"{load.behind} of its runs fall behind their pace"

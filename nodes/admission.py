@@ -159,7 +159,7 @@ class Admission:
             info = rec.run_info(rec.state.run_id)
             replay = bool(info is not None and info.recording)
             measured = load.measured_cost(view.load, rec.model_id, replay)
-            cost = load.DEFAULT_COST if measured is None else measured
+            cost = load.model_cost(view.load, rec.model_id, replay)
             stop = info.stop_time if info is not None else rec.settings.stop_time
             speed = rec.settings.speed
             if not math.isfinite(speed):

@@ -119,8 +119,7 @@ class Hosts:
 
     def offers(self, model_id: str) -> bool:
         """Whether some live host can run the model at all (a host that has not said yet may)."""
-        hosts = [v.load for n, v in self.views.items() if n in self.live]
-        return any(h is None or not h.models or model_id in h.models for h in hosts)
+        return any(load.offers(v.load, model_id) for n, v in self.views.items() if n in self.live)
 
     def wait_estimates(self, going: list[GoingRun], queued: list[m.RunRequest]) -> list[float]:
         """Seconds each queued run (in queue order) will wait before it starts: the going runs end as

@@ -316,24 +316,6 @@ class RunTracker:
             if rec is None or rec.state.run_id != run_id or rec.phase not in phases.GOING:
                 return
             reported = rec.reported == run_id
-        if not reported:
-            # Tokens carry no seal: any peer may declare and drop one under a predictable name. Before
-            # its worker's first (sealed) report a run is the simulator's to report lost, unless its
-            # stored results say it ended (a proxy restarted late in a run hears no report at all).
-            stored = self._stored_end(user, sid, run_id)
-            with self.lock:
-                rec = self.store.owned(user, sid)
-                if rec is None or rec.state.run_id != run_id or rec.phase not in phases.GOING:
-                    return
-                if stored is None:
-                    self.log.warning(
-                        "session %s run %s: a token vanished before the worker reported: ignored", sid, run_id
-                    )
-                    return
-                self.log.info("session %s run %s: ended before this proxy heard from it", sid, run_id)
-                self._settle_from(rec, stored, "")
-                self.admission.update()
-            return
         if self._token_up(user, sid, run_id):
             self.log.warning(
                 "session %s run %s: a token vanished while the worker's is up (another peer's): ignored",
@@ -345,7 +327,7 @@ class RunTracker:
             rec = self.store.owned(user, sid)
             if rec is None or rec.state.run_id != run_id or rec.phase not in phases.GOING:
                 return
-            if self.hub is not None and self.hub.lost_since(gone_at - 0.05):
+            if reported and self.hub is not None and self.hub.lost_since(gone_at - 0.05):
                 # Every token went with the hub: the worker most likely runs on. Decide when it is back.
                 self.suspended[(user, sid)] = run_id
                 self.log.warning("session %s run %s: the hub went away; run kept meanwhile", sid, run_id)
@@ -353,21 +335,31 @@ class RunTracker:
                 return
             attempt, host = rec.state.attempt, rec.state.host
         # The worker is gone: with its host (restart the run elsewhere), or alone: it ended and its last
-        # report is still on its way on a busy mesh (its stored results say how), or it crashed.
-        host_up = bool(host) and self._token_up_at(keys.node_token("simulator", host))
-        stored = self._stored_end(user, sid, run_id) if host_up or not host else None
+        # report is still on its way on a busy mesh, or before a restarted proxy heard from it (its
+        # stored results say how), or it crashed. Tokens carry no seal: any peer may declare and drop one
+        # under a predictable name, so before its worker's first (sealed) report only stored results
+        # end a run; else it is the simulator's to report lost.
+        host_gone = reported and bool(host) and not self._token_up_at(keys.node_token("simulator", host))
+        stored = None if host_gone else self._stored_end(user, sid, run_id)
         with self.lock:
             rec = self.store.owned(user, sid)
             if rec is None or rec.state.run_id != run_id or rec.phase not in phases.GOING:
                 return
             if rec.state.attempt != attempt:
                 return  # restarted meanwhile (its host's token went first)
-            if host and not host_up:
+            if host_gone:
                 self.host_lost(host)
                 return
-            crashed = f"the simulator process of run {run_id} disappeared (crashed or killed)"
+            if stored is None and not reported:
+                self.log.warning(
+                    "session %s run %s: a token vanished before the worker reported: ignored", sid, run_id
+                )
+                return
             if stored is not None:
-                self.log.info("session %s run %s: its token went before its last report", sid, run_id)
+                self.log.info(
+                    "session %s run %s: its token went before this proxy had its last report", sid, run_id
+                )
+            crashed = f"the simulator process of run {run_id} disappeared (crashed or killed)"
             self._settle_from(rec, stored, crashed)
             self.admission.update()
 
