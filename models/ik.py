@@ -1,4 +1,5 @@
-"""Forward kinematics, Jacobian and inverse kinematics of the chain the simulator integrates.
+"""Inverse kinematics of the chain the simulator integrates (the tool pose and Jacobian kernels are in
+chain_kinematics.py).
 
 The chain is built from `mechanics.chain_arrays` and `mechanics.tool_point` and evaluated with
 `chain_dynamics.chain_frames`, so the poses here are the `pose.*` rows of a run
@@ -54,7 +55,7 @@ from numba import njit
 from scipy.optimize import minimize
 from simecs.mesh.kinematics import rot_rpy
 
-from .chain_dynamics import chain_frames
+from .chain_kinematics import rotation_vector, tool_frames, tool_jacobian
 from .jit import CACHE as _CACHE
 from .jit import FAST as _FAST
 from .mechanics import chain_arrays, tool_point
@@ -83,87 +84,12 @@ ST_MAX_ITER, ST_CONVERGED, ST_STALLED = 0, 1, 2
 
 # ---- compiled kernels --------------------------------------------------------------------------------------
 @njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
-def _fk(pre_R, pre_p, R_last, tool_local, q, R_all, p_all, p, R):
-    """Joint frames (R_all, p_all) and the tool pose (p, R), as `chain_dynamics.pose_rows` row n
-    computes them."""
-    chain_frames(pre_R, pre_p, q, R_all, p_all)
-    k = q.shape[0] - 1
-    for a in range(3):
-        p[a] = p_all[k, a] + (
-            R_all[k, a, 0] * tool_local[0] + R_all[k, a, 1] * tool_local[1] + R_all[k, a, 2] * tool_local[2]
-        )
-        for b in range(3):
-            R[a, b] = (
-                R_all[k, a, 0] * R_last[0, b] + R_all[k, a, 1] * R_last[1, b] + R_all[k, a, 2] * R_last[2, b]
-            )
-
-
-@njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
-def _jac(R_all, p_all, p, J):
-    """Geometric Jacobian (6, n) of the tool point p: rows 0-2 z_i x (p - o_i), rows 3-5 z_i (world)."""
-    n = R_all.shape[0]
-    for i in range(n):
-        z0, z1, z2 = R_all[i, 0, 2], R_all[i, 1, 2], R_all[i, 2, 2]
-        r0 = p[0] - p_all[i, 0]
-        r1 = p[1] - p_all[i, 1]
-        r2 = p[2] - p_all[i, 2]
-        J[0, i] = z1 * r2 - z2 * r1
-        J[1, i] = z2 * r0 - z0 * r2
-        J[2, i] = z0 * r1 - z1 * r0
-        J[3, i] = z0
-        J[4, i] = z1
-        J[5, i] = z2
-
-
-@njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
-def _rotvec(R_now, R_t, e):
-    """e = log(R_t R_now^T): the rotation vector (world frame) that turns R_now into R_t; returns |e|.
-
-    Near pi the axis comes from the symmetric part of the relative rotation (the antisymmetric part
-    vanishes there), its sign from the antisymmetric part."""
-    M = np.empty((3, 3))
-    for a in range(3):
-        for b in range(3):
-            M[a, b] = R_t[a, 0] * R_now[b, 0] + R_t[a, 1] * R_now[b, 1] + R_t[a, 2] * R_now[b, 2]
-    c = 0.5 * (M[0, 0] + M[1, 1] + M[2, 2] - 1.0)
-    c = min(1.0, max(-1.0, c))
-    v0 = 0.5 * (M[2, 1] - M[1, 2])
-    v1 = 0.5 * (M[0, 2] - M[2, 0])
-    v2 = 0.5 * (M[1, 0] - M[0, 1])
-    s = math.sqrt(v0 * v0 + v1 * v1 + v2 * v2)
-    theta = math.atan2(s, c)
-    if c > -0.9:
-        f = 1.0 + theta * theta / 6.0 if s < 1e-6 else theta / s
-        e[0] = f * v0
-        e[1] = f * v1
-        e[2] = f * v2
-        return theta
-    # near pi: (M + M^T)/2 = c I + (1 - c) a a^T
-    k = 0
-    for i in range(1, 3):
-        if M[i, i] > M[k, k]:
-            k = i
-    ak = math.sqrt(max((M[k, k] - c) / (1.0 - c), 0.0))
-    ax = np.empty(3)
-    for i in range(3):
-        if i == k:
-            ax[i] = ak
-        else:
-            ax[i] = 0.5 * (M[i, k] + M[k, i]) / ((1.0 - c) * ak)
-    nrm = math.sqrt(ax[0] * ax[0] + ax[1] * ax[1] + ax[2] * ax[2])
-    sg = 1.0 if ax[0] * v0 + ax[1] * v1 + ax[2] * v2 >= 0.0 else -1.0
-    for i in range(3):
-        e[i] = sg * theta * ax[i] / nrm
-    return theta
-
-
-@njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
 def _error(p, R, p_t, R_t, w_pos, w_rot, e, erot):
     """Weighted 6-D error e (position / reach, rotation vector) into e; returns (|dp|, angle, |e|^2)."""
     d0 = p_t[0] - p[0]
     d1 = p_t[1] - p[1]
     d2 = p_t[2] - p[2]
-    ang = _rotvec(R, R_t, erot)
+    ang = rotation_vector(R, R_t, erot)
     e[0] = w_pos * d0
     e[1] = w_pos * d1
     e[2] = w_pos * d2
@@ -299,7 +225,7 @@ def _solve_kernel(
     free = np.empty(n, dtype=np.bool_)
     for j in range(n):
         q[j] = min(max(q_start[j], lower[j]), upper[j])
-    _fk(pre_R, pre_p, R_last, tool_local, q, R_all, p_all, p, R)
+    tool_frames(pre_R, pre_p, R_last, tool_local, q, R_all, p_all, p, R)
     pos_err, rot_err, F = _error(p, R, p_t, R_t, w_pos, w_rot, e, erot)
     lam = max(1e-2 * F, LAM_MIN)
     alpha = 1.0  # length of the null-space move, shortened after a rejected step, regrown after
@@ -324,7 +250,7 @@ def _solve_kernel(
             break
         fresh = need_j
         if need_j:
-            _jac(R_all, p_all, p, J)
+            tool_jacobian(R_all, p_all, p, J)
             _error_jacobian(J, erot, rot_err, w_pos, w_rot, Je)
             need_j = False
         null_on = use_null and (F <= NEAR2 or task_ok)
@@ -428,7 +354,7 @@ def _solve_kernel(
                 elif x > upper[j]:
                     x -= turn[j]
             qt[j] = min(max(x, lower[j]), upper[j])
-        _fk(pre_R, pre_p, R_last, tool_local, qt, R_all_t, p_all_t, pt, Rt)
+        tool_frames(pre_R, pre_p, R_last, tool_local, qt, R_all_t, p_all_t, pt, Rt)
         pe_t, re_t, F_t = _error(pt, Rt, p_t, R_t, w_pos, w_rot, et, erot_t)
         it += 1
         if F_t < F or (null_on and F_t <= ACCEPT2):
@@ -476,9 +402,9 @@ def _cost_grad(pre_R, pre_p, R_last, tool_local, p_t, R_t, w_pos, w_rot, q, grad
     erot = np.empty(3)
     J = np.empty((6, n))
     Je = np.empty((6, n))
-    _fk(pre_R, pre_p, R_last, tool_local, q, R_all, p_all, p, R)
+    tool_frames(pre_R, pre_p, R_last, tool_local, q, R_all, p_all, p, R)
     _, ang, F = _error(p, R, p_t, R_t, w_pos, w_rot, e, erot)
-    _jac(R_all, p_all, p, J)
+    tool_jacobian(R_all, p_all, p, J)
     _error_jacobian(J, erot, ang, w_pos, w_rot, Je)
     for j in range(n):
         s = 0.0
@@ -539,7 +465,7 @@ def orientation_error(R_now: np.ndarray, R_target: np.ndarray) -> np.ndarray:
 
     Its norm is the rotation error of `IKResult`; it is the rotation part of the solver's error."""
     e = np.empty(3)
-    _rotvec(np.ascontiguousarray(R_now, dtype=float), np.ascontiguousarray(R_target, dtype=float), e)
+    rotation_vector(np.ascontiguousarray(R_now, dtype=float), np.ascontiguousarray(R_target, dtype=float), e)
     return e
 
 
@@ -586,7 +512,7 @@ class ArmKinematics:
         R = np.empty((3, 3))
         R_all = np.empty((self.n, 3, 3))
         p_all = np.empty((self.n, 3))
-        _fk(self.pre_R, self.pre_p, self.R_last, self.tool_local, self._q(q), R_all, p_all, p, R)
+        tool_frames(self.pre_R, self.pre_p, self.R_last, self.tool_local, self._q(q), R_all, p_all, p, R)
         return p, R
 
     def jacobian(self, q: Sequence[float] | np.ndarray) -> np.ndarray:
@@ -596,9 +522,9 @@ class ArmKinematics:
         R = np.empty((3, 3))
         R_all = np.empty((self.n, 3, 3))
         p_all = np.empty((self.n, 3))
-        _fk(self.pre_R, self.pre_p, self.R_last, self.tool_local, self._q(q), R_all, p_all, p, R)
+        tool_frames(self.pre_R, self.pre_p, self.R_last, self.tool_local, self._q(q), R_all, p_all, p, R)
         J = np.empty((6, self.n))
-        _jac(R_all, p_all, p, J)
+        tool_jacobian(R_all, p_all, p, J)
         return J
 
     def sigma_min(self, q: Sequence[float] | np.ndarray) -> float:

@@ -1,0 +1,90 @@
+"""The tool's pose, Jacobian and orientation error of a serial chain, compiled: shared by inverse
+kinematics (ik.py), the operational-space controller (opspace.py) and the result rows' task-space
+reference (drive.py), so the three agree on what "the tool" is.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from .chain_dynamics import chain_frames
+from .jit import CACHE as _CACHE
+from .jit import FAST as _FAST
+
+
+@njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
+def tool_frames(pre_R, pre_p, R_last, tool_local, q, R_all, p_all, p, R):
+    """Joint frames (R_all, p_all) and the tool pose (p, R), as `chain_dynamics.pose_rows` row n
+    computes them."""
+    chain_frames(pre_R, pre_p, q, R_all, p_all)
+    k = q.shape[0] - 1
+    for a in range(3):
+        p[a] = p_all[k, a] + (
+            R_all[k, a, 0] * tool_local[0] + R_all[k, a, 1] * tool_local[1] + R_all[k, a, 2] * tool_local[2]
+        )
+        for b in range(3):
+            R[a, b] = (
+                R_all[k, a, 0] * R_last[0, b] + R_all[k, a, 1] * R_last[1, b] + R_all[k, a, 2] * R_last[2, b]
+            )
+
+
+@njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
+def tool_jacobian(R_all, p_all, p, J):
+    """Geometric Jacobian (6, n) of the tool point p: rows 0-2 z_i x (p - o_i), rows 3-5 z_i (world)."""
+    n = R_all.shape[0]
+    for i in range(n):
+        z0, z1, z2 = R_all[i, 0, 2], R_all[i, 1, 2], R_all[i, 2, 2]
+        r0 = p[0] - p_all[i, 0]
+        r1 = p[1] - p_all[i, 1]
+        r2 = p[2] - p_all[i, 2]
+        J[0, i] = z1 * r2 - z2 * r1
+        J[1, i] = z2 * r0 - z0 * r2
+        J[2, i] = z0 * r1 - z1 * r0
+        J[3, i] = z0
+        J[4, i] = z1
+        J[5, i] = z2
+
+
+@njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
+def rotation_vector(R_now, R_t, e):
+    """e = log(R_t R_now^T): the rotation vector (world frame) that turns R_now into R_t; returns |e|.
+
+    Near pi the axis comes from the symmetric part of the relative rotation (the antisymmetric part
+    vanishes there), its sign from the antisymmetric part."""
+    M = np.empty((3, 3))
+    for a in range(3):
+        for b in range(3):
+            M[a, b] = R_t[a, 0] * R_now[b, 0] + R_t[a, 1] * R_now[b, 1] + R_t[a, 2] * R_now[b, 2]
+    c = 0.5 * (M[0, 0] + M[1, 1] + M[2, 2] - 1.0)
+    c = min(1.0, max(-1.0, c))
+    v0 = 0.5 * (M[2, 1] - M[1, 2])
+    v1 = 0.5 * (M[0, 2] - M[2, 0])
+    v2 = 0.5 * (M[1, 0] - M[0, 1])
+    s = math.sqrt(v0 * v0 + v1 * v1 + v2 * v2)
+    theta = math.atan2(s, c)
+    if c > -0.9:
+        f = 1.0 + theta * theta / 6.0 if s < 1e-6 else theta / s
+        e[0] = f * v0
+        e[1] = f * v1
+        e[2] = f * v2
+        return theta
+    # near pi: (M + M^T)/2 = c I + (1 - c) a a^T
+    k = 0
+    for i in range(1, 3):
+        if M[i, i] > M[k, k]:
+            k = i
+    ak = math.sqrt(max((M[k, k] - c) / (1.0 - c), 0.0))
+    ax = np.empty(3)
+    for i in range(3):
+        if i == k:
+            ax[i] = ak
+        else:
+            ax[i] = 0.5 * (M[i, k] + M[k, i]) / ((1.0 - c) * ak)
+    nrm = math.sqrt(ax[0] * ax[0] + ax[1] * ax[1] + ax[2] * ax[2])
+    sg = 1.0 if ax[0] * v0 + ax[1] * v1 + ax[2] * v2 >= 0.0 else -1.0
+    for i in range(3):
+        e[i] = sg * theta * ax[i] / nrm
+    return theta
