@@ -1,6 +1,7 @@
 """The tool's pose, Jacobian and orientation error of a serial chain, compiled: shared by inverse
 kinematics (ik.py), the operational-space controller (opspace.py) and the result rows' task-space
-reference (drive.py), so the three agree on what "the tool" is.
+reference (drive.py), so the three agree on what "the tool" is; and the small Cholesky solves the
+first two use (allocation-free loops: they run every control period).
 """
 
 from __future__ import annotations
@@ -88,3 +89,36 @@ def rotation_vector(R_now, R_t, e):
     for i in range(3):
         e[i] = sg * theta * ax[i] / nrm
     return theta
+
+
+@njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
+def cholesky(A, lam, L):
+    """Cholesky factor L of A + lam I; A (m, m) symmetric positive semi-definite, lam > 0."""
+    m = A.shape[0]
+    for i in range(m):
+        for j in range(i + 1):
+            s = A[i, j]
+            if i == j:
+                s += lam
+            for k in range(j):
+                s -= L[i, k] * L[j, k]
+            if i == j:
+                L[i, i] = math.sqrt(max(s, 1e-300))
+            else:
+                L[i, j] = s / L[j, j]
+
+
+@njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
+def cholesky_solve(L, b, x):
+    """x = (L L^T)^-1 b."""
+    m = L.shape[0]
+    for i in range(m):
+        s = b[i]
+        for k in range(i):
+            s -= L[i, k] * x[k]
+        x[i] = s / L[i, i]
+    for i in range(m - 1, -1, -1):
+        s = x[i]
+        for k in range(i + 1, m):
+            s -= L[k, i] * x[k]
+        x[i] = s / L[i, i]

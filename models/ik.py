@@ -55,7 +55,7 @@ from numba import njit
 from scipy.optimize import minimize
 from simecs.mesh.kinematics import rot_rpy
 
-from .chain_kinematics import rotation_vector, tool_frames, tool_jacobian
+from .chain_kinematics import cholesky, cholesky_solve, rotation_vector, tool_frames, tool_jacobian
 from .jit import CACHE as _CACHE
 from .jit import FAST as _FAST
 from .mechanics import chain_arrays, tool_point
@@ -136,39 +136,6 @@ def _error_jacobian(J, erot, ang, w_pos, w_rot, Je):
         for a in range(3):
             Je[a, i] = w_pos * J[a, i]
             Je[3 + a, i] = w_rot * (K[a, 0] * J[3, i] + K[a, 1] * J[4, i] + K[a, 2] * J[5, i])
-
-
-@njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
-def _chol(A, lam, L):
-    """Cholesky factor L of A + lam I; A (6, 6) symmetric positive semi-definite, lam > 0."""
-    m = A.shape[0]
-    for i in range(m):
-        for j in range(i + 1):
-            s = A[i, j]
-            if i == j:
-                s += lam
-            for k in range(j):
-                s -= L[i, k] * L[j, k]
-            if i == j:
-                L[i, i] = math.sqrt(max(s, 1e-300))
-            else:
-                L[i, j] = s / L[j, j]
-
-
-@njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
-def _chol_solve(L, b, x):
-    """x = (L L^T)^-1 b."""
-    m = L.shape[0]
-    for i in range(m):
-        s = b[i]
-        for k in range(i):
-            s -= L[i, k] * x[k]
-        x[i] = s / L[i, i]
-    for i in range(m - 1, -1, -1):
-        s = x[i]
-        for k in range(i + 1, m):
-            s -= L[k, i] * x[k]
-        x[i] = s / L[i, i]
 
 
 @njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
@@ -273,11 +240,11 @@ def _solve_kernel(
                         if free[j]:
                             s += Je[a, j] * (q_pull[j] - q[j])
                 b2[a] = s
-            _chol(A, lam, L)
-            _chol_solve(L, e, y1)
+            cholesky(A, lam, L)
+            cholesky_solve(L, e, y1)
             if null_on:
-                _chol(A, LAM_NULL, L)
-                _chol_solve(L, b2, y2)
+                cholesky(A, LAM_NULL, L)
+                cholesky_solve(L, b2, y2)
             for j in range(n):
                 if free[j]:
                     s = 0.0
@@ -298,7 +265,7 @@ def _solve_kernel(
                             for j in range(n):
                                 s += Je[a, j] * nz[j]
                             b2[a] = s
-                        _chol_solve(L, b2, y2)
+                        cholesky_solve(L, b2, y2)
                     for j in range(n):
                         if free[j]:
                             s = nz[j]
