@@ -17,7 +17,7 @@ from typing import Annotated, Any, Literal
 from msgspec import Meta
 
 from .limits import limit
-from .model import ModelSummary
+from .model import ControlSystem, ModelSummary
 from .phases import Phase, WorkerPhase
 from .primitives import FieldProblem, Message, Name, Numbers, Record, SessionId, Text
 from .robot_commands import (  # noqa: F401  (the protocol's one namespace: m.JointPath, ...)
@@ -40,6 +40,7 @@ from .robot_commands import (  # noqa: F401  (the protocol's one namespace: m.Jo
     StepSignal,
     TableSignal,
     Task,
+    control_refusal,
 )
 
 VERSION: Literal[1] = 1
@@ -104,19 +105,35 @@ class RunSettings(Record):
     control_period: Annotated[
         float,
         Meta(
-            ge=1e-4, le=0.1, description="s, controller external: one exchange per period, a multiple of step"
+            ge=1e-4,
+            le=0.1,
+            description="s, a multiple of step: controller external, one exchange per period; "
+            "control_system opspace_motion, one controller update per period (zero-order hold)",
         ),
     ] = 0.001
     hil_timeout: Annotated[
         float,
         Meta(ge=0.05, le=60.0, description="s of wall time without an actuator frame: the run fails"),
     ] = 2.0
+    control_system: Annotated[
+        ControlSystem,
+        Meta(
+            description="controller builtin: joint_independent (each joint's cascade) or opspace_motion "
+            "(task-space inverse dynamics at the tool, updated every control_period); one of the model's "
+            "control_systems"
+        ),
+    ] = "joint_independent"
 
     def __post_init__(self) -> None:
         if self.output_interval > self.stop_time:
             raise FieldProblem("output_interval", f"{self.output_interval:g} s is above stop_time")
         if self.stop_time / self.output_interval > MAX_SAMPLES:
             raise FieldProblem("output_interval", f"more than {MAX_SAMPLES:,} output samples per run")
+        if self.control_system != "joint_independent" and self.controller == "external":
+            raise FieldProblem(
+                "control_system",
+                f"{self.control_system} is a built-in controller: it needs controller builtin",
+            )
         if 0.0 < self.step < 1e-5:
             raise FieldProblem("step", f"{self.step:g} s is outside [1e-5, 0.01] s (0 = model default)")
 

@@ -12,7 +12,7 @@ from __future__ import annotations
 import math
 import re
 from collections.abc import Mapping, Sequence
-from typing import Annotated, Literal
+from typing import Annotated, Literal, get_args
 
 import msgspec
 from msgspec import Meta
@@ -127,12 +127,25 @@ class DocPage(Record):
     children: list[Name] = []
 
 
+#: The motion control systems of paper §5 a run may choose (RunSettings.control_system); a model lists
+#: the ones it offers in ModelDescription.control_systems. docs/MODELS.md, "Control systems".
+ControlSystem = Literal["joint_independent", "opspace_motion"]
+CONTROL_SYSTEMS: tuple[ControlSystem, ...] = get_args(ControlSystem)
+CONTROL_SYSTEM_TITLES = {
+    "joint_independent": "joint-independent control",
+    "opspace_motion": "operational-space motion control",
+}
+
+
 class ModelSummary(Record):
     id: Name
     name: Text
     summary: Text
     joints: Annotated[int, Meta(ge=1, le=64)]
     command_levels: list[Name]
+    control_systems: Annotated[
+        list[ControlSystem], Meta(description="the control systems a run of it may choose")
+    ] = msgspec.field(default_factory=lambda: ["joint_independent"])
 
 
 class ModelDescription(Message, tag="model"):
@@ -159,13 +172,24 @@ class ModelDescription(Message, tag="model"):
     base_rotation_rpy: Annotated[
         Vec3, Meta(description="rad: joint 1's frame turned from the world's (roll, pitch, yaw)")
     ] = msgspec.field(default_factory=lambda: [0.0, 0.0, 0.0])
+    control_systems: Annotated[
+        list[ControlSystem],
+        Meta(description="the motion control systems a run may choose (RunSettings.control_system)"),
+    ] = msgspec.field(default_factory=lambda: ["joint_independent"])
 
     def mesh_names(self) -> list[str]:
         """The meshes its mesh shapes name (each fetched from simecs/library/<model>/mesh/<name>)."""
         return sorted({s.mesh for s in [*self.shapes, *self.environment] if s.kind == "mesh"})
 
     def summary_entry(self) -> ModelSummary:
-        return ModelSummary(self.id, self.name, self.summary, len(self.links), list(self.command_levels))
+        return ModelSummary(
+            self.id,
+            self.name,
+            self.summary,
+            len(self.links),
+            list(self.command_levels),
+            list(self.control_systems),
+        )
 
     def parameter(self, name: str) -> Parameter:
         for p in self.parameters:

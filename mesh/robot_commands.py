@@ -239,3 +239,15 @@ ACTION_DOC: dict[str, str] = {
     "home": "a joint trapezoid to the model's home posture (`home` in its description)",
     "set_payload": "the payload changes at once (grasp / release of a known mass)",
 }
+
+
+def control_refusal(command: RobotCommand, control_system: str) -> str:
+    """Why `command` cannot run under `control_system` ('' if it can): the operational-space
+    controllers track positions, so direct input of currents or speeds needs the joint cascade."""
+    if control_system == "joint_independent" or not isinstance(command, DirectInput):
+        return ""
+    if command.mode == "open_loop":
+        return f"{control_system} tracks positions: open-loop direct input needs joint_independent"
+    if command.reference == "speed":
+        return f"{control_system} tracks positions: direct input of speeds needs joint_independent"
+    return ""

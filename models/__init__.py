@@ -151,6 +151,9 @@ def warmup() -> float:
     sim.advance(0.002)
     sim.sensors(np.empty(1 + 9 * sim.n))  # the external controller's sensor kernel
     sim.advance(0.004)
+    sim.set_control("opspace_motion", 0.002)  # the operational-space controller's kernel
+    sim.start(0.004, 0.002)
+    sim.advance(0.004)
     sim.close()
     from .planner import warmup as warm_planner
 

@@ -15,6 +15,7 @@ import numpy as np
 from simecs.mesh.codec import DecodeError
 from simecs.mesh.kinematics import rot_rpy
 from simecs.mesh.model import (
+    CONTROL_SYSTEMS,
     InitEquation,
     Link,
     ModelDescription,
@@ -29,6 +30,7 @@ from . import drive as dr
 from .docs import build_docs
 from .errors import ParameterError
 from .meshes import MeshStore
+from .opspace import GAIN_INFO
 from .spec import ArmSpec
 from .urdf import matrix_to_rpy
 
@@ -50,6 +52,14 @@ VAR_INFO = {
     "twist": ("rad", "gear twist q_motor/n - q (load side)", "gear"),
 }
 assert tuple(VAR_INFO) == dr.OUTPUTS
+TOOL_VAR_INFO = {
+    "x_ref": ("m", "tool point set point x: the tool position of the joint set points"),
+    "y_ref": ("m", "tool point set point y"),
+    "z_ref": ("m", "tool point set point z"),
+    "e_pos": ("m", "tool position error: distance of the tool point from its set point"),
+    "e_rot": ("rad", "tool orientation error: the angle that turns the tool onto its set point"),
+}
+assert tuple(TOOL_VAR_INFO) == dr.TOOL_OUTPUTS
 
 
 def _vec(a: Sequence[float]) -> np.ndarray:
@@ -156,6 +166,8 @@ class ArmDescription:
                     "cart",
                 )
             )
+        for name, (value, unit, what, lo, hi) in GAIN_INFO.items():
+            out.append(Parameter(f"control.{name}", value, unit, what, lo, hi, "control"))
         for i, lk in enumerate(s.links, start=1):
             table = s.drives[lk.drive]
             for name in dr.DRIVE_PARAMS:
@@ -229,6 +241,7 @@ class ArmDescription:
                 home=list(self.home()),
                 environment=list(s.environment) + self._mesh_shapes(-1),
                 base_rotation_rpy=list(s.base_rpy),
+                control_systems=list(CONTROL_SYSTEMS),
             )
         return self._description
 
@@ -249,6 +262,8 @@ class ArmDescription:
             for name, (unit, desc, sub) in VAR_INFO.items():
                 comp = f"joint{i}.{sub}" if sub else f"joint{i}"
                 out.append(Variable(f"joint{i}.{name}", unit, f"joint {i}: {desc}", comp))
+        for name, (unit, desc) in TOOL_VAR_INFO.items():
+            out.append(Variable(f"tool.{name}", unit, desc, "tool"))
         return out
 
     def init_equations(self) -> list[InitEquation]:

@@ -142,6 +142,7 @@ def build_docs(
         f"{mid}.chain",
         f"{mid}.joint",
         f"{mid}.payload",
+        f"{mid}.control",
         f"{mid}.init",
         f"{mid}.numerics",
         f"{mid}.assumptions",
@@ -163,6 +164,8 @@ def build_docs(
   [resolvers](doc:{mid}.resolver), [cascade controller](doc:{mid}.ctrl),
   [trajectory generator](doc:{mid}.traj).
 - [Payload](doc:{mid}.payload) at the tool.
+- [Control systems](doc:{mid}.control): joint-independent control (each joint's cascade) or
+  operational-space motion control (the tool tracked in task space), chosen per run.
 
 ## Using it
 - [Initialisation equations](doc:{mid}.init): joint positions at rest -> every internal state.
@@ -255,6 +258,50 @@ alone. States per joint: q_m, w_m, i_a, i_b, two current integrators, speed inte
 A homogeneous cube of mass `payload.mass` and edge `payload.size`, centred on the tool point and rigidly
 attached to the last link (its inertia m a^2/6 about every axis is added to that link's).
 Default {s.payload_mass:g} kg, {s.payload_size:g} m. Back to [{s.name}](doc:{mid}).
+""",
+            parent=mid,
+        )
+    )
+    gain_rows = ["| parameter | default | unit | what it does |", "|---|---|---|---|"]
+    for p in parameters:
+        if p.component == "control":
+            gain_rows.append(f"| `{p.name}` | {p.value:g} | {p.unit} | {p.description} |")
+    pages.append(
+        DocPage(
+            f"{mid}.control",
+            "Control systems",
+            f"""# Control systems
+
+A run chooses its motion control system (paper §5) in its settings, `control_system`; the mechanics
+and the drives stay the same, only what computes each joint's current set point changes.
+
+- **joint_independent** (default): each joint's [cascade controller](doc:{mid}.ctrl) (P position on the
+  load resolver, PI motor speed, velocity feed-forward) follows that joint's set point; the joints do
+  not know of each other.
+- **opspace_motion**: one digital controller for the whole arm, updated every `control_period`
+  (default 1 ms, zero-order hold), reads every load resolver and computes every joint's current set
+  point by task-space inverse dynamics at the tool:
+
+      a     = xdd_r + kp e + kd (xd_r - J qd) + ki int(e)     (position and orientation rows)
+      tau   = J^T Lambda (a - Jdot qd) + posture in the null space + velocity terms
+      i_ref = (tau / n + friction feed-forward) / kt
+
+  with Lambda = (J M^-1 J^T)^-1 from the chain's mass matrix plus each rotor reflected through its
+  reducer. The tool's reference is the tool pose of the command's joint set points: a `lin` move is
+  tracked as its straight line, a joint move as the curve its joints draw. On an arm with more than
+  six joints the remaining freedom follows the planner's joint set points (the posture task), without
+  disturbing the tool. The speed and position loops of the cascade are bypassed; the current loops,
+  motors, friction, backlash and elastic gears are the same as under joint-independent control.
+  Direct input of currents or speeds needs joint_independent (the proxy refuses the run).
+
+Both report the tool against its reference: `tool.x_ref`, `tool.y_ref`, `tool.z_ref`, `tool.e_pos`
+(m) and `tool.e_rot` (rad), so two runs of one command under the two systems compare directly.
+
+## Gains
+
+{chr(10).join(gain_rows)}
+
+Back to [{s.name}](doc:{mid}).
 """,
             parent=mid,
         )

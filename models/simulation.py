@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 from simecs.mesh import columns
 from simecs.mesh.kinematics import rot_rpy
+from simecs.mesh.model import CONTROL_SYSTEMS
 
 from . import chain_dynamics
 from . import drive as dr
@@ -23,6 +24,7 @@ from .description import ArmDescription
 from .errors import SimulationError
 from .exudyn_chain import GRAVITY, ExudynChain, exudyn
 from .mechanics import MECH_PREFIXES, chain_arrays, drive_array, init_states, tool_point, vec
+from .opspace import OpspaceController, control_update
 from .sensors import sensor_row
 
 
@@ -49,6 +51,9 @@ class Simulation:
         #: Live inputs per joint (drive.LV_*): the jog, superposed on the reference, and the current set
         #: points of an external controller for the joints it drives.
         self.live = np.zeros((self.n, dr.NLIVE))
+        self._external = np.zeros(self.n, dtype=bool)  # the joints an external controller drives
+        self._control = ("joint_independent", 0.001)  # the built-in control system and its period
+        self._opspace: OpspaceController | None = None
         self._events: list[tuple[float, dict[str, float]]] = []  # (t, parameter changes) during a run
         self._pending_events: list[tuple[float, dict[str, float]]] = []
         self._run_values: dict[str, float] | None = None  # the values a run started with
@@ -205,8 +210,20 @@ class Simulation:
         mask = np.asarray(joints, dtype=bool)
         if mask.shape != (self.n,):
             raise ValueError(f"expected {self.n} flags, one per joint")
+        self._external = mask.copy()
         self.live[:, dr.LV_EXTERNAL] = mask
         self.live[:, dr.LV_IREF] = 0.0
+
+    def set_control(self, system: str, period: float) -> None:
+        """The built-in control system of the runs that follow (mesh.model.CONTROL_SYSTEMS), updated
+        every `period` s (a whole number of solver steps: checked at start)."""
+        if system not in CONTROL_SYSTEMS:
+            raise ValueError(
+                f"settings.control_system: {system!r} is not one of {', '.join(CONTROL_SYSTEMS)}"
+            )
+        if not (math.isfinite(period) and period > 0):
+            raise ValueError(f"settings.control_period: {period!r} s is not a positive time")
+        self._control = (system, float(period))
 
     def set_actuators(self, i_ref: np.ndarray) -> None:
         """The external controller's current set points (A), held until the next call (zero-order
@@ -259,6 +276,8 @@ class Simulation:
         self._run_values = dict(self.values)
         self._pending_events = list(self._events)
         self.live[:, [dr.LV_OFFSET, dr.LV_RATE, dr.LV_T0, dr.LV_IREF]] = 0.0  # set_external stays
+        self._opspace = self._make_opspace(h)
+        self.live[:, dr.LV_EXTERNAL] = True if self._opspace is not None else self._external
         self.h = h
         self.k_out = max(1, int(round(output_interval / h)))
         self.dt_out = self.k_out * h
@@ -303,6 +322,54 @@ class Simulation:
         self._t_next = 0.0
         self.timing = {"mechanics+drive": 0.0, "drive": 0.0, "output": 0.0}
 
+    def _make_opspace(self, h: float) -> OpspaceController | None:
+        """The operational-space controller of the coming run, or None under joint-independent control."""
+        system, period = self._control
+        if system == "joint_independent":
+            return None
+        k = round(period / h)
+        if k < 1 or abs(period / h - k) > 1e-6:
+            raise ValueError(
+                f"settings.control_period: {period:g} s is not a whole number of solver steps ({h:g} s)"
+            )
+        if np.any((self.jmode == dr.JM_SPEED) | (self.jmode == dr.JM_CURRENT)):
+            raise ValueError(
+                f"settings.control_system: {system} tracks positions; this command sets joint speeds or "
+                "currents directly (run it under joint_independent)"
+            )
+        if self._external.any():
+            raise ValueError(f"settings.control_system: {system} is built in: it needs controller builtin")
+        return OpspaceController(self.values, self.n, k, h)
+
+    def _control_update(self, k: int, q: np.ndarray, qd: np.ndarray) -> None:
+        """The operational-space controller's current set points for the period that starts at step k."""
+        ctl = self._opspace
+        assert ctl is not None
+        m = self._mech_arrays
+        control_update(
+            self.P,
+            self.seg,
+            self.hold,
+            self.tab,
+            self.jmode,
+            self.live,
+            m[0],
+            m[1],
+            m[2],
+            m[3],
+            m[4],
+            self._gravity,
+            self._Rrpy[-1],
+            self._tool_loc,
+            ctl.gains,
+            q,
+            qd,
+            k * self.h,
+            ctl.period,
+            ctl.integ,
+            ctl.i_ref,
+        )
+
     def _prestep(self, mbs: Any, t: float) -> bool:
         """Once per mechanics step, before it: the output row at the step start when one is due, then
         the drives over the step. Exudyn passes the time at the END of the coming step."""
@@ -327,6 +394,8 @@ class Simulation:
         k = round(ts / self.h)  # the step index: the drive time comes from the grid, not from a sum
         repeat = k <= self._last_k  # the same step again (a step reduction): restore the drive states
         self._last_k = k
+        if self._opspace is not None and not repeat and k % self._opspace.steps == 0:
+            self._control_update(k, q, qd)
         m = self._mech_arrays
         status = dr.drive_prestep(
             self.P,

@@ -346,9 +346,19 @@ class Proxy(Node):
                     f"model {desc.id} has no joint {name!r} ({', '.join(joints)})",
                     f"settings.external_joints[{i}]",
                 )
+        if cmd.settings.control_system not in desc.control_systems:
+            raise RequestError(
+                "bad_request",
+                f"model {desc.id} offers the control systems {', '.join(desc.control_systems)}, "
+                f"not {cmd.settings.control_system}",
+                "settings.control_system",
+            )
+        why = m.control_refusal(rec.command, cmd.settings.control_system) if rec.command else ""
+        if why:
+            raise RequestError("bad_request", f"the session's command: {why}", "settings.control_system")
         step, period = cmd.settings.step, cmd.settings.control_period
-        external = cmd.settings.controller == "external"
-        if external and step > 0 and abs(period / step - round(period / step)) > 1e-6:
+        periodic = cmd.settings.controller == "external" or cmd.settings.control_system != "joint_independent"
+        if periodic and step > 0 and abs(period / step - round(period / step)) > 1e-6:
             raise RequestError(
                 "bad_request",
                 f"{period:g} s is not a whole number of solver steps ({step:g} s)",
@@ -384,6 +394,9 @@ class Proxy(Node):
     def _run(self, rec: SessionRecord, cmd: m.Run) -> m.RunStarted:
         if rec.command is None:
             raise RequestError("bad_request", "no command assigned: set_command first", "command")
+        why = m.control_refusal(rec.command, rec.settings.control_system)
+        if why:
+            raise RequestError("bad_request", why, "settings.control_system")
         self.quota.new_run(rec, rec.settings, rec.settings.stop_time)
         request = self.runs.request(rec, f"r{rec.run_counter + 1}")
         return self.runs.begin(rec, request, rec.settings.stop_time)

@@ -95,6 +95,7 @@ class SimulationSource:
 
     def start(self) -> None:
         st = self.req.settings
+        self.sim.set_control(st.control_system, st.control_period)
         self.sim.start(st.stop_time, st.output_interval, st.step or None)
 
     def advance(self, until: float) -> np.ndarray:
