@@ -965,6 +965,22 @@ def test_settings_form_is_checked_before_sending() -> None:
     assert err.value.field == "output_interval"
     with pytest.raises(DecodeError):
         run.settings_from_form(1.0, 0.002, 0.0, "warp", 1.0, 50.0, [])
+    # The control system by its title; the settings the form does not show are kept from `base`.
+    base = m.RunSettings(controller="external", control_period=0.002, hil_timeout=5.0)
+    s = run.settings_from_form(2.0, 0.002, 0.0, "real time", 1.0, 50.0, [], base=base)
+    assert (s.controller, s.control_period, s.hil_timeout, s.stop_time) == ("external", 0.002, 5.0, 2.0)
+    s = run.settings_from_form(
+        2.0, 0.002, 0.0, "real time", 1.0, 50.0, [], "operational-space motion control"
+    )
+    assert s.control_system == "opspace_motion"
+    with pytest.raises(DecodeError) as err:  # opspace_motion is built in: not with an external controller
+        run.settings_from_form(
+            2.0, 0.002, 0.0, "real time", 1.0, 50.0, [], run.CONTROL_LABEL["opspace_motion"], base
+        )
+    assert err.value.field == "control_system"
+    with pytest.raises(DecodeError) as err:
+        run.settings_from_form(2.0, 0.002, 0.0, "real time", 1.0, 50.0, [], "fuzzy control")
+    assert err.value.field == "control_system"
 
 
 def test_errors_read_as_sentences() -> None:

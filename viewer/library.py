@@ -8,7 +8,7 @@ from collections.abc import Callable, Sequence
 from typing import Any
 
 from simecs.mesh import messages as m
-from simecs.mesh.model import ModelSummary
+from simecs.mesh.model import CONTROL_SYSTEM_TITLES, ModelSummary
 
 LEVEL_NAMES = {
     "direct_input": "direct input",
@@ -21,8 +21,13 @@ LEVEL_NAMES = {
 
 
 def model_markdown(s: ModelSummary) -> str:
+    """The library's entry of a model: as the paper lists them, with its control systems."""
     levels = ", ".join(LEVEL_NAMES.get(c, c) for c in s.command_levels) or "none"
-    return f"**{s.name}**  \n{s.summary}\n\n{s.joints} joints · commands: {levels} · id `{s.id}`"
+    systems = ", ".join(CONTROL_SYSTEM_TITLES.get(c, c) for c in s.control_systems)
+    return (
+        f"**{s.name}**  \n{s.summary}\n\n{s.joints} joints · commands: {levels} · id `{s.id}`  \n"
+        f"control systems (Settings): {systems}"
+    )
 
 
 def session_label(entry: m.SessionEntry) -> str:

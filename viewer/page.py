@@ -257,11 +257,15 @@ class ModelPage:
     def open_settings(self) -> None:
         if self.settings is not None:
             self.settings.close()
-        self.settings = SettingsWindow(self.gui, self.c.settings, self._apply_settings)
+        model = self.c.model
+        systems = list(model.control_systems) if model is not None else ["joint_independent"]
+        if self.c.settings.control_system not in systems:
+            systems.append(self.c.settings.control_system)
+        self.settings = SettingsWindow(self.gui, self.c.settings, self._apply_settings, systems)
 
     def _apply_settings(self, form: dict[str, Any]) -> None:
         try:
-            settings = settings_from_form(live_vars=sorted(self.c.streamed), **form)
+            settings = settings_from_form(live_vars=sorted(self.c.streamed), base=self.c.settings, **form)
         except DecodeError as exc:
             self.c.notify("Settings refused", f"{exc.field}: {exc.problem}", "error")
             return

@@ -5,15 +5,18 @@ settings window (paper §2.2 step 6).
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Any
 
 from simecs.mesh import codec, phases
 from simecs.mesh import messages as m
 from simecs.mesh.codec import DecodeError
+from simecs.mesh.model import CONTROL_SYSTEM_TITLES
 
 PACING = {"real time": "realtime", "N x real time": "scaled", "as fast as possible": "fast"}
 PACING_LABEL = {v: k for k, v in PACING.items()}
+CONTROL_LABEL = dict(CONTROL_SYSTEM_TITLES)
+CONTROL = {v: k for k, v in CONTROL_LABEL.items()}
 TOOLBAR = ("Models", "Initialise", "Settings", "Documentation")
 #: Run buttons and the session command each sends (the phase table says when it applies).
 RUN_BUTTONS = {"Run": "run", "Pause": "pause", "Resume": "resume", "Abort": "abort"}
@@ -100,11 +103,17 @@ def settings_from_form(
     factor: float,
     live_rate: float,
     live_vars: list[str],
+    control_label: str = CONTROL_LABEL["joint_independent"],
+    base: m.RunSettings | None = None,
 ) -> m.RunSettings:
-    """RunSettings from the form's fields; DecodeError names the field when one is out of range."""
+    """RunSettings from the form's fields over `base` (the settings the form does not show, e.g. an
+    external controller's, are kept); DecodeError names the field when one is out of range."""
     pacing = PACING.get(pacing_label)
     if pacing is None:
         raise DecodeError("pacing", f"unknown pacing {pacing_label!r}")
+    control = CONTROL.get(control_label)
+    if control is None:
+        raise DecodeError("control_system", f"unknown control system {control_label!r}")
     form = {
         "stop_time": float(stop_time),
         "output_interval": float(output_interval),
@@ -113,14 +122,23 @@ def settings_from_form(
         "factor": float(factor),
         "live_rate_hz": float(live_rate),
         "live_vars": list(live_vars),
+        "control_system": control,
     }
-    return codec.from_obj(m.RunSettings, form)  # the bounds of the protocol, checked as the server will
+    kept = codec.to_obj(base) if base is not None else {}
+    # the bounds of the protocol, checked as the server will
+    return codec.from_obj(m.RunSettings, {**kept, **form})
 
 
 class SettingsWindow:
     """A modal with the run settings; Apply sends them (the server checks them again)."""
 
-    def __init__(self, gui: Any, settings: m.RunSettings, on_apply: Callable[[dict[str, Any]], None]) -> None:
+    def __init__(
+        self,
+        gui: Any,
+        settings: m.RunSettings,
+        on_apply: Callable[[dict[str, Any]], None],
+        control_systems: Sequence[str] = ("joint_independent",),
+    ) -> None:
         self.modal = gui.add_modal("Simulation settings")
         with self.modal:
             self.stop = gui.add_number("Stop time [s]", settings.stop_time, step=0.1, hint="(0, 3600] s")
@@ -145,6 +163,13 @@ class SettingsWindow:
             self.rate = gui.add_number(
                 "Live rate [Hz]", settings.live_rate_hz, step=1.0, hint="frames per second sent to this page"
             )
+            self.control = gui.add_dropdown(
+                "Control system",
+                tuple(CONTROL_LABEL[c] for c in control_systems),
+                initial_value=CONTROL_LABEL[settings.control_system],
+                hint="what drives the joints: each joint's cascade, or the tool tracked in task space "
+                "(the model's documentation, Control systems)",
+            )
             apply = gui.add_button("Apply settings", color="green")
             apply.on_click(lambda _e: on_apply(self.values()))
             cancel = gui.add_button("Cancel", color="gray")
@@ -158,6 +183,7 @@ class SettingsWindow:
             "pacing_label": str(self.pacing.value),
             "factor": float(self.factor.value),
             "live_rate": float(self.rate.value),
+            "control_label": str(self.control.value),
         }
 
     def close(self) -> None:
