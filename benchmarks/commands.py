@@ -25,7 +25,7 @@ from __future__ import annotations
 import json
 import statistics
 import time
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -51,33 +51,47 @@ def _angle(Ra: np.ndarray, Rb: np.ndarray) -> float:
     return float(np.arccos(np.clip((np.trace(Ra.T @ Rb) - 1.0) / 2.0, -1.0, 1.0)))
 
 
-def _lin(model_id: str) -> dict[str, float]:
+class StandardLine(NamedTuple):
+    """The standard LIN move of a model: its planner, plan, start point and target."""
+
+    pkg: Any
+    planner: Any
+    plan: Any
+    p0: np.ndarray
+    target: np.ndarray
+
+
+def standard_line(model_id: str) -> StandardLine:
+    """LINE_LENGTH m at 50 % from the model's standard posture, along the first of DIRECTIONS the arm
+    can follow (the same move for every bench that quotes "the standard LIN move")."""
     from simecs import models
     from simecs.mesh import messages as m
-    from simecs.mesh.kinematics import matrix_from_quat
     from simecs.models.ik import rpy_of
 
     pkg, planner = _planner(model_id, 60.0)
-    values, q0 = planner.values, planner.q0
-    p0, R0 = planner.kin.tool_pose(q0)
-
+    p0, R0 = planner.kin.tool_pose(planner.q0)
     rpy0 = list(rpy_of(R0))
-    plan = target = None
     for d in DIRECTIONS:
         target = p0 + LINE_LENGTH * np.asarray(d, float) / np.linalg.norm(d)
         try:
             plan = planner.plan(m.CartesianPath([m.CartesianNode(list(target), rpy0, "lin", 50.0, 50.0)]))
-            break
         except models.CommandError:
             continue
-    if plan is None or target is None:
-        raise RuntimeError(f"no standard line fits {model_id} from {q0}")
-    stop = plan.duration + 1.0
+        return StandardLine(pkg, planner, plan, p0, target)
+    raise RuntimeError(f"no standard line fits {model_id} from {planner.q0}")
+
+
+def run_line(
+    line: StandardLine, control_system: str = "joint_independent"
+) -> tuple[list[str], np.ndarray, float]:
+    """(columns, rows, best wall time of RTF_REPEATS) of the line and 1 s after it, as fast as possible."""
+    stop = line.plan.duration + 1.0
     walls = []
     for _ in range(RTF_REPEATS):  # the machine may be shared: the best of a few
-        sim = pkg.build(values)
-        sim.set_initial(q0)
-        plan.apply(sim)
+        sim = line.pkg.build(line.planner.values)
+        sim.set_initial(line.planner.q0)
+        line.plan.apply(sim)
+        sim.set_control(control_system, 0.001)
         sim.start(stop, 0.002)
         t0 = time.perf_counter()
         rows = [sim.advance(0.0)]
@@ -87,7 +101,16 @@ def _lin(model_id: str) -> dict[str, float]:
         data = np.vstack(rows)
         cols = list(sim.columns)
         sim.close()
-    wall = min(walls)
+    return cols, data, min(walls)
+
+
+def _lin(model_id: str) -> dict[str, float]:
+    from simecs.mesh.kinematics import matrix_from_quat
+
+    line = standard_line(model_id)
+    pkg, planner, plan, p0, target = line
+    cols, data, wall = run_line(line)
+    stop = plan.duration + 1.0
     tool = data[:, [cols.index(f"pose.tool.{f}") for f in ("x", "y", "z", "qw", "qx", "qy", "qz")]]
     qref = data[:, [cols.index(f"joint{j + 1}.q_ref") for j in range(pkg.n)]]
     d = (target - p0) / np.linalg.norm(target - p0)

@@ -34,6 +34,7 @@ BENCHES = {
     "lan": "simecs.benchmarks.lan:run_lan_bench",
     "hil": "simecs.benchmarks.hil:run_hil_bench",
     "scale": "simecs.benchmarks.scale:run_scale_bench",
+    "control": "simecs.benchmarks.control:run_control_bench",
 }
 
 
