@@ -6,6 +6,8 @@ and a saved mission; each run on the full drive train and judged on the results 
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import pytest
 from simecs import models
@@ -34,8 +36,13 @@ def tool_columns(columns: list[str]) -> list[int]:
     return [columns.index(f"pose.tool.{f}") for f in ("x", "y", "z", "qw", "qx", "qy", "qz")]
 
 
-def run_to_end(s: SessionClient, plan: m.CommandPlan, after: float = 1.0) -> tuple[list[str], np.ndarray]:
-    s.set_settings(stop_time=round(plan.duration + after, 3), output_interval=0.002, pacing="fast")
+def run_to_end(
+    s: SessionClient, plan: m.CommandPlan, after: float = 1.0, **settings: Any
+) -> tuple[list[str], np.ndarray]:
+    """Run the planned command to its end and `after` s more, as fast as possible; its results."""
+    s.set_settings(
+        stop_time=round(plan.duration + after, 3), output_interval=0.002, pacing="fast", **settings
+    )
     run_id = s.run()
     state = s.wait_for(["finished", "failed"], 120, run_id)
     assert state.phase == "finished", state.reason

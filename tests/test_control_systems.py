@@ -24,7 +24,7 @@ from simecs.models.ik import rpy_of
 from simecs.models.planner import Planner
 
 from tests.conftest import Service
-from tests.test_commands import SPIDER_Q0, kinematics, tool_columns
+from tests.test_commands import SPIDER_Q0, kinematics, run_to_end, tool_columns
 
 HOLD_S = 1.0  # the run goes on this long after the move: the controller must hold the target
 
@@ -43,22 +43,12 @@ def _line(s: SessionClient) -> tuple[np.ndarray, np.ndarray, m.CommandPlan]:
     return p1, R1, plan
 
 
-def _run(s: SessionClient, plan: m.CommandPlan, **settings: object) -> tuple[list[str], np.ndarray]:
-    s.set_settings(
-        stop_time=round(plan.duration + HOLD_S, 3), output_interval=0.002, pacing="fast", **settings
-    )
-    run_id = s.run()
-    state = s.wait_for(["finished", "failed"], 120, run_id)
-    assert state.phase == "finished", state.reason
-    return s.results(run_id)
-
-
 def test_opspace_motion_reaches_a_cartesian_target_and_holds_it(service: Service) -> None:
     s = service.client.create_session("ann", "spider")
     assert "opspace_motion" in service.client.describe("spider").control_systems
     s.set_initial(SPIDER_Q0)
     p1, R1, plan = _line(s)
-    cols, rows = _run(s, plan, control_system="opspace_motion")
+    cols, rows = run_to_end(s, plan, HOLD_S, control_system="opspace_motion")
     assert s.snapshot().settings.control_system == "opspace_motion"
     t = rows[:, 0]
     tool = rows[:, tool_columns(cols)]
@@ -83,7 +73,7 @@ def test_opspace_motion_reaches_a_cartesian_target_and_holds_it(service: Service
         e_rot = rows[k, cols.index("tool.e_rot")]
         assert abs(e_rot - _angle(matrix_from_quat(tool[k, 3:]), R_ref)) < 1e-6
     # The same command under the joint cascade: another controller drives the same drives.
-    cols_j, rows_j = _run(s, plan, control_system="joint_independent")
+    cols_j, rows_j = run_to_end(s, plan, HOLD_S, control_system="joint_independent")
     i_op = rows[:, cols.index("joint2.i_ref")]
     i_ji = rows_j[:, cols_j.index("joint2.i_ref")]
     assert np.max(np.abs(i_op - i_ji)) > 0.05
