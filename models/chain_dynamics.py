@@ -231,6 +231,13 @@ def pose_rows(pre_R, pre_p, Rrpy, tool_local, q, out):
     R_all = np.empty((n, 3, 3))
     p_all = np.empty((n, 3))
     chain_frames(pre_R, pre_p, q, R_all, p_all)
+    pose_rows_at(R_all, p_all, Rrpy, tool_local, out)
+
+
+@njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
+def pose_rows_at(R_all, p_all, Rrpy, tool_local, out):
+    """`pose_rows` from the joint frames of `chain_frames` (the result rows have them already)."""
+    n = R_all.shape[0]
     Rs = np.empty((n + 1, 3, 3))
     for i in range(n):
         for a in range(3):

@@ -16,7 +16,7 @@ import math
 import numpy as np
 from numba import njit
 
-from .chain_dynamics import bias_forces_at, chain_frames, mass_matrix_at, pose_rows
+from .chain_dynamics import bias_forces_at, chain_frames, mass_matrix_at, pose_rows_at
 from .chain_kinematics import rotation_vector, tool_frames
 from .jit import CACHE as _CACHE
 from .jit import FAST as _FAST
@@ -638,15 +638,17 @@ def output_row(P, seg, hold, tab, jmode, live, X, q, qd, t, pre_R, pre_p, Rrpy, 
     for j in range(n):
         for c in range(NO):
             row[1 + j * NO + c] = out[j, c]
-    # the tool against the tool pose of the set points
+    # the tool against the tool pose of the set points; the chain's frames serve the pose rows too
     R_all = np.empty((n, 3, 3))
     p_all = np.empty((n, 3))
     p = np.empty(3)
     R = np.empty((3, 3))
+    tool_frames(pre_R, pre_p, Rrpy[n - 1], tool_local, q, R_all, p_all, p, R)
+    Rr_all = np.empty((n, 3, 3))
+    pr_all = np.empty((n, 3))
     p_r = np.empty(3)
     R_r = np.empty((3, 3))
-    tool_frames(pre_R, pre_p, Rrpy[n - 1], tool_local, q, R_all, p_all, p, R)
-    tool_frames(pre_R, pre_p, Rrpy[n - 1], tool_local, out[:, 2].copy(), R_all, p_all, p_r, R_r)
+    tool_frames(pre_R, pre_p, Rrpy[n - 1], tool_local, out[:, 2].copy(), Rr_all, pr_all, p_r, R_r)
     erot = np.empty(3)
     k0 = 1 + n * NO
     row[k0] = p_r[0]
@@ -655,7 +657,7 @@ def output_row(P, seg, hold, tab, jmode, live, X, q, qd, t, pre_R, pre_p, Rrpy, 
     row[k0 + 3] = math.sqrt((p_r[0] - p[0]) ** 2 + (p_r[1] - p[1]) ** 2 + (p_r[2] - p[2]) ** 2)
     row[k0 + 4] = rotation_vector(R, R_r, erot)
     poses = np.empty((n + 1, 7))
-    pose_rows(pre_R, pre_p, Rrpy, tool_local, q, poses)
+    pose_rows_at(R_all, p_all, Rrpy, tool_local, poses)
     k0 += NT
     for i in range(n + 1):
         for c in range(7):
