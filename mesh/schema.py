@@ -77,6 +77,25 @@ def _with_required_version(defs: dict[str, Any]) -> None:
             schema["required"] = sorted(set(schema.get("required", [])) | {"v"}, key=list(props).index)
 
 
+def _with_factory_defaults(defs: dict[str, Any]) -> None:
+    """A field whose default is made by a factory (a vector, a colour, a list) has that default on
+    the wire too: the schema states it, as it does a plain default."""
+    classes: dict[str, type] = {}
+    pending: list[type] = [msgspec.Struct]
+    while pending:
+        cls = pending.pop()
+        classes.setdefault(cls.__name__, cls)
+        pending.extend(cls.__subclasses__())
+    for name, schema in defs.items():
+        struct = classes.get(name)
+        props = schema.get("properties", {})
+        if struct is None or not props:
+            continue
+        for f in msgspec.structs.fields(struct):  # type: ignore[arg-type]
+            if f.default_factory is not msgspec.NODEFAULT and f.encode_name in props:
+                props[f.encode_name].setdefault("default", msgspec.to_builtins(f.default_factory()))
+
+
 def _ok(data_schema: dict[str, Any]) -> dict[str, Any]:
     return {
         "type": "object",
@@ -109,6 +128,7 @@ def protocol_schema() -> dict[str, Any]:
     for name, t in [*UNIONS.items(), *ALIASES.items()]:
         defs[name] = schema_of[repr(t)]
     _with_required_version(defs)
+    _with_factory_defaults(defs)
     types: dict[str, Any] = {name: {"$ref": REF.format(name=name)} for name in defs}
     key_table = [
         {
