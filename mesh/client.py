@@ -236,6 +236,10 @@ class SessionClient:
     def set_settings(self, **settings: Any) -> Any:
         return self.command(m.SetSettings(m.RunSettings(**settings)))
 
+    def set_obstacles(self, obstacles: Sequence[m.Obstacle]) -> list[m.Obstacle]:
+        """Replace what the arm can touch in this session; the list as stored."""
+        return self.command(m.SetObstacles(list(obstacles)))
+
     def run(self) -> str:
         """Start a run; returns its run id."""
         return self.command(m.Run()).run_id

@@ -16,6 +16,7 @@ from typing import Annotated, Any, Literal
 
 from msgspec import Meta
 
+from .environment import Obstacle, ObstacleList, check_obstacles  # noqa: F401 (m.Obstacle)
 from .limits import limit
 from .model import ControlSystem, ModelSummary
 from .phases import Phase, WorkerPhase
@@ -123,6 +124,13 @@ class RunSettings(Record):
             "control_systems"
         ),
     ] = "joint_independent"
+    collisions: Annotated[
+        Literal["refuse", "simulate"],
+        Meta(
+            description="refuse: a run whose planned path makes the arm touch an obstacle is refused, "
+            "naming the step and the obstacle; simulate: it runs, and the contact is simulated"
+        ),
+    ] = "refuse"
 
     def __post_init__(self) -> None:
         if self.output_interval > self.stop_time:
@@ -164,6 +172,16 @@ class SetCommand(Command, tag="set_command"):
 
 class SetSettings(Command, tag="set_settings"):
     settings: RunSettings
+
+
+class SetObstacles(Command, tag="set_obstacles"):
+    """Replace the session's obstacles: the whole list, as with settings (the model's own are in
+    ModelDescription.obstacles: send those to go back to them)."""
+
+    obstacles: ObstacleList
+
+    def __post_init__(self) -> None:
+        check_obstacles(self.obstacles)
 
 
 class Run(Command, tag="run"):
@@ -292,6 +310,7 @@ SessionCommand = (
     | SetInitial
     | SetCommand
     | SetSettings
+    | SetObstacles
     | Run
     | Replay
     | Pause
@@ -400,6 +419,9 @@ class SessionSnapshot(Message, tag="session"):
     settings: RunSettings
     state: SessionState
     runs: Annotated[list[RunInfo], Meta(description="the runs whose results are kept, oldest first")] = []
+    obstacles: Annotated[
+        ObstacleList, Meta(description="what the arm can touch (a new session: the model's obstacles)")
+    ] = []
 
 
 RunList = list[RunInfo]
@@ -445,6 +467,7 @@ class RunRequest(Message, tag="run_request"):
     paused: Annotated[bool, Meta(description="start paused (resume to go)")] = False
     attempt: Annotated[int, Meta(ge=1, description="2+: the run restarted after its host was lost")] = 1
     restarted: Annotated[Text, Meta(description="attempt 2+: why the run started again")] = ""
+    obstacles: Annotated[ObstacleList, Meta(description="what the arm can touch in this run")] = []
 
 
 class Accepted(Record):
@@ -494,6 +517,7 @@ class RunContext(Record):
         int, Meta(ge=1, description="2+: restarted from the start after its host was lost")
     ] = 1
     restarted: Annotated[Text, Meta(description="attempt 2+: why the run started again")] = ""
+    obstacles: Annotated[ObstacleList, Meta(description="what the arm could touch in the run")] = []
 
 
 class RunLayout(Message, tag="layout"):
@@ -644,6 +668,7 @@ REPLIES: dict[type, Any] = {
     SetInitial: list[float],
     SetCommand: CommandPlan,
     SetSettings: RunSettings,
+    SetObstacles: ObstacleList,
     Run: RunStarted,
     Replay: RunStarted,
     Pause: str,

@@ -18,6 +18,7 @@ import msgspec
 from msgspec import Meta
 
 from .codec import DecodeError
+from .environment import ObstacleList, check_obstacles
 from .primitives import NAME_PATTERN, FieldProblem, Message, Name, Record, Text
 
 NAME_RE = re.compile(NAME_PATTERN)
@@ -164,7 +165,9 @@ class ModelDescription(Message, tag="model"):
     doc_root: Name
     docs: list[DocPage]
     command_levels: Annotated[list[Name], Meta(description="the robot command kinds the model accepts")]
-    environment: Annotated[list[Shape], Meta(description="floor, bench, obstacles (link -1)")] = []
+    environment: Annotated[
+        list[Shape], Meta(description="drawn only, never touched: pedestal, decoration (link -1)")
+    ] = []
     home: Annotated[
         list[float],
         Meta(max_length=64, description="rad: the `home` action's posture and a new session's initial pose"),
@@ -176,6 +179,12 @@ class ModelDescription(Message, tag="model"):
         list[ControlSystem],
         Meta(description="the motion control systems a run may choose (RunSettings.control_system)"),
     ] = msgspec.field(default_factory=lambda: ["joint_independent"])
+    obstacles: Annotated[
+        ObstacleList, Meta(description="what the arm can touch; a new session starts with these")
+    ] = []
+
+    def __post_init__(self) -> None:
+        check_obstacles(self.obstacles)
 
     def mesh_names(self) -> list[str]:
         """The meshes its mesh shapes name (each fetched from simecs/library/<model>/mesh/<name>)."""

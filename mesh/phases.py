@@ -51,6 +51,7 @@ ALLOWED: dict[str, tuple[tuple[str, ...], str]] = {
     "set_initial": (EDITABLE, _EDIT.replace("{what}", "the initial pose")),
     "set_command": (EDITABLE, _EDIT.replace("{what}", "the command")),
     "set_settings": (EDITABLE, _EDIT.replace("{what}", "the simulation settings")),
+    "set_obstacles": (EDITABLE, _EDIT.replace("{what}", "the obstacles")),
     "run": (EDITABLE, "a run is already {phase} in this session"),
     "replay": (EDITABLE, "a run is already {phase} in this session"),
     "pause": (("running",), "nothing to pause: the session is {phase}"),

@@ -19,12 +19,13 @@ GROUPS: list[tuple[str, list[str]]] = [
     ("replies", ["Ok", "Error"]),
     (
         "library",
-        ["ModelList", "ModelSummary", "ModelDescription", "Link", "Shape", "Parameter", "Variable"]
-        + ["InitEquation", "DocPage"],
+        ["ModelList", "ModelSummary", "ModelDescription", "Link", "Shape", "Obstacle", "Parameter"]
+        + ["Variable", "InitEquation", "DocPage"],
     ),
     (
         "commands",
-        ["SetParams", "ResetParams", "SetInitial", "SetCommand", "SetSettings", "Run", "Replay", "Pause"]
+        ["SetParams", "ResetParams", "SetInitial", "SetCommand", "SetSettings", "SetObstacles", "Run"]
+        + ["Replay", "Pause"]
         + ["Resume", "Abort", "Seek", "SaveParamSet", "LoadParamSet", "DeleteParamSet", "ListParamSets"]
         + ["SaveProgram", "LoadProgram", "DeleteProgram", "ListPrograms", "ProgramEntry"]
         + [

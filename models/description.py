@@ -26,6 +26,7 @@ from simecs.mesh.model import (
 from simecs.mesh.model import check_values as check_bounds
 from simecs.mesh.robot_commands import COMMAND_LEVELS
 
+from . import contact
 from . import drive as dr
 from .docs import build_docs
 from .errors import ParameterError
@@ -60,6 +61,22 @@ TOOL_VAR_INFO = {
     "e_rot": ("rad", "tool orientation error: the angle that turns the tool onto its set point"),
 }
 assert tuple(TOOL_VAR_INFO) == dr.TOOL_OUTPUTS
+CONTACT_LINK_VAR_INFO = {
+    "force": ("N", "contact force on the link (the sum over its spheres, magnitude)"),
+    "obstacle": (
+        "",
+        "the obstacle pressing hardest on the link: its number in the session's list, 1..; 0 = none",
+    ),
+}
+assert tuple(CONTACT_LINK_VAR_INFO) == contact.PER_LINK_OUTPUTS
+CONTACT_VAR_INFO = {
+    "depth": ("m", "the deepest penetration of the arm into an obstacle (0: no contact)"),
+    "tool_fx": ("N", "contact force on the tool, x (world)"),
+    "tool_fy": ("N", "contact force on the tool, y (world)"),
+    "tool_fz": ("N", "contact force on the tool, z (world)"),
+    "tool_fn": ("N", "the tool's normal contact force: what presses it onto the surfaces it touches"),
+}
+assert tuple(CONTACT_VAR_INFO) == contact.CONTACT_OUTPUTS
 
 
 def _vec(a: Sequence[float]) -> np.ndarray:
@@ -242,6 +259,7 @@ class ArmDescription:
                 environment=list(s.environment) + self._mesh_shapes(-1),
                 base_rotation_rpy=list(s.base_rpy),
                 control_systems=list(CONTROL_SYSTEMS),
+                obstacles=list(s.obstacles),
             )
         return self._description
 
@@ -264,6 +282,11 @@ class ArmDescription:
                 out.append(Variable(f"joint{i}.{name}", unit, f"joint {i}: {desc}", comp))
         for name, (unit, desc) in TOOL_VAR_INFO.items():
             out.append(Variable(f"tool.{name}", unit, desc, "tool"))
+        for i in range(1, self.n + 1):
+            for name, (unit, desc) in CONTACT_LINK_VAR_INFO.items():
+                out.append(Variable(f"contact.link{i}.{name}", unit, f"link {i}: {desc}", "contact"))
+        for name, (unit, desc) in CONTACT_VAR_INFO.items():
+            out.append(Variable(f"contact.{name}", unit, desc, "contact"))
         return out
 
     def init_equations(self) -> list[InitEquation]:

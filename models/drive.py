@@ -2,8 +2,9 @@
 
 Everything here runs inside one Exudyn PreStep call per mechanics step: the drives of all joints are
 integrated with classical RK4 over `nsub` substeps while the load angles follow a local predictor
-(q_l'' = M(q)^-1 tau_gear, with M the chain mass matrix at the start of the step); the mean gear torque
-over the step is handed to Exudyn as the joint torque vector. See docs/MODELS.md, "Coupling".
+(q_l'' = M(q)^-1 (tau_gear + tau_contact - bias), with M the chain mass matrix and the bias at the start
+of the step, the contact forces of contact.py at every substep); the mean gear and contact torque over
+the step is handed to Exudyn as the joint torque vector. See docs/MODELS.md, "Coupling".
 
 Per-joint parameters live in a float array P[joint, k] with the indices below; per-joint states in
 X[joint, k]. The order of `DRIVE_PARAMS` is the contract between this file and the descriptions.
@@ -18,6 +19,7 @@ from numba import njit
 
 from .chain_dynamics import bias_forces_at, chain_frames, mass_matrix_at, pose_rows_at
 from .chain_kinematics import rotation_vector, tool_frames
+from .contact import CONTACT_RATE_STEP, contact_outputs, find_pairs, output_count, pair_torques, set_caps
 from .jit import CACHE as _CACHE
 from .jit import FAST as _FAST
 
@@ -445,9 +447,12 @@ def controlled_signals(P, j, x, ql, qdl, qr, qdr, jmode, live, out):
 
 
 @njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
-def drive_rhs(P, seg, hold, tab, jmode, live, Minv, bias, t, X, dX, sig, qr, qdr, tau, new_t=True):
+def drive_rhs(
+    P, seg, hold, tab, jmode, live, Minv, bias, t, X, dX, sig, qr, qdr, tau, contact, cw, new_t=True
+):
     """dX = f(t, X); the set points qr, qdr are evaluated at t unless `new_t` is False (same t as the
-    previous call: RK4 stages 2 and 3)."""
+    previous call: RK4 stages 2 and 3). `contact` = (spheres, obstacles, pairs of the step, count, q at
+    the step start) of contact.py; the contact torques go to cw[2] (cw[0], cw[1]: work rows)."""
     n = X.shape[0]
     if new_t:
         ref_eval(seg, hold, tab, jmode, live, t, qr, qdr)
@@ -474,10 +479,16 @@ def drive_rhs(P, seg, hold, tab, jmode, live, Minv, bias, t, X, dX, sig, qr, qdr
         d[S_QL] = x[S_QDL]
         d[S_IMP] = sig[12]
         tau[j] = sig[12]
+    spheres, obs, pairs, npairs, q0 = contact
+    if npairs > 0:
+        for j in range(n):
+            cw[0, j] = X[j, S_QL]
+            cw[1, j] = X[j, S_QDL]
+        pair_torques(pairs, npairs, spheres, obs, q0, cw[0], cw[1], cw[2])
     for j in range(n):
         acc = 0.0
         for k in range(n):
-            acc += Minv[j, k] * (tau[k] - bias[k])
+            acc += Minv[j, k] * (tau[k] + cw[2, k] - bias[k])
         dX[j, S_QDL] = acc
 
 
@@ -536,23 +547,37 @@ def drive_prestep(
     nsub,
     tau_out,
     work,
+    spheres,
+    obs,
+    pairs,
+    caps,
 ):
-    """Integrate all drives over [t, t+h] with RK4 substeps (nsub, more where friction is stiff);
-    tau_out = mean gear torque. STEP_OK, or STEP_NOT_FINITE / STEP_FRICTION when the states broke down.
+    """Integrate all drives over [t, t+h] with RK4 substeps (nsub, more where friction or a contact is
+    stiff); tau_out = mean gear + contact torque. STEP_OK, or STEP_NOT_FINITE / STEP_FRICTION when the
+    states broke down. `spheres`, `obs`: contact.py's tables; `pairs`, `caps`: its work arrays.
     The drive state is kept for a repeated step: `repeat` (the solver takes the same step again)
     restores X from Xbak, else Xbak saves X before the step."""
     if repeat:
         X[:, :] = Xbak
     else:
         Xbak[:, :] = X
-    nsub = substeps_for(P, X, h, nsub)
     n = q.shape[0]
     R_all = np.empty((n, 3, 3))
     p_all = np.empty((n, 3))
-    chain_frames(pre_R, pre_p, q, R_all, p_all)  # once, for the mass matrix and the bias
+    chain_frames(pre_R, pre_p, q, R_all, p_all)  # once, for the mass matrix, the bias and the contacts
     M = np.empty((n, n))
     mass_matrix_at(R_all, p_all, masses, coms, inertias, M)
     Minv = np.linalg.inv(M)
+    npairs, rate = find_pairs(spheres, obs, R_all, p_all, qd, Minv, h, pairs)
+    nsub = max(
+        substeps_for(P, X, h, nsub),
+        min(int(math.ceil(rate * h / CONTACT_RATE_STEP)), nsub * MAX_SUBSTEP_FACTOR),
+    )
+    hs = h / nsub
+    set_caps(pairs, npairs, hs, caps)
+    contact = (spheres, obs, pairs, npairs, q.copy())
+    cw = np.zeros((3, n))
+    cimp = np.zeros(n)
     # The load side within the step: M qdd = tau_gear - bias, the bias (velocity terms, gravity) held
     # at the step start; without it the gear torques lag the chain's other forces by up to 8 %.
     bias = np.empty(n)
@@ -570,29 +595,58 @@ def drive_prestep(
     qr = np.empty(n)
     qdr = np.empty(n)
     tau = np.empty(n)
-    hs = h / nsub
+    w = hs / 6.0
     for s in range(nsub):
         ts = t + s * hs
-        drive_rhs(P, seg, hold, tab, jmode, live, Minv, bias, ts, X, k1, sig, qr, qdr, tau)
+        drive_rhs(P, seg, hold, tab, jmode, live, Minv, bias, ts, X, k1, sig, qr, qdr, tau, contact, cw)
+        for j in range(n):
+            cimp[j] += w * cw[2, j]
         for j in range(n):
             for k in range(NL):
                 Xt[j, k] = X[j, k] + 0.5 * hs * k1[j, k]
-        drive_rhs(P, seg, hold, tab, jmode, live, Minv, bias, ts + 0.5 * hs, Xt, k2, sig, qr, qdr, tau)
+        drive_rhs(
+            P, seg, hold, tab, jmode, live, Minv, bias, ts + 0.5 * hs, Xt, k2, sig, qr, qdr, tau, contact, cw
+        )
+        for j in range(n):
+            cimp[j] += 2.0 * w * cw[2, j]
         for j in range(n):
             for k in range(NL):
                 Xt[j, k] = X[j, k] + 0.5 * hs * k2[j, k]
-        drive_rhs(P, seg, hold, tab, jmode, live, Minv, bias, ts + 0.5 * hs, Xt, k3, sig, qr, qdr, tau, False)
+        drive_rhs(
+            P,
+            seg,
+            hold,
+            tab,
+            jmode,
+            live,
+            Minv,
+            bias,
+            ts + 0.5 * hs,
+            Xt,
+            k3,
+            sig,
+            qr,
+            qdr,
+            tau,
+            contact,
+            cw,
+            False,
+        )
+        for j in range(n):
+            cimp[j] += 2.0 * w * cw[2, j]
         for j in range(n):
             for k in range(NL):
                 Xt[j, k] = X[j, k] + hs * k3[j, k]
-        drive_rhs(P, seg, hold, tab, jmode, live, Minv, bias, ts + hs, Xt, k4, sig, qr, qdr, tau)
+        drive_rhs(P, seg, hold, tab, jmode, live, Minv, bias, ts + hs, Xt, k4, sig, qr, qdr, tau, contact, cw)
+        for j in range(n):
+            cimp[j] += w * cw[2, j]
         for j in range(n):
             for k in range(NL):
                 X[j, k] += hs / 6.0 * (k1[j, k] + 2.0 * k2[j, k] + 2.0 * k3[j, k] + k4[j, k])
             if abs(X[j, S_Z]) > friction_bound(P, j):  # caught before it overflows
                 return STEP_FRICTION
     for j in range(n):
-        tau_out[j] = X[j, S_IMP] / h
+        tau_out[j] = (X[j, S_IMP] + cimp[j]) / h
         for k in range(NS):
             if not math.isfinite(X[j, k]):
                 return STEP_NOT_FINITE
@@ -622,8 +676,9 @@ def drive_outputs(P, seg, hold, tab, jmode, live, X, q, qd, t, out):
 
 # ---- output rows: variables and link poses, no Exudyn call -------------------------------------------
 @njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
-def output_row(P, seg, hold, tab, jmode, live, X, q, qd, t, pre_R, pre_p, Rrpy, tool_local, rows, k):
-    """One result row into rows[k]: time, the variables of every joint, the link and tool poses.
+def output_row(P, seg, hold, tab, jmode, live, X, q, qd, t, pre_R, pre_p, Rrpy, tool_local, contact, rows, k):
+    """One result row into rows[k]: time, the variables of every joint, the tool's, the contacts', the
+    link and tool poses. `contact` = (spheres, obstacles, caps) of contact.py.
 
     Returns 0, or 1 when the chain coordinates are not finite (row untouched), 2 when an output is not.
     """
@@ -656,9 +711,15 @@ def output_row(P, seg, hold, tab, jmode, live, X, q, qd, t, pre_R, pre_p, Rrpy, 
     row[k0 + 2] = p_r[2]
     row[k0 + 3] = math.sqrt((p_r[0] - p[0]) ** 2 + (p_r[1] - p[1]) ** 2 + (p_r[2] - p[2]) ** 2)
     row[k0 + 4] = rotation_vector(R, R_r, erot)
+    k0 += NT
+    spheres, obs, caps = contact
+    touch = np.empty(output_count(n))
+    contact_outputs(spheres, obs, caps, R_all, p_all, qd, touch)
+    for c in range(touch.shape[0]):
+        row[k0 + c] = touch[c]
+    k0 += touch.shape[0]
     poses = np.empty((n + 1, 7))
     pose_rows_at(R_all, p_all, Rrpy, tool_local, poses)
-    k0 += NT
     for i in range(n + 1):
         for c in range(7):
             row[k0 + 7 * i + c] = poses[i, c]

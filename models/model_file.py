@@ -17,6 +17,7 @@ import json5
 import msgspec
 from msgspec import Meta
 from simecs.mesh.codec import DecodeError, from_obj
+from simecs.mesh.environment import ObstacleList, check_obstacles
 from simecs.mesh.model import Shape
 from simecs.mesh.primitives import Name, Record, Text
 
@@ -150,6 +151,10 @@ class ModelFile(Record, kw_only=True):
     home: list[float] = []
     cart: Cartesian = msgspec.field(default_factory=Cartesian)
     environment: list[Shape] = []
+    obstacles: ObstacleList = []
+
+    def __post_init__(self) -> None:
+        check_obstacles(self.obstacles)
 
 
 def read_model_file(directory: str | Path) -> ModelFile:
@@ -241,6 +246,7 @@ def load_model_dir(directory: str | Path) -> ArmSpec:
             cart_max_rot_speed=model.cart.max_rot_speed,
             cart_max_rot_acc=model.cart.max_rot_acc,
             environment=list(model.environment),
+            obstacles=list(model.obstacles),
             source=directory,
             visuals=visuals,
             collisions=collisions,

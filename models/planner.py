@@ -22,16 +22,18 @@ from typing import Any
 import numpy as np
 from simecs.mesh import messages as m
 from simecs.mesh.codec import DecodeError
+from simecs.mesh.environment import Obstacle
 from simecs.mesh.kinematics import rot_rpy
 from simecs.mesh.limits import limit
 from simecs.mesh.model import check_joints
 from simecs.mesh.robot_commands import ACTION_ARGS
 
+from . import contact, signals
 from . import drive as dr
-from . import signals
 from .description import ArmDescription
 from .errors import CommandError
 from .ik import ArmKinematics, orientation_error, rpy_of
+from .mechanics import chain_arrays
 
 #: s between the samples of a Cartesian reference (and of the curved parts of sampled joint moves).
 REFERENCE_PERIOD = 1e-3
@@ -41,6 +43,9 @@ SINGULAR_SIGMA = 1e-3
 LIN_TOLERANCE = 1e-6
 #: Points of the planned tool path returned to clients.
 TOOL_PATH_POINTS = 1000
+#: s between the set points a path is checked at against the obstacles (before a run): at 1 m/s a
+#: sphere moves 2 mm between two, a fifth of the thinnest one.
+PATH_CHECK_PERIOD = 2e-3
 
 
 @dataclass
@@ -62,6 +67,7 @@ class Plan:
     steps: list[PlanStep]
     final_q: np.ndarray
     joint_nodes: list[tuple[np.ndarray, float, float]] | None = None
+    segments: np.ndarray | None = None  # joint paths: the trapezoid rows of drive.plan_segment
     tab: np.ndarray | None = None
     jmode: np.ndarray | None = None
     events: list[tuple[float, dict[str, float]]] = field(default_factory=list)
@@ -76,6 +82,23 @@ class Plan:
         else:
             assert self.tab is not None and self.jmode is not None
             sim.set_reference(self.tab, self.jmode, self.events)
+
+    def joint_samples(self, q0: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray] | None:
+        """(times, joint positions) of the set points every dt s from 0 to the plan's end; None when a
+        joint follows a speed or a current (its position is not known before the run)."""
+        if self.segments is not None:
+            times = np.append(np.arange(0.0, self.duration, dt), self.duration)
+            qs = np.empty((times.shape[0], q0.shape[0]))
+            qd = np.empty(q0.shape[0])
+            for k, t in enumerate(times):
+                dr.traj_eval(self.segments, q0, float(t), qs[k], qd)
+            return times, qs
+        if self.tab is None or self.jmode is None:
+            return None
+        if np.any((self.jmode == dr.JM_SPEED) | (self.jmode == dr.JM_CURRENT)):
+            return None
+        n = q0.shape[0]
+        return self.tab[:, 0].copy(), self.tab[:, 1 : 1 + n].copy()
 
     def step_at(self, t: float) -> PlanStep | None:
         """The step running at simulated time t (the last one once all are done)."""
@@ -200,6 +223,38 @@ class Planner:
         plan.start_pose, plan.end_pose = self.pose(self.q0), self.pose(plan.final_q)
         return plan
 
+    def collision(self, plan: Plan, obstacles: Sequence[Obstacle]) -> tuple[str, str] | None:
+        """(field, why) when the planned path makes the arm touch an obstacle: the field is `initial`
+        or the step's path under `command`. A path that follows speeds or currents is not known before
+        the run: None."""
+        sampled = plan.joint_samples(self.q0, PATH_CHECK_PERIOD)
+        if sampled is None or not obstacles:
+            return None
+        times, qs = sampled
+        arrays = chain_arrays(self.model.spec, self.values)
+        found = np.zeros(3)
+        k = contact.first_touch(
+            contact.sphere_table(self.model.spec, self.values),
+            contact.obstacle_table(obstacles),
+            arrays.pre_R,
+            arrays.pre_p,
+            np.ascontiguousarray(qs),
+            found,
+        )
+        if k < 0:
+            return None
+        t = float(times[k])
+        what = f"link{int(found[0]) + 1} would touch obstacle {obstacles[int(found[1])].name}"
+        depth = f"{found[2] * 1000:.1f} mm deep"
+        if k == 0:
+            return "initial", f"at the initial pose {what} ({depth}): move the arm or the obstacle clear"
+        step = plan.step_at(t)
+        return (
+            f"command.{step.path}" if step is not None else "command",
+            f"{what} at t = {t:.3f} s of the planned path ({depth}): change the path, move the obstacle "
+            "(set_obstacles), or set settings.collisions to simulate",
+        )
+
     def pose(self, q: np.ndarray) -> list[float]:
         """The tool pose at q as x, y, z (m), roll, pitch, yaw (rad)."""
         p, R = self.kin.tool_pose(q)
@@ -255,6 +310,7 @@ class Planner:
         t = 0.0
         steps = []
         nodes = []
+        rows = []
         samples = [q]
         for i, node in enumerate(cmd.nodes):
             dest = self._joints(node.q, f"nodes[{i}].q")
@@ -262,12 +318,19 @@ class Planner:
                 q, dest, self.vmax * node.speed_pct / 100, self.amax * node.acc_pct / 100, t
             )
             steps.append(PlanStep(f"nodes[{i}]", "joint", t, t + float(row[1])))
+            rows.append(row)
             nodes.append((dest, node.speed_pct, node.acc_pct))
             samples.extend(q + s * (dest - q) for s in np.linspace(0.0, 1.0, 21)[1:])
             t += float(row[1])
             q = dest
         return Plan(
-            "joint_path", t, steps, q, joint_nodes=nodes, tool_path=self._tool_path(np.array(samples))
+            "joint_path",
+            t,
+            steps,
+            q,
+            joint_nodes=nodes,
+            segments=np.array(rows) if rows else np.zeros((0, 3 + 2 * self.n)),
+            tool_path=self._tool_path(np.array(samples)),
         )
 
     def _direct_input(self, cmd: m.DirectInput) -> Plan:

@@ -15,11 +15,13 @@ from typing import Any
 
 import numpy as np
 from simecs.mesh import columns
+from simecs.mesh.environment import Obstacle, check_obstacles
 from simecs.mesh.kinematics import rot_rpy
 from simecs.mesh.model import CONTROL_SYSTEMS
 
 from . import chain_dynamics
 from . import drive as dr
+from .contact import contact_prestep, obstacle_table, pair_width, sphere_table
 from .description import ArmDescription
 from .errors import SimulationError
 from .exudyn_chain import GRAVITY, ExudynChain, exudyn
@@ -69,6 +71,8 @@ class Simulation:
         self._nrows = 0
         self._k_next = 0
         self._t_next = 0.0
+        self._obstacles: list[Obstacle] = list(self._desc.obstacles)
+        self._contact_tables()
         self._chain = ExudynChain(self._mech, self._tool_local(), self._prestep)
         self._mbs: Any = self._chain.mbs  # the hot path reads these two on every step
         self._kt = self._chain.kt
@@ -79,6 +83,25 @@ class Simulation:
     def _update_mechanics(self) -> None:
         self._mech = chain_arrays(self.package.spec, self.values)
         self._chain.update(self._mech, self._tool_local())
+        self._contact_tables()
+
+    def _contact_tables(self) -> None:
+        """The arm's contact spheres at the values now, the obstacles' table and the kernels' work."""
+        self._spheres = sphere_table(self.package.spec, self.values)
+        self._obs = obstacle_table(self._obstacles)
+        ns, no = self._spheres.shape[0], self._obs.shape[0]
+        self._pairs = np.zeros((ns * no, pair_width(self.n)))
+        self._caps = np.zeros((ns, no))
+
+    def set_obstacles(self, obstacles: Sequence[Obstacle]) -> None:
+        """What the arm can touch in the runs that follow (the model's own obstacles until then)."""
+        check_obstacles(obstacles)
+        self._obstacles = list(obstacles)
+        self._contact_tables()
+
+    @property
+    def obstacles(self) -> list[Obstacle]:
+        return list(self._obstacles)
 
     # ---- API ----
     def set_values(self, values: Mapping[str, float]) -> None:
@@ -307,6 +330,7 @@ class Simulation:
         self._Xbak = self.X.copy()
         self._last_k = -1
         self._tau = np.zeros(self.n)
+        self._caps[:] = 0.0
         self._work = np.zeros((5, self.n, dr.NL))
         self._fail: str | None = None
         self._drives_on = self.values["drives.enabled"] > 0.5
@@ -376,7 +400,7 @@ class Simulation:
         h = self._it.currentStepSize
         ts = t - h  # the step start: the chain state and the drive states are those of ts
         due = ts >= self._t_next - 0.5 * self.h
-        if not (due or self._drives_on):
+        if not (due or self._drives_on or self._obs.shape[0]):
             return True
         t0 = _time.perf_counter()
         out0 = self.timing["output"]
@@ -389,14 +413,33 @@ class Simulation:
                 return False
             if not self._emit_row(q, qd):
                 return False
-        if not self._drives_on:
+        m = self._mech_arrays
+        if not self._drives_on:  # nothing acts on the joints but the contacts
+            if self._obs.shape[0]:
+                contact_prestep(
+                    m[0],
+                    m[1],
+                    m[2],
+                    m[3],
+                    m[4],
+                    self._gravity,
+                    self._spheres,
+                    self._obs,
+                    self._pairs,
+                    self._caps,
+                    q,
+                    qd,
+                    h,
+                    self.nsub,
+                    self._tau,
+                )
+                mbs.SetObjectParameter(self._kt, "jointForceVector", self._tau)
             return True
         k = round(ts / self.h)  # the step index: the drive time comes from the grid, not from a sum
         repeat = k <= self._last_k  # the same step again (a step reduction): restore the drive states
         self._last_k = k
         if self._opspace is not None and not repeat and k % self._opspace.steps == 0:
             self._control_update(k, q, qd)
-        m = self._mech_arrays
         status = dr.drive_prestep(
             self.P,
             self.seg,
@@ -420,6 +463,10 @@ class Simulation:
             self.nsub,
             self._tau,
             self._work,
+            self._spheres,
+            self._obs,
+            self._pairs,
+            self._caps,
         )
         if status == dr.STEP_NOT_FINITE:
             bad = [j + 1 for j in range(self.n) if not np.all(np.isfinite(self.X[j, : dr.NS]))]
@@ -470,6 +517,7 @@ class Simulation:
             m[1],
             self._Rrpy,
             self._tool_loc,
+            (self._spheres, self._obs, self._caps),
             self._rows,
             k,
         )

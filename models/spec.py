@@ -10,6 +10,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from simecs.mesh.environment import Obstacle
 from simecs.mesh.model import Shape
 
 from .urdf import Geometry
@@ -100,7 +101,8 @@ class ArmSpec:
     cart_max_acc: float = 0.5  # m/s^2
     cart_max_rot_speed: float = 0.5  # rad/s of the tool orientation
     cart_max_rot_acc: float = 1.0  # rad/s^2
-    environment: list[Shape] = field(default_factory=list)
+    environment: list[Shape] = field(default_factory=list)  # drawn only
+    obstacles: list[Obstacle] = field(default_factory=list)  # what the arm can touch
     source: Path | None = None  # the model directory it was read from
     visuals: list[Visual] = field(default_factory=list)  # drawn instead of a link's tubes where given
     collisions: list[Visual] = field(default_factory=list)  # a URDF's <collision> solids, for contact

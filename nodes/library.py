@@ -121,12 +121,18 @@ class ModelLibrary:
         initial: Sequence[float],
         command: m.RobotCommand,
         stop_time: float,
+        obstacles: Sequence[m.Obstacle] = (),
     ) -> Any:
         """The command expanded for this model, values and initial pose (models.planner.Plan), or a
-        refusal naming the field inside `command` (a level the model does not accept: unsupported)."""
+        refusal naming the field inside `command` (a level the model does not accept: unsupported).
+        With `obstacles`, a path that makes the arm touch one is refused too (naming the step)."""
         planner = self._planner(model_id, command.kind, "command", values, initial, stop_time)
         with _refused_as("command"):
-            return planner.plan(command)
+            plan = planner.plan(command)
+        touch = planner.collision(plan, obstacles)
+        if touch is not None:
+            raise RequestError("bad_request", touch[1], touch[0])
+        return plan
 
     def check_program(
         self, model_id: str, values: Mapping[str, float], program: m.Program, where: str

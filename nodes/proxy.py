@@ -74,6 +74,7 @@ class Proxy(Node):
             m.ResetParams: self._reset_params,
             m.SetInitial: self._set_initial,
             m.SetSettings: self._set_settings,
+            m.SetObstacles: self._set_obstacles,
             m.Run: self._run,
             m.Pause: self.runs.pause,
             m.Resume: self.runs.resume,
@@ -298,9 +299,12 @@ class Proxy(Node):
                 list(rec.initial),
                 rec.settings.stop_time,
             )
+            # a run's path is checked against the obstacles, unless the user asks for the contact
+            check = isinstance(cmd, m.Run) and rec.settings.collisions == "refuse"
+            obstacles = list(rec.obstacles) if check else []
         if command is None:
             return None
-        return self.models.plan(model_id, values, initial, command, stop_time)
+        return self.models.plan(model_id, values, initial, command, stop_time, obstacles)
 
     def _set_params(self, rec: SessionRecord, cmd: m.SetParams) -> dict[str, float]:
         rec.values = self.models.check(rec.model_id, cmd.values, rec.values)
@@ -367,6 +371,11 @@ class Proxy(Node):
         rec.settings = cmd.settings
         self.store.edited(rec)
         return rec.settings
+
+    def _set_obstacles(self, rec: SessionRecord, cmd: m.SetObstacles) -> list[m.Obstacle]:
+        rec.obstacles = list(cmd.obstacles)
+        self.store.edited(rec)
+        return rec.obstacles
 
     def _close_session(self, rec: SessionRecord, cmd: m.CloseSession) -> str:
         if rec.phase in phases.GOING:

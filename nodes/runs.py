@@ -85,6 +85,7 @@ class RunTracker:
             settings=settings or rec.settings,
             recording=recording,
             paused=paused,
+            obstacles=list(rec.obstacles),
         )
 
     def begin(self, rec: SessionRecord, request: m.RunRequest, stop_time: float) -> m.RunStarted:

@@ -15,6 +15,7 @@ from typing import Any
 
 from simecs.mesh import codec, files, keys, phases
 from simecs.mesh import messages as m
+from simecs.mesh.environment import Obstacle
 from simecs.mesh.model import ModelDescription
 from simecs.mesh.results import RUNS_KEPT
 from simecs.mesh.runtime import RequestError
@@ -34,6 +35,7 @@ class SessionRecord:
     state: m.SessionState
     runs: list[m.RunInfo] = field(default_factory=list)
     run_counter: int = 0
+    obstacles: list[Obstacle] = field(default_factory=list)
     pubs: dict[str, Any] = field(default_factory=dict)
     #: A RunRequest is on its way to a simulator; the proxy's lock is not held meanwhile.
     starting: bool = False
@@ -56,6 +58,7 @@ class SessionRecord:
             settings=self.settings,
             state=self.state,
             runs=list(self.runs),
+            obstacles=list(self.obstacles),
         )
 
     def run_info(self, run_id: str) -> m.RunInfo | None:
@@ -112,6 +115,8 @@ class SessionStore:
                 snap = codec.from_obj(m.SessionSnapshot, data)
                 if snap.model_id not in library:
                     raise ValueError(f"model {snap.model_id} is no longer in the library")
+                if "obstacles" not in data:  # a session of a simecs before obstacles: the model's
+                    snap.obstacles = list(library[snap.model_id].obstacles)
             except Exception as exc:
                 log.error("cannot restore session file %s: %s (left in place)", path, exc)
                 continue
@@ -128,6 +133,7 @@ class SessionStore:
                 snap.state,
                 snap.runs,
                 counter,
+                obstacles=snap.obstacles,
                 active_at=active_at,
             )
             self._add(rec)
@@ -150,6 +156,7 @@ class SessionStore:
             command=None,
             settings=m.RunSettings(),
             state=m.SessionState(session=sid, phase="created"),
+            obstacles=list(desc.obstacles),
         )
         self._add(rec)
         self.publish_state(rec)
@@ -211,7 +218,7 @@ class SessionStore:
         self.publish_state(rec, persist)
 
     def edited(self, rec: SessionRecord) -> None:
-        """Values, pose, command or settings changed: stored, and `created` becomes `configured`."""
+        """Values, pose, command, settings or obstacles changed: stored; `created` becomes `configured`."""
         if rec.phase == "created":
             self.move(rec, "edited")
         else:

@@ -44,6 +44,8 @@ class RunSource(Protocol):
 
     def jog(self, msg: m.JogInput | None, horizon: float) -> str: ...
 
+    def notices(self) -> list[str]: ...
+
     def close(self) -> None: ...
 
 
@@ -54,6 +56,7 @@ class SimulationSource:
 
     def __init__(self, req: m.RunRequest) -> None:
         from simecs import models
+        from simecs.models.contact import ContactLog
         from simecs.models.planner import Planner
 
         if req.command is None:
@@ -80,7 +83,11 @@ class SimulationSource:
             req.settings,
             attempt=req.attempt,
             restarted=req.restarted,
+            obstacles=list(req.obstacles),
         )
+        self.sim.set_obstacles(req.obstacles)
+        self.contacts = ContactLog(self.columns, [ob.name for ob in req.obstacles], self.sim.n)
+        self._notices: list[str] = []
         self.sim.set_initial(req.initial)
         self.plan.apply(self.sim)
         self.kin, self.vmax = planner.kin, planner.vmax
@@ -99,7 +106,14 @@ class SimulationSource:
         self.sim.start(st.stop_time, st.output_interval, st.step or None)
 
     def advance(self, until: float) -> np.ndarray:
-        return self.sim.advance(until)
+        rows = self.sim.advance(until)
+        self._notices.extend(self.contacts.scan(rows))
+        return rows
+
+    def notices(self) -> list[str]:
+        """What the user must be told about the rows since the last call (the contacts that began)."""
+        out, self._notices = self._notices, []
+        return out
 
     def seek(self, t: float) -> None:
         raise ValueError("a simulation cannot seek: only replay runs can")
@@ -228,6 +242,9 @@ class RecordingSource:
 
     def jog(self, msg: m.JogInput | None, horizon: float) -> str:
         return "" if msg is None else "a replay plays its recording: it cannot be jogged"
+
+    def notices(self) -> list[str]:
+        return []  # the recording's own run told its user already
 
     def close(self) -> None:
         pass

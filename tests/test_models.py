@@ -44,7 +44,7 @@ def test_library_and_columns(spider):
     assert sim.columns[1 : 1 + len(d.variables)] == [v.name for v in d.variables]
     assert sim.columns[1 + len(d.variables) :] == pose_column_names(d)
     assert len(sim.units) == len(sim.columns)
-    assert 10 <= len(d.variables) / len(d.links) <= 16
+    assert 10 <= len(d.variables) / len(d.links) <= 20  # per joint, the tool's and the contacts'
     sim.close()
 
 
@@ -516,6 +516,7 @@ def test_a_load_resolver_error_shows_in_the_pose_reached(spider):
     correct for an error no real controller knows."""
     el, target = 5e-3, 1.2
     sim = spider.build({"joint2.resolver.load_error": el})
+    sim.set_obstacles([])  # the move swings the arm down through where the plate is
     sim.set_initial(Q0)
     goal = list(Q0)
     goal[1] = target
