@@ -11,12 +11,14 @@ parameter, and `anchor = "end"` measures the origin from the link's end.
 from __future__ import annotations
 
 import math
-from collections.abc import Iterator, Mapping
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import msgspec
 import numpy as np
 
+from .environment import Obstacle
 from .kinematics import quat_from_matrix, rot_rpy
 from .model import ModelDescription, Shape
 
@@ -29,6 +31,8 @@ AXIS_WXYZ: dict[str, tuple[float, float, float, float]] = {
     "y": (_S, -_S, 0.0, 0.0),  # -90 deg about x: z -> y
 }
 _AXIS_INDEX = {"x": 0, "y": 1, "z": 2}
+#: m: the side of the square a plane obstacle is drawn as (it is unbounded for contact).
+PLANE_DRAWN_SIZE = 4.0
 #: Dimensions a shape may tie to a parameter.
 SCALABLE = ("length", "radius", "inner_radius", "width", "height")
 
@@ -38,8 +42,9 @@ class ShapeGeometry:
     """Where and how big one solid is in its parent frame: what a renderer needs to draw it.
 
     `kind` is cylinder, pipe, box, sphere or mesh (a beam is a box; a pipe without a usable bore a
-    cylinder). Cylinders and pipes have their axis along the local z of `wxyz`; boxes are axis-aligned;
-    a mesh's frame is at `position` turned by `wxyz`, its coordinates scaled by `dimensions`."""
+    cylinder). Cylinders and pipes have their axis along the local z of `wxyz`, boxes their edges
+    along its axes (the identity for a model's shapes, turned for an obstacle); a mesh's frame is at
+    `position` turned by `wxyz`, its coordinates scaled by `dimensions`."""
 
     kind: str
     position: np.ndarray  # centre of the solid
@@ -126,6 +131,14 @@ def solids(model: ModelDescription, values: Mapping[str, float]) -> Iterator[Sol
             yield Solid(k, model.links[shape.link].name, shape, shape_geometry(now))
 
 
+def obstacle_solids(obstacles: Sequence[Obstacle]) -> Iterator[Solid]:
+    """Each obstacle as a solid in the world (its index: its place in the list)."""
+    for k, ob in enumerate(obstacles):
+        geom = obstacle_geometry(ob)
+        kind: Any = geom.kind
+        yield Solid(k, WORLD, Shape(kind, -1, list(ob.position), color=list(ob.color)), geom)
+
+
 def appearance_parameters(model: ModelDescription) -> set[str]:
     """Parameters whose change reshapes the 3D arm."""
     names = {p.name for p in model.parameters if p.appearance}
@@ -179,3 +192,25 @@ def pipe_mesh(inner_ratio: float, segments: int = 32) -> tuple[np.ndarray, np.nd
     o, q = 6 * n, 7 * n
     faces += [np.stack([o + i, o + j, q + j], 1), np.stack([o + i, q + j, q + i], 1)]
     return v, np.concatenate(faces).astype(np.uint32)
+
+
+def obstacle_rotation(ob: Obstacle) -> np.ndarray:
+    """The obstacle's frame in the world (3 x 3)."""
+    return rot_rpy(ob.rotation_rpy)
+
+
+def obstacle_geometry(ob: Obstacle) -> ShapeGeometry:
+    """How a renderer draws it: a plane as a thin square slab just under its surface."""
+    R = obstacle_rotation(ob)
+    q = quat_from_matrix(R)
+    wxyz = (float(q[0]), float(q[1]), float(q[2]), float(q[3]))
+    centre = np.asarray(ob.position, dtype=float)
+    if ob.kind == "sphere":
+        return ShapeGeometry("sphere", centre, AXIS_WXYZ["z"], radius=float(ob.radius))
+    if ob.kind == "cylinder":
+        return ShapeGeometry("cylinder", centre, wxyz, radius=float(ob.radius), length=float(ob.length))
+    if ob.kind == "plane":
+        slab = 0.01
+        centre = centre - R[:, 2] * slab / 2
+        return ShapeGeometry("box", centre, wxyz, dimensions=(PLANE_DRAWN_SIZE, PLANE_DRAWN_SIZE, slab))
+    return ShapeGeometry("box", centre, wxyz, dimensions=(ob.size[0], ob.size[1], ob.size[2]))

@@ -32,6 +32,7 @@ from typing import Any
 
 import numpy as np
 from simecs.mesh import columns, shapes
+from simecs.mesh.environment import Obstacle
 from simecs.mesh.model import ModelDescription
 
 #: 2: the layout in `simecs.run` carries the run's context (user, values, pose, command, settings).
@@ -344,16 +345,19 @@ def scene_update(
     values: Mapping[str, float],
     stamp_ns: int,
     meshes: Mapping[str, bytes] | None = None,
+    obstacles: Sequence[Obstacle] = (),
 ) -> dict[str, Any]:
     """foxglove.SceneUpdate: one frame-locked entity per link (frame = link name), plus the world's
-    solids (environment and base) in one entity, all shaped by the run's parameter values; a mesh
-    shape carries the GLB of `meshes` (left out when it is missing)."""
+    solids (environment and base) in one entity and the run's obstacles in another, all shaped by the
+    run's parameter values; a mesh shape carries the GLB of `meshes` (left out when it is missing)."""
     entities: dict[str, dict[str, Any]] = {}
-    for solid in shapes.solids(model, values):
+    drawn_solids = [(s, "") for s in shapes.solids(model, values)]
+    drawn_solids += [(s, "obstacles") for s in shapes.obstacle_solids(obstacles)]
+    for solid, group in drawn_solids:
         if not solid.geometry.visible:
             continue
         world = solid.frame == shapes.WORLD
-        eid = "environment" if world else solid.frame
+        eid = group or ("environment" if world else solid.frame)
         if eid not in entities:
             entities[eid] = {
                 "timestamp": stamp(stamp_ns),

@@ -15,7 +15,7 @@ import os
 import struct
 import threading
 import time
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import IO, Any
 
@@ -26,6 +26,7 @@ from mcap.records import MessageIndex
 from mcap.writer import CompressionType, Writer
 from simecs.mesh import codec, frames
 from simecs.mesh import messages as m
+from simecs.mesh.environment import Obstacle
 from simecs.mesh.model import ModelDescription
 
 from .mcapfmt import (
@@ -324,9 +325,13 @@ class RunWriter:
         self.dirty = True
 
     def write_scene(
-        self, model: ModelDescription, values: Mapping[str, float], meshes: Mapping[str, bytes] | None = None
+        self,
+        model: ModelDescription,
+        values: Mapping[str, float],
+        meshes: Mapping[str, bytes] | None = None,
+        obstacles: Sequence[Obstacle] = (),
     ) -> None:
-        self.write_json(self.ch_scene, scene_update(model, values, self.t0, meshes), self.t0)
+        self.write_json(self.ch_scene, scene_update(model, values, self.t0, meshes, obstacles), self.t0)
 
     def write_log(self, level: int, text: str, sim_time: float | None = None, name: str = "recorder") -> None:
         """A lifecycle event on /log, at the run's simulated time when known, else at wall time."""

@@ -331,7 +331,8 @@ class RunFiles:
             rec.writer.write_log(fmt.LOG_WARNING, f"no model description of {model_id}: no /scene", 0.0)
             return
         desc, desc_json, meshes = model
-        rec.writer.write_scene(desc, rec.layout.context.values or desc.default_values(), meshes)
+        context = rec.layout.context
+        rec.writer.write_scene(desc, context.values or desc.default_values(), meshes, context.obstacles)
         rec.writer.write_attachment(fmt.ATTACH_MODEL, "application/json", desc_json)
 
     # -- closing ---------------------------------------------------------------------------------------

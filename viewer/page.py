@@ -65,6 +65,7 @@ class ModelPage:
         self.scene = ArmScene(client.scene, model, c.values, meshes=c.meshes)
         self.scene.q = list(c.initial)
         self.scene.build()
+        self.scene.show_obstacles(c.obstacles)
         reach = self.scene.extent()
         client.camera.position = (1.3 * reach, -1.4 * reach, 1.0 * reach)
         client.camera.look_at = (0.0, 0.0, 0.25 * reach)

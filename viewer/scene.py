@@ -14,6 +14,7 @@ from typing import Any
 
 import numpy as np
 from simecs.mesh import shapes
+from simecs.mesh.environment import Obstacle
 from simecs.mesh.kinematics import link_poses
 from simecs.mesh.model import ModelDescription, Shape
 from simecs.mesh.shapes import ShapeGeometry
@@ -42,6 +43,7 @@ class ArmScene:
         self.solids: dict[int, tuple[Any, str]] = {}  # index in model.shapes -> (handle, kind)
         self._pipe_meshes: dict[float, tuple[np.ndarray, np.ndarray]] = {}
         self._env: list[Any] = []
+        self._obstacles: list[Any] = []
         self.q: list[float] = [0.0] * len(model.links)
 
     # -- building ------------------------------------------------------------------------------
@@ -100,7 +102,12 @@ class ArmScene:
             )
         elif geom.kind == "box":
             h = self.scene.add_box(
-                name, color=color, dimensions=geom.dimensions, position=geom.position, **light
+                name,
+                color=color,
+                dimensions=geom.dimensions,
+                wxyz=geom.wxyz,
+                position=geom.position,
+                **light,
             )
         elif geom.kind == "sphere":
             h = self.scene.add_icosphere(
@@ -187,12 +194,22 @@ class ArmScene:
         biggest = max([max(s.length, 2 * s.radius, s.width, s.height) for s in self.model.shapes] or [0.0])
         return max(far + biggest, 0.5)
 
+    def show_obstacles(self, obstacles: Sequence[Obstacle]) -> None:
+        """Draw what the arm can touch (the session's obstacles), in place of what was drawn before."""
+        for handle in self._obstacles:
+            handle.remove()
+        self._obstacles = [
+            self._add_solid(f"/env/obstacles/{solid.index}", solid.shape, solid.geometry)[0]
+            for solid in shapes.obstacle_solids(obstacles)
+        ]
+
     def remove(self) -> None:
-        for handle in [*self._env, *self.frames]:
+        for handle in [*self._env, *self._obstacles, *self.frames]:
             try:
                 handle.remove()
             except Exception:
                 pass
         self._env.clear()
+        self._obstacles.clear()
         self.frames.clear()
         self.solids.clear()

@@ -57,6 +57,7 @@ class SessionController(Dispatcher):
         self.pending_params: Callable[[], list[str]] = lambda: []
         self.values: dict[str, float] = {}
         self.initial: list[float] = []
+        self.obstacles: list[m.Obstacle] = []  # what the arm can touch (the session's list)
         self.shown_q: list[float] = []  # the pose the arm shows: what Teach records
         self.path: JointPathEditor | None = None
         self.settings = m.RunSettings()
@@ -279,6 +280,7 @@ class SessionController(Dispatcher):
         self.model = model
         self.values = dict(snap.values)
         self.settings = snap.settings
+        self.obstacles = list(snap.obstacles)
         self.state = snap.state
         self.runs = list(snap.runs)
         self._recordings = {r.run_id: r.recording for r in snap.runs if r.recording}
