@@ -7,7 +7,14 @@
   tool pose of the joint set points) over that run, operational-space control;
   `joint_independent_tracking_error_mm` the same move under the joint cascade, in the same bench run;
   `*_rms_mm` their RMS, `*_orientation_error_mrad` the largest `tool.e_rot`;
-- `*_hold_error_mm`: the largest `tool.e_pos` over the last 0.5 s (the target held at rest).
+- `*_hold_error_mm`: the largest `tool.e_pos` over the last 0.5 s (the target held at rest);
+- `rtf_contact`: the Spider's tool tip pressed 5 mm into a plane above it (k = 1e5 N/m, friction 0.3)
+  while joint 1 turns 0.3 rad at 20 % and holds, 3 s, joint cascade; the tool slides on the plane
+  throughout (`contact_sliding_force_n`: its mean normal force, `contact_fraction`: of the samples in
+  contact); `rtf_no_contact` the same run without the plane;
+- `contact_energy_drift`: drives off (a free chain), the Spider turning on joint 1 at 0.5 rad/s into
+  a frictionless, undamped wall (an elastic impact): |E after - E before| / E before, E = qd^T M qd / 2
+  out of contact.
 
 Per model in `per_model` (Spider and PUMA 560); the top-level keys are the Spider's.
 """
@@ -15,6 +22,8 @@ Per model in `per_model` (Spider and PUMA 560); the top-level keys are the Spide
 from __future__ import annotations
 
 import json
+import math
+import time
 from typing import Any
 
 import numpy as np
@@ -43,12 +52,88 @@ def _figures(model_id: str) -> dict[str, float]:
     return out
 
 
+def _run(sim: Any, stop: float) -> tuple[np.ndarray, float]:
+    """Rows of a started simulation to `stop` in 50 ms chunks, and the wall time it took."""
+    t0 = time.perf_counter()
+    rows = [sim.advance(0.0)]
+    while not sim.finished:
+        rows.append(sim.advance(sim.time + 0.05))
+    return np.vstack(rows), time.perf_counter() - t0
+
+
+def _contact_figures() -> dict[str, float]:
+    from simecs import models
+    from simecs.mesh import messages as m
+    from simecs.models.contact import TOOL_RADIUS
+    from simecs.models.ik import ArmKinematics
+
+    pkg = models.get_model("spider")
+    values = pkg.describe().default_values()
+    q0 = np.zeros(pkg.n)
+    p, _R = ArmKinematics(pkg.spec, values).tool_pose(q0)  # the tool points up at q = 0
+    lid = m.Obstacle("lid", "plane", [*p[:2], p[2] + TOOL_RADIUS - 0.005], [math.pi, 0.0, 0.0])
+    goal = q0.copy()
+    goal[0] = 0.3
+    out: dict[str, float] = {}
+    stop = 3.0
+    for name, obstacles in (("contact", [lid]), ("no_contact", [])):
+        walls = []
+        for _ in range(3):
+            sim = pkg.build(values)
+            sim.set_obstacles(obstacles)
+            sim.set_initial(q0)
+            sim.set_joint_path([(list(goal), 20.0, 20.0)])
+            sim.start(stop, 0.002)
+            rows, wall = _run(sim, stop)
+            walls.append(wall)
+            cols = list(sim.columns)
+            sim.close()
+        out[f"rtf_{name}"] = stop / min(walls)
+        if obstacles:
+            fn = rows[:, cols.index("contact.tool_fn")]
+            out["contact_sliding_force_n"] = float(fn.mean())
+            out["contact_fraction"] = float(np.mean(fn > 0))
+    # An elastic impact of the free chain: the energy it keeps.
+    v_dir = np.cross([0.0, 0.0, 1.0], p)
+    v_dir /= np.linalg.norm(v_dir)
+    barrier = m.Obstacle(
+        "wall",
+        "plane",
+        list(p + 0.1 * v_dir),
+        [0.0, math.pi / 2, math.atan2(-v_dir[1], -v_dir[0])],  # its normal faces the arm
+        damping=0.0,
+        friction=0.0,
+    )
+    sim = pkg.build({**values, "drives.enabled": 0.0})
+    sim.set_obstacles([barrier])
+    qd0 = np.zeros(pkg.n)
+    qd0[0] = 0.5
+    sim.set_initial(q0, list(qd0))
+    sim.start(1.5, 0.001)
+    rows, _ = _run(sim, 1.5)
+    cols = list(sim.columns)
+    q = rows[:, [cols.index(f"joint{j}.q") for j in range(1, pkg.n + 1)]]
+    qd = rows[:, [cols.index(f"joint{j}.qd") for j in range(1, pkg.n + 1)]]
+    depth = rows[:, cols.index("contact.depth")]
+    energy = np.array([0.5 * qd[k] @ sim.mass_matrix(q[k]) @ qd[k] for k in range(len(rows))])
+    sim.close()
+    touched = np.flatnonzero(depth > 0)
+    assert touched.size and touched[-1] < len(rows) - 1, "the chain did not bounce off the wall"
+    before, after = energy[touched[0] - 1], energy[touched[-1] + 1 :]
+    out["contact_energy_drift"] = float(np.max(np.abs(after - before)) / before)
+    out["contact_impact_s"] = float(rows[touched[-1], 0] - rows[touched[0], 0])
+    return out
+
+
 def run_control_bench(as_json: bool = False) -> dict[str, Any]:
     from simecs.models import warmup
 
     warmup()
     per_model = {model_id: _figures(model_id) for model_id in MODELS}
     result: dict[str, Any] = dict(per_model["spider"])
+    contact = _contact_figures()
+    per_model["spider"].update(contact)
+    result.update(contact)
     result["per_model"] = per_model
     if as_json:
         print(json.dumps(result, indent=1))

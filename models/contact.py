@@ -120,6 +120,25 @@ def _row_of_spheres(
         rows.append([link, float(c[0]), float(c[1]), float(c[2]), r, tool])
 
 
+# link bound columns: a sphere holding every contact sphere of a link (centre in its joint frame, radius)
+# and the link's rows in the sphere table (the table lists the links in order)
+LB_LINK, LB_X, LB_Y, LB_Z, LB_R, LB_FIRST, LB_END = range(7)
+
+
+def link_bounds(spheres: np.ndarray) -> np.ndarray:
+    """One bound per link of `sphere_table`'s rows: a step looks at a link's spheres only when an
+    obstacle comes near its bound."""
+    out = []
+    for link in np.unique(spheres[:, SP_LINK]).astype(int):
+        rows = np.flatnonzero(spheres[:, SP_LINK] == link)
+        centres = spheres[rows][:, SP_X : SP_Z + 1]
+        c = (centres.min(axis=0) + centres.max(axis=0)) / 2
+        r = float(np.max(np.linalg.norm(centres - c, axis=1) + spheres[rows, SP_R]))
+        out.append([link, *c, r, rows[0], rows[-1] + 1])
+        assert rows[-1] - rows[0] + 1 == rows.size, "a link's spheres follow each other"
+    return np.array(out, dtype=float)
+
+
 def obstacle_table(obstacles: Sequence[Obstacle]) -> np.ndarray:
     """The obstacles as rows of OB_* (what the kernels read)."""
     out = np.zeros((len(obstacles), NOB))
@@ -208,10 +227,34 @@ def surface_contact(ob, c, r, nrm):
 
 @njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
 def sphere_centre(sp, R_all, p_all, c):
-    """World centre of sphere row `sp` from the joint frames."""
+    """World centre of sphere row `sp` (or of a link bound's row: the same first columns)."""
     i = int(sp[SP_LINK])
     for a in range(3):
         c[a] = p_all[i, a] + R_all[i, a, 0] * sp[SP_X] + R_all[i, a, 1] * sp[SP_Y] + R_all[i, a, 2] * sp[SP_Z]
+
+
+@njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
+def speed_bound(c, r, link, p_all, qd):
+    """A bound on the speed of any point within r of c on joint frame `link` (m/s)."""
+    v = 0.0
+    for j in range(link + 1):
+        dx = c[0] - p_all[j, 0]
+        dy = c[1] - p_all[j, 1]
+        dz = c[2] - p_all[j, 2]
+        v += abs(qd[j]) * (math.sqrt(dx * dx + dy * dy + dz * dz) + r)
+    return v
+
+
+@njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
+def near_obstacles(bound, obs, R_all, p_all, margin, near, c, nrm):
+    """near[o] = obstacle o comes within `margin` of the link bound; returns whether any does (c, nrm:
+    3-vectors to work in: it runs for every link at every step, so nothing is allocated here)."""
+    sphere_centre(bound, R_all, p_all, c)
+    anything = False
+    for o in range(obs.shape[0]):
+        near[o] = surface_contact(obs[o], c, bound[LB_R], nrm) >= -margin
+        anything = anything or near[o]
+    return anything
 
 
 @njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
@@ -239,64 +282,71 @@ def contact_force(ob, depth, nrm, v, cap, F):
 
 # ---- the step: pairs at its start, torques at every substep -----------------------------------------
 @njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
-def find_pairs(spheres, obs, R_all, p_all, qd, Minv, h, pairs):
+def find_pairs(spheres, bounds, obs, R_all, p_all, qd, Minv, h, pairs, scratch):
     """The sphere-obstacle pairs that may touch within the step from now: (count, the stiffest pair's
     rate in 1/s). Each row gets the sphere's centre and Jacobian; PR_CAP holds 1 / m_eff for now
-    (m_eff: the lightest mass the sphere can show, from J M^-1 J^T)."""
+    (m_eff: the lightest mass the sphere can show, from J M^-1 J^T). Links whose bound no obstacle
+    comes near are passed over whole. scratch: 4 x 3 work rows (it runs at every step)."""
     n = qd.shape[0]
     count = 0
     rate = 0.0
-    c = np.empty(3)
-    nrm = np.empty(3)
-    for s in range(spheres.shape[0]):
-        sp = spheres[s]
-        sphere_centre(sp, R_all, p_all, c)
-        link = int(sp[SP_LINK])
-        reach = 0.0  # a bound on the sphere's speed
-        for j in range(link + 1):
-            dx = c[0] - p_all[j, 0]
-            dy = c[1] - p_all[j, 1]
-            dz = c[2] - p_all[j, 2]
-            reach += abs(qd[j]) * math.sqrt(dx * dx + dy * dy + dz * dz)
-        margin = PAIR_MARGIN + 2.0 * reach * h
-        jac_done = False
-        first = 0
-        inv_m = 0.0
-        for o in range(obs.shape[0]):
-            if surface_contact(obs[o], c, sp[SP_R], nrm) < -margin or count >= pairs.shape[0]:
-                continue
-            row = pairs[count]
-            row[PR_SPHERE] = s
-            row[PR_OBST] = o
-            for a in range(3):
-                row[PR_C + a] = c[a]
-            if not jac_done:
-                for a in range(3 * n):
-                    row[PR_J + a] = 0.0
-                for j in range(link + 1):
-                    z0, z1, z2 = R_all[j, 0, 2], R_all[j, 1, 2], R_all[j, 2, 2]
-                    r0 = c[0] - p_all[j, 0]
-                    r1 = c[1] - p_all[j, 1]
-                    r2 = c[2] - p_all[j, 2]
-                    row[PR_J + j] = z1 * r2 - z2 * r1
-                    row[PR_J + n + j] = z2 * r0 - z0 * r2
-                    row[PR_J + 2 * n + j] = z0 * r1 - z1 * r0
-                inv_m = 0.0  # trace of J M^-1 J^T: at least the largest 1 / m_eff
+    c = scratch[0]
+    cb = scratch[1]
+    nrm = scratch[2]
+    near = np.empty(obs.shape[0], dtype=np.bool_)
+    for b in range(bounds.shape[0]):
+        bound = bounds[b]
+        link = int(bound[LB_LINK])
+        sphere_centre(bound, R_all, p_all, cb)
+        margin = PAIR_MARGIN + 2.0 * h * speed_bound(cb, bound[LB_R], link, p_all, qd)
+        if not near_obstacles(bound, obs, R_all, p_all, margin, near, cb, nrm):
+            continue
+        for s in range(int(bound[LB_FIRST]), int(bound[LB_END])):
+            sp = spheres[s]
+            sphere_centre(sp, R_all, p_all, c)
+            margin = PAIR_MARGIN + 2.0 * h * speed_bound(c, 0.0, link, p_all, qd)
+            jac_done = False
+            first = 0
+            inv_m = 0.0
+            for o in range(obs.shape[0]):
+                if (
+                    not near[o]
+                    or surface_contact(obs[o], c, sp[SP_R], nrm) < -margin
+                    or count >= pairs.shape[0]
+                ):
+                    continue
+                row = pairs[count]
+                row[PR_SPHERE] = s
+                row[PR_OBST] = o
                 for a in range(3):
-                    for j in range(n):
-                        acc = 0.0
-                        for k in range(n):
-                            acc += Minv[j, k] * row[PR_J + a * n + k]
-                        inv_m += row[PR_J + a * n + j] * acc
-                first = count
-                jac_done = True
-            else:  # the same sphere near a second obstacle: the same Jacobian
-                for a in range(3 * n):
-                    row[PR_J + a] = pairs[first, PR_J + a]
-            row[PR_CAP] = inv_m
-            ob = obs[o]
-            rate = max(rate, math.sqrt(ob[OB_K] * inv_m), ob[OB_D] * inv_m)
-            count += 1
+                    row[PR_C + a] = c[a]
+                if not jac_done:
+                    for a in range(3 * n):
+                        row[PR_J + a] = 0.0
+                    for j in range(link + 1):
+                        z0, z1, z2 = R_all[j, 0, 2], R_all[j, 1, 2], R_all[j, 2, 2]
+                        r0 = c[0] - p_all[j, 0]
+                        r1 = c[1] - p_all[j, 1]
+                        r2 = c[2] - p_all[j, 2]
+                        row[PR_J + j] = z1 * r2 - z2 * r1
+                        row[PR_J + n + j] = z2 * r0 - z0 * r2
+                        row[PR_J + 2 * n + j] = z0 * r1 - z1 * r0
+                    inv_m = 0.0  # trace of J M^-1 J^T: at least the largest 1 / m_eff
+                    for a in range(3):
+                        for j in range(n):
+                            acc = 0.0
+                            for k in range(n):
+                                acc += Minv[j, k] * row[PR_J + a * n + k]
+                            inv_m += row[PR_J + a * n + j] * acc
+                    first = count
+                    jac_done = True
+                else:  # the same sphere near a second obstacle: the same Jacobian
+                    for a in range(3 * n):
+                        row[PR_J + a] = pairs[first, PR_J + a]
+                row[PR_CAP] = inv_m
+                ob = obs[o]
+                rate = max(rate, math.sqrt(ob[OB_K] * inv_m), ob[OB_D] * inv_m)
+                count += 1
     return count, rate
 
 
@@ -312,15 +362,16 @@ def set_caps(pairs, count, hs, caps):
 
 
 @njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
-def pair_torques(pairs, count, spheres, obs, q0, ql, qdl, tc):
-    """tc = sum over pairs of J^T F, each sphere moved with the joints from q0 to ql (speeds qdl)."""
+def pair_torques(pairs, count, spheres, obs, q0, ql, qdl, tc, scratch):
+    """tc = sum over pairs of J^T F, each sphere moved with the joints from q0 to ql (speeds qdl).
+    `scratch` (4 x 3): work rows (called at every RK4 stage: no allocation here)."""
     n = ql.shape[0]
     for j in range(n):
         tc[j] = 0.0
-    c = np.empty(3)
-    v = np.empty(3)
-    nrm = np.empty(3)
-    F = np.empty(3)
+    c = scratch[0]
+    v = scratch[1]
+    nrm = scratch[2]
+    F = scratch[3]
     for p in range(count):
         row = pairs[p]
         for a in range(3):
@@ -370,7 +421,7 @@ def first_touch(spheres, obs, pre_R, pre_p, qs, found):
 
 # ---- the result rows: the contact state at a sample, from the chain state -----------------------------
 @njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
-def contact_outputs(spheres, obs, caps, R_all, p_all, qd, out):
+def contact_outputs(spheres, bounds, obs, caps, R_all, p_all, qd, out):
     """out = per link (force N, obstacle number 1.. or 0), then depth m (the deepest), the tool's force
     (x, y, z) and its normal part. Evaluated at the state itself; `caps` (spheres x obstacles) holds
     the friction caps of the last step (0: none yet, the pure Coulomb law)."""
@@ -379,16 +430,31 @@ def contact_outputs(spheres, obs, caps, R_all, p_all, qd, out):
         out[k] = 0.0
     F_link = np.zeros((n, 3))
     best = np.zeros(n)
+    near = np.empty(obs.shape[0], dtype=np.bool_)
+    c = np.empty(3)
+    nrm = np.empty(3)
+    for b in range(bounds.shape[0]):
+        if near_obstacles(bounds[b], obs, R_all, p_all, 0.0, near, c, nrm):
+            _link_outputs(spheres, bounds[b], obs, caps, R_all, p_all, qd, near, F_link, best, out)
+    for i in range(n):
+        out[2 * i] = math.sqrt(F_link[i, 0] ** 2 + F_link[i, 1] ** 2 + F_link[i, 2] ** 2)
+
+
+@njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
+def _link_outputs(spheres, bound, obs, caps, R_all, p_all, qd, near, F_link, best, out):
+    """contact_outputs' sums over one link's spheres."""
     c = np.empty(3)
     v = np.empty(3)
     nrm = np.empty(3)
     F = np.empty(3)
-    base = NPL * n
-    for s in range(spheres.shape[0]):
+    base = NPL * qd.shape[0]
+    for s in range(int(bound[LB_FIRST]), int(bound[LB_END])):
         sp = spheres[s]
         sphere_centre(sp, R_all, p_all, c)
         link = int(sp[SP_LINK])
         for o in range(obs.shape[0]):
+            if not near[o]:
+                continue
             depth = surface_contact(obs[o], c, sp[SP_R], nrm)
             if depth <= 0.0:
                 continue
@@ -414,16 +480,13 @@ def contact_outputs(spheres, obs, caps, R_all, p_all, qd, out):
                 for a in range(3):
                     out[base + 1 + a] += F[a]
                 out[base + 4] += fn
-    for i in range(n):
-        out[2 * i] = math.sqrt(F_link[i, 0] ** 2 + F_link[i, 1] ** 2 + F_link[i, 2] ** 2)
 
 
 @njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
-def contact_prestep(
-    pre_R, pre_p, masses, coms, inertias, gravity, spheres, obs, pairs, caps, q, qd, h, nsub, tau_out
-):
+def contact_prestep(pre_R, pre_p, masses, coms, inertias, gravity, tables, q, qd, h, nsub, tau_out):
     """The step's mean contact torque into tau_out when the drives are off (nothing else acts on the
-    joints): the load side predicted over RK4 substeps as in drive.drive_prestep."""
+    joints): the load side predicted over RK4 substeps as in drive.drive_prestep. `tables`: as there."""
+    spheres, bounds, obs, pairs, caps, _cw, scratch = tables
     n = q.shape[0]
     R_all = np.empty((n, 3, 3))
     p_all = np.empty((n, 3))
@@ -433,7 +496,7 @@ def contact_prestep(
     Minv = np.linalg.inv(M)
     for j in range(n):
         tau_out[j] = 0.0
-    npairs, rate = find_pairs(spheres, obs, R_all, p_all, qd, Minv, h, pairs)
+    npairs, rate = find_pairs(spheres, bounds, obs, R_all, p_all, qd, Minv, h, pairs, scratch)
     if npairs == 0:
         return
     bias = np.empty(n)
@@ -460,7 +523,7 @@ def contact_prestep(
                 for j in range(n):
                     xt[0, j] = x[0, j] + f * hs * k[stage - 1, 0, j]
                     xt[1, j] = x[1, j] + f * hs * k[stage - 1, 1, j]
-            pair_torques(pairs, npairs, spheres, obs, q, xt[0], xt[1], tc)
+            pair_torques(pairs, npairs, spheres, obs, q, xt[0], xt[1], tc, scratch)
             for j in range(n):
                 acc = 0.0
                 for i in range(n):

@@ -447,12 +447,9 @@ def controlled_signals(P, j, x, ql, qdl, qr, qdr, jmode, live, out):
 
 
 @njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
-def drive_rhs(
-    P, seg, hold, tab, jmode, live, Minv, bias, t, X, dX, sig, qr, qdr, tau, contact, cw, new_t=True
-):
+def drive_rhs(P, seg, hold, tab, jmode, live, Minv, bias, t, X, dX, sig, qr, qdr, tau, new_t=True):
     """dX = f(t, X); the set points qr, qdr are evaluated at t unless `new_t` is False (same t as the
-    previous call: RK4 stages 2 and 3). `contact` = (spheres, obstacles, pairs of the step, count, q at
-    the step start) of contact.py; the contact torques go to cw[2] (cw[0], cw[1]: work rows)."""
+    previous call: RK4 stages 2 and 3). The contacts' part of the load acceleration: `contact_rhs`."""
     n = X.shape[0]
     if new_t:
         ref_eval(seg, hold, tab, jmode, live, t, qr, qdr)
@@ -479,17 +476,30 @@ def drive_rhs(
         d[S_QL] = x[S_QDL]
         d[S_IMP] = sig[12]
         tau[j] = sig[12]
-    spheres, obs, pairs, npairs, q0 = contact
-    if npairs > 0:
-        for j in range(n):
-            cw[0, j] = X[j, S_QL]
-            cw[1, j] = X[j, S_QDL]
-        pair_torques(pairs, npairs, spheres, obs, q0, cw[0], cw[1], cw[2])
     for j in range(n):
         acc = 0.0
         for k in range(n):
-            acc += Minv[j, k] * (tau[k] + cw[2, k] - bias[k])
+            acc += Minv[j, k] * (tau[k] - bias[k])
         dX[j, S_QDL] = acc
+
+
+@njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
+def contact_rhs(contact, Minv, X, dX, cw, cimp, weight):
+    """Add the contacts' load acceleration M^-1 J^T F at the stage X to dX, and weight x their torque
+    to cimp (the step's contact impulse). `contact` = (spheres, obstacles, pairs of the step, count, q
+    at the step start, a 4 x 3 scratch) of contact.py; cw: work rows (q, qd, torque)."""
+    spheres, obs, pairs, npairs, q0, scratch = contact
+    n = X.shape[0]
+    for j in range(n):
+        cw[0, j] = X[j, S_QL]
+        cw[1, j] = X[j, S_QDL]
+    pair_torques(pairs, npairs, spheres, obs, q0, cw[0], cw[1], cw[2], scratch)
+    for j in range(n):
+        acc = 0.0
+        for k in range(n):
+            acc += Minv[j, k] * cw[2, k]
+        dX[j, S_QDL] += acc
+        cimp[j] += weight * cw[2, j]
 
 
 @njit(cache=_CACHE, inline="always", error_model="numpy", fastmath=_FAST)
@@ -547,14 +557,12 @@ def drive_prestep(
     nsub,
     tau_out,
     work,
-    spheres,
-    obs,
-    pairs,
-    caps,
+    tables,
 ):
     """Integrate all drives over [t, t+h] with RK4 substeps (nsub, more where friction or a contact is
     stiff); tau_out = mean gear + contact torque. STEP_OK, or STEP_NOT_FINITE / STEP_FRICTION when the
-    states broke down. `spheres`, `obs`: contact.py's tables; `pairs`, `caps`: its work arrays.
+    states broke down. `tables` = contact.py's (spheres, link bounds, obstacles) and its work arrays
+    (pairs, caps, cw: 4 x n, scratch: 4 x 3).
     The drive state is kept for a repeated step: `repeat` (the solver takes the same step again)
     restores X from Xbak, else Xbak saves X before the step."""
     if repeat:
@@ -568,16 +576,18 @@ def drive_prestep(
     M = np.empty((n, n))
     mass_matrix_at(R_all, p_all, masses, coms, inertias, M)
     Minv = np.linalg.inv(M)
-    npairs, rate = find_pairs(spheres, obs, R_all, p_all, qd, Minv, h, pairs)
+    spheres, bounds, obs, pairs, caps, cw, scratch = tables
+    npairs, rate = find_pairs(spheres, bounds, obs, R_all, p_all, qd, Minv, h, pairs, scratch)
     nsub = max(
         substeps_for(P, X, h, nsub),
         min(int(math.ceil(rate * h / CONTACT_RATE_STEP)), nsub * MAX_SUBSTEP_FACTOR),
     )
     hs = h / nsub
     set_caps(pairs, npairs, hs, caps)
-    contact = (spheres, obs, pairs, npairs, q.copy())
-    cw = np.zeros((3, n))
-    cimp = np.zeros(n)
+    contact = (spheres, obs, pairs, npairs, q, scratch)
+    cimp = cw[3]
+    for j in range(n):
+        cimp[j] = 0.0
     # The load side within the step: M qdd = tau_gear - bias, the bias (velocity terms, gravity) held
     # at the step start; without it the gear torques lag the chain's other forces by up to 8 %.
     bias = np.empty(n)
@@ -598,48 +608,27 @@ def drive_prestep(
     w = hs / 6.0
     for s in range(nsub):
         ts = t + s * hs
-        drive_rhs(P, seg, hold, tab, jmode, live, Minv, bias, ts, X, k1, sig, qr, qdr, tau, contact, cw)
-        for j in range(n):
-            cimp[j] += w * cw[2, j]
+        drive_rhs(P, seg, hold, tab, jmode, live, Minv, bias, ts, X, k1, sig, qr, qdr, tau)
+        if npairs > 0:
+            contact_rhs(contact, Minv, X, k1, cw, cimp, w)
         for j in range(n):
             for k in range(NL):
                 Xt[j, k] = X[j, k] + 0.5 * hs * k1[j, k]
-        drive_rhs(
-            P, seg, hold, tab, jmode, live, Minv, bias, ts + 0.5 * hs, Xt, k2, sig, qr, qdr, tau, contact, cw
-        )
-        for j in range(n):
-            cimp[j] += 2.0 * w * cw[2, j]
+        drive_rhs(P, seg, hold, tab, jmode, live, Minv, bias, ts + 0.5 * hs, Xt, k2, sig, qr, qdr, tau)
+        if npairs > 0:
+            contact_rhs(contact, Minv, Xt, k2, cw, cimp, 2.0 * w)
         for j in range(n):
             for k in range(NL):
                 Xt[j, k] = X[j, k] + 0.5 * hs * k2[j, k]
-        drive_rhs(
-            P,
-            seg,
-            hold,
-            tab,
-            jmode,
-            live,
-            Minv,
-            bias,
-            ts + 0.5 * hs,
-            Xt,
-            k3,
-            sig,
-            qr,
-            qdr,
-            tau,
-            contact,
-            cw,
-            False,
-        )
-        for j in range(n):
-            cimp[j] += 2.0 * w * cw[2, j]
+        drive_rhs(P, seg, hold, tab, jmode, live, Minv, bias, ts + 0.5 * hs, Xt, k3, sig, qr, qdr, tau, False)
+        if npairs > 0:
+            contact_rhs(contact, Minv, Xt, k3, cw, cimp, 2.0 * w)
         for j in range(n):
             for k in range(NL):
                 Xt[j, k] = X[j, k] + hs * k3[j, k]
-        drive_rhs(P, seg, hold, tab, jmode, live, Minv, bias, ts + hs, Xt, k4, sig, qr, qdr, tau, contact, cw)
-        for j in range(n):
-            cimp[j] += w * cw[2, j]
+        drive_rhs(P, seg, hold, tab, jmode, live, Minv, bias, ts + hs, Xt, k4, sig, qr, qdr, tau)
+        if npairs > 0:
+            contact_rhs(contact, Minv, Xt, k4, cw, cimp, w)
         for j in range(n):
             for k in range(NL):
                 X[j, k] += hs / 6.0 * (k1[j, k] + 2.0 * k2[j, k] + 2.0 * k3[j, k] + k4[j, k])
@@ -678,7 +667,7 @@ def drive_outputs(P, seg, hold, tab, jmode, live, X, q, qd, t, out):
 @njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
 def output_row(P, seg, hold, tab, jmode, live, X, q, qd, t, pre_R, pre_p, Rrpy, tool_local, contact, rows, k):
     """One result row into rows[k]: time, the variables of every joint, the tool's, the contacts', the
-    link and tool poses. `contact` = (spheres, obstacles, caps) of contact.py.
+    link and tool poses. `contact` = (spheres, link bounds, obstacles, caps) of contact.py.
 
     Returns 0, or 1 when the chain coordinates are not finite (row untouched), 2 when an output is not.
     """
@@ -712,9 +701,9 @@ def output_row(P, seg, hold, tab, jmode, live, X, q, qd, t, pre_R, pre_p, Rrpy, 
     row[k0 + 3] = math.sqrt((p_r[0] - p[0]) ** 2 + (p_r[1] - p[1]) ** 2 + (p_r[2] - p[2]) ** 2)
     row[k0 + 4] = rotation_vector(R, R_r, erot)
     k0 += NT
-    spheres, obs, caps = contact
+    spheres, bounds, obs, caps = contact
     touch = np.empty(output_count(n))
-    contact_outputs(spheres, obs, caps, R_all, p_all, qd, touch)
+    contact_outputs(spheres, bounds, obs, caps, R_all, p_all, qd, touch)
     for c in range(touch.shape[0]):
         row[k0 + c] = touch[c]
     k0 += touch.shape[0]

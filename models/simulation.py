@@ -21,7 +21,7 @@ from simecs.mesh.model import CONTROL_SYSTEMS
 
 from . import chain_dynamics
 from . import drive as dr
-from .contact import contact_prestep, obstacle_table, pair_width, sphere_table
+from .contact import contact_prestep, link_bounds, obstacle_table, pair_width, sphere_table
 from .description import ArmDescription
 from .errors import SimulationError
 from .exudyn_chain import GRAVITY, ExudynChain, exudyn
@@ -87,11 +87,16 @@ class Simulation:
 
     def _contact_tables(self) -> None:
         """The arm's contact spheres at the values now, the obstacles' table and the kernels' work."""
-        self._spheres = sphere_table(self.package.spec, self.values)
+        spheres = sphere_table(self.package.spec, self.values)
         self._obs = obstacle_table(self._obstacles)
-        ns, no = self._spheres.shape[0], self._obs.shape[0]
-        self._pairs = np.zeros((ns * no, pair_width(self.n)))
+        ns, no = spheres.shape[0], self._obs.shape[0]
         self._caps = np.zeros((ns, no))
+        pairs = np.zeros((ns * no, pair_width(self.n)))
+        bounds = link_bounds(spheres)
+        #: what the kernels read: the tables, then their work arrays (drive.drive_prestep)
+        work = (pairs, self._caps, np.zeros((4, self.n)), np.zeros((4, 3)))
+        self._contact = (spheres, bounds, self._obs, *work)
+        self._contact_rows = (spheres, bounds, self._obs, self._caps)
 
     def set_obstacles(self, obstacles: Sequence[Obstacle]) -> None:
         """What the arm can touch in the runs that follow (the model's own obstacles until then)."""
@@ -423,10 +428,7 @@ class Simulation:
                     m[3],
                     m[4],
                     self._gravity,
-                    self._spheres,
-                    self._obs,
-                    self._pairs,
-                    self._caps,
+                    self._contact,
                     q,
                     qd,
                     h,
@@ -463,10 +465,7 @@ class Simulation:
             self.nsub,
             self._tau,
             self._work,
-            self._spheres,
-            self._obs,
-            self._pairs,
-            self._caps,
+            self._contact,
         )
         if status == dr.STEP_NOT_FINITE:
             bad = [j + 1 for j in range(self.n) if not np.all(np.isfinite(self.X[j, : dr.NS]))]
@@ -517,7 +516,7 @@ class Simulation:
             m[1],
             self._Rrpy,
             self._tool_loc,
-            (self._spheres, self._obs, self._caps),
+            self._contact_rows,
             self._rows,
             k,
         )
