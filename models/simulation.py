@@ -382,11 +382,7 @@ class Simulation:
             self.tab,
             self.jmode,
             self.live,
-            m[0],
-            m[1],
-            m[2],
-            m[3],
-            m[4],
+            *m,  # the chain arrays (mechanics.ChainArrays)
             self._gravity,
             self._Rrpy[-1],
             self._tool_loc,
@@ -422,11 +418,7 @@ class Simulation:
         if not self._drives_on:  # nothing acts on the joints but the contacts
             if self._obs.shape[0]:
                 contact_prestep(
-                    m[0],
-                    m[1],
-                    m[2],
-                    m[3],
-                    m[4],
+                    *m,  # the chain arrays (mechanics.ChainArrays)
                     self._gravity,
                     self._contact,
                     q,
@@ -449,11 +441,7 @@ class Simulation:
             self.tab,
             self.jmode,
             self.live,
-            m[0],
-            m[1],
-            m[2],
-            m[3],
-            m[4],
+            *m,  # the chain arrays (mechanics.ChainArrays)
             self._gravity,
             self.X,
             self._Xbak,
