@@ -44,7 +44,7 @@ class RunSource(Protocol):
 
     def jog(self, msg: m.JogInput | None, horizon: float) -> str: ...
 
-    def notices(self) -> list[str]: ...
+    def notices(self, rows: np.ndarray) -> list[str]: ...
 
     def close(self) -> None: ...
 
@@ -87,7 +87,6 @@ class SimulationSource:
         )
         self.sim.set_obstacles(req.obstacles)
         self.contacts = ContactLog(self.columns, [ob.name for ob in req.obstacles], self.sim.n)
-        self._notices: list[str] = []
         self.sim.set_initial(req.initial)
         self.plan.apply(self.sim)
         self.kin, self.vmax = planner.kin, planner.vmax
@@ -106,14 +105,12 @@ class SimulationSource:
         self.sim.start(st.stop_time, st.output_interval, st.step or None)
 
     def advance(self, until: float) -> np.ndarray:
-        rows = self.sim.advance(until)
-        self._notices.extend(self.contacts.scan(rows))
-        return rows
+        return self.sim.advance(until)
 
-    def notices(self) -> list[str]:
-        """What the user must be told about the rows since the last call (the contacts that began)."""
-        out, self._notices = self._notices, []
-        return out
+    def notices(self, rows: np.ndarray) -> list[str]:
+        """What the user must be told about the run's next rows (the contacts that began in them),
+        however they were made (the source's advance, or an external controller's exchange)."""
+        return self.contacts.scan(rows)
 
     def seek(self, t: float) -> None:
         raise ValueError("a simulation cannot seek: only replay runs can")
@@ -243,7 +240,7 @@ class RecordingSource:
     def jog(self, msg: m.JogInput | None, horizon: float) -> str:
         return "" if msg is None else "a replay plays its recording: it cannot be jogged"
 
-    def notices(self) -> list[str]:
+    def notices(self, rows: np.ndarray) -> list[str]:
         return []  # the recording's own run told its user already
 
     def close(self) -> None:

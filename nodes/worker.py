@@ -298,8 +298,8 @@ class Run:
                 self.chunks.append(rows)
                 self.samples += rows.shape[0]
                 self.publish(rows, final=source.finished)
-            for text in source.notices():
-                self.notifier.tell(text)
+                for text in source.notices(rows):
+                    self.notifier.tell(text)
             self.sim_time = t
             ahead = pacer.ahead(t)
             if ahead > 0:
