@@ -12,6 +12,11 @@
   while joint 1 turns 0.3 rad at 20 % and holds, 3 s, joint cascade; the tool slides on the plane
   throughout (`contact_sliding_force_n`: its mean normal force, `contact_fraction`: of the samples in
   contact); `rtf_no_contact` the same run without the plane;
+- `rtf_hybrid`: the Spider's tool touching a plane above it slides 0.1 m along x at 20 % under
+  operational-space hybrid control, pushing up with 20 N (a Cartesian node's `force`), and 1 s after;
+  `hybrid_force_error_n`: the RMS of the measured normal force (`contact.tool_fn`) less 20 N while it
+  slides, after the first 0.5 s; `hybrid_force_error_rest_n` over the last 0.5 s (at rest);
+  `hybrid_path_error_mm`: the largest distance of the tool from the line across the axis;
 - `contact_energy_drift`: drives off (a free chain), the Spider turning on joint 1 at 0.5 rad/s into
   a frictionless, undamped wall (an elastic impact): |E after - E before| / E before, E = qd^T M qd / 2
   out of contact.
@@ -125,13 +130,58 @@ def _contact_figures() -> dict[str, float]:
     return out
 
 
+HYBRID_FORCE_N = 20.0
+SETTLE_S = 0.5
+
+
+def _hybrid_figures() -> dict[str, float]:
+    from simecs import models
+    from simecs.mesh import messages as m
+    from simecs.models.contact import TOOL_RADIUS
+    from simecs.models.ik import rpy_of
+    from simecs.models.planner import Planner
+
+    pkg = models.get_model("spider")
+    values = pkg.describe().default_values()
+    q0 = np.zeros(pkg.n)
+    planner = Planner(pkg, values, q0, 5.0)
+    p, R = planner.kin.tool_pose(q0)  # the tool points up at q = 0: the plane is just above its tip
+    lid = m.Obstacle("lid", "plane", [*p[:2], p[2] + TOOL_RADIUS], [math.pi, 0.0, 0.0])
+    end = p + np.array([0.1, 0.0, 0.0])
+    node = m.CartesianNode(list(end), list(rpy_of(R)), "lin", 20.0, 20.0, HYBRID_FORCE_N, [0.0, 0.0, 1.0])
+    plan = planner.plan(m.CartesianPath([node]))
+    stop = plan.duration + 1.0
+    walls = []
+    for _ in range(3):
+        sim = pkg.build(values)
+        sim.set_obstacles([lid])
+        sim.set_initial(q0)
+        plan.apply(sim)
+        sim.set_control("opspace_hybrid", 0.001)
+        sim.start(stop, 0.002)
+        rows, wall = _run(sim, stop)
+        walls.append(wall)
+        cols = list(sim.columns)
+        sim.close()
+    t = rows[:, 0]
+    error = rows[:, cols.index("contact.tool_fn")] - HYBRID_FORCE_N
+    sliding = (t >= SETTLE_S) & (t <= plan.duration)
+    tip = rows[:, [cols.index(f"pose.tool.{a}") for a in "xy"]]
+    return {
+        "rtf_hybrid": stop / min(walls),
+        "hybrid_force_error_n": float(np.sqrt(np.mean(error[sliding] ** 2))),
+        "hybrid_force_error_rest_n": float(np.sqrt(np.mean(error[t >= stop - SETTLE_S] ** 2))),
+        "hybrid_path_error_mm": float(np.max(np.abs(tip[:, 1] - p[1])) * 1e3),
+    }
+
+
 def run_control_bench(as_json: bool = False) -> dict[str, Any]:
     from simecs.models import warmup
 
     warmup()
     per_model = {model_id: _figures(model_id) for model_id in MODELS}
     result: dict[str, Any] = dict(per_model["spider"])
-    contact = _contact_figures()
+    contact = {**_hybrid_figures(), **_contact_figures()}
     per_model["spider"].update(contact)
     result.update(contact)
     result["per_model"] = per_model

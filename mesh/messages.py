@@ -109,7 +109,8 @@ class RunSettings(Record):
             ge=1e-4,
             le=0.1,
             description="s, a multiple of step: controller external, one exchange per period; "
-            "control_system opspace_motion, one controller update per period (zero-order hold)",
+            "control_system opspace_motion or opspace_hybrid, one controller update per period "
+            "(zero-order hold)",
         ),
     ] = 0.001
     hil_timeout: Annotated[
@@ -119,8 +120,9 @@ class RunSettings(Record):
     control_system: Annotated[
         ControlSystem,
         Meta(
-            description="controller builtin: joint_independent (each joint's cascade) or opspace_motion "
-            "(task-space inverse dynamics at the tool, updated every control_period); one of the model's "
+            description="controller builtin: joint_independent (each joint's cascade), opspace_motion "
+            "(task-space inverse dynamics at the tool, updated every control_period) or opspace_hybrid "
+            "(the same, with force control where a Cartesian node sets a force); one of the model's "
             "control_systems"
         ),
     ] = "joint_independent"

@@ -130,11 +130,12 @@ class DocPage(Record):
 
 #: The motion control systems of paper §5 a run may choose (RunSettings.control_system); a model lists
 #: the ones it offers in ModelDescription.control_systems. docs/MODELS.md, "Control systems".
-ControlSystem = Literal["joint_independent", "opspace_motion"]
+ControlSystem = Literal["joint_independent", "opspace_motion", "opspace_hybrid"]
 CONTROL_SYSTEMS: tuple[ControlSystem, ...] = get_args(ControlSystem)
 CONTROL_SYSTEM_TITLES = {
     "joint_independent": "joint-independent control",
     "opspace_motion": "operational-space motion control",
+    "opspace_hybrid": "operational-space hybrid (force/motion) control",
 }
 
 

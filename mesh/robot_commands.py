@@ -11,9 +11,11 @@ the refusal names the field (`command.tasks[1].actions[2].args.speed_pct`).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Annotated, Literal
 
+import msgspec
 from msgspec import Meta
 
 from .primitives import FieldProblem, Name, Record
@@ -67,6 +69,23 @@ class CartesianNode(Record):
     acc_pct: Annotated[Percent, Meta(description="lin: of the cart.* acc maxima; ptp: of the joints'")] = (
         100.0
     )
+    force: Annotated[
+        float,
+        Meta(
+            ge=0.0,
+            le=1000.0,
+            description="N: under control_system opspace_hybrid the tool pushes with this force along "
+            "force_axis from this node's start until a node says otherwise; 0 = motion control only",
+        ),
+    ] = 0.0
+    force_axis: Annotated[
+        Vec3, Meta(description="the world direction the tool pushes along (normalised; not 0)")
+    ] = msgspec.field(default_factory=lambda: [0.0, 0.0, -1.0])
+
+    def __post_init__(self) -> None:
+        norm = math.sqrt(sum(a * a for a in self.force_axis))
+        if not (math.isfinite(norm) and norm > 1e-9):
+            raise FieldProblem("force_axis", "a direction: finite, not 0")
 
 
 class CartesianPath(RobotCommandBase, tag="cartesian_path"):
@@ -243,7 +262,14 @@ ACTION_DOC: dict[str, str] = {
 
 def control_refusal(command: RobotCommand, control_system: str) -> str:
     """Why `command` cannot run under `control_system` ('' if it can): the operational-space
-    controllers track positions, so direct input of currents or speeds needs the joint cascade."""
+    controllers track positions, so direct input of currents or speeds needs the joint cascade; only
+    the hybrid controller follows force set points."""
+    if control_system != "opspace_hybrid" and isinstance(command, CartesianPath):
+        for i, node in enumerate(command.nodes):
+            if node.force > 0.0:
+                return (
+                    f"nodes[{i}] sets a force: it needs control_system opspace_hybrid, not {control_system}"
+                )
     if control_system == "joint_independent" or not isinstance(command, DirectInput):
         return ""
     if command.mode == "open_loop":

@@ -392,11 +392,25 @@ def pair_torques(pairs, count, spheres, obs, q0, ql, qdl, tc, scratch):
             tc[j] += row[PR_J + j] * F[0] + row[PR_J + n + j] * F[1] + row[PR_J + 2 * n + j] * F[2]
 
 
+@njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
+def tool_force(spheres, bounds, obs, caps, pre_R, pre_p, q, qd, F):
+    """The contact force on the tool now (N, world) into F: what a force sensor at the tool reads."""
+    n = q.shape[0]
+    R_all = np.empty((n, 3, 3))
+    p_all = np.empty((n, 3))
+    chain_frames(pre_R, pre_p, q, R_all, p_all)
+    touch = np.empty(output_count(n))
+    contact_outputs(spheres, bounds, obs, caps, R_all, p_all, qd, touch)
+    for a in range(3):
+        F[a] = touch[NPL * n + 1 + a]
+
+
 # ---- before the run: does the planned path touch? ------------------------------------------------------
 @njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
-def first_touch(spheres, obs, pre_R, pre_p, qs, found):
+def first_touch(spheres, obs, pre_R, pre_p, qs, tool_free, found):
     """The first row of qs (joint positions) at which a sphere touches an obstacle, or -1; found =
-    (link index, obstacle index, depth m) of the deepest touch in that row."""
+    (link index, obstacle index, depth m) of the deepest touch in that row. The tool's spheres may
+    touch in the rows where tool_free is set (it pushes there on purpose)."""
     n = qs.shape[1]
     R_all = np.empty((n, 3, 3))
     p_all = np.empty((n, 3))
@@ -406,6 +420,8 @@ def first_touch(spheres, obs, pre_R, pre_p, qs, found):
         chain_frames(pre_R, pre_p, qs[k], R_all, p_all)
         deepest = 0.0
         for s in range(spheres.shape[0]):
+            if tool_free[k] and spheres[s, SP_TOOL] > 0.5:
+                continue
             sphere_centre(spheres[s], R_all, p_all, c)
             for o in range(obs.shape[0]):
                 depth = surface_contact(obs[o], c, spheres[s, SP_R], nrm)

@@ -293,9 +293,20 @@ and the drives stay the same, only what computes each joint's current set point 
   disturbing the tool. The speed and position loops of the cascade are bypassed; the current loops,
   motors, friction, backlash and elastic gears are the same as under joint-independent control.
   Direct input of currents or speeds needs joint_independent (the proxy refuses the run).
+- **opspace_hybrid**: the same controller, with force control along an axis (paper §5's hybrid
+  force/motion control): where a Cartesian node sets a `force` (N) along its `force_axis`, the motion
+  law is replaced along that axis by a force law on the contact force the tool feels (what a force
+  sensor at the tool reads), and the force wanted is fed forward; along the other directions and in
+  orientation the tool follows its path as under opspace_motion:
 
-Both report the tool against its reference: `tool.x_ref`, `tool.y_ref`, `tool.z_ref`, `tool.e_pos`
-(m) and `tool.e_rot` (rad), so two runs of one command under the two systems compare directly.
+      a_n   = kf_force (f - f_meas) + ki_force int(f - f_meas) - kd_force (n . v)
+      F     = Lambda (S' a + n a_n - Jdot qd) + n f           (S' = I - n n^T on the position rows)
+
+  so the tool slides along a surface pressing on it with f (its measured normal force is the
+  variable `contact.tool_fn`). The force integral runs only while the tool touches.
+
+All three report the tool against its reference: `tool.x_ref`, `tool.y_ref`, `tool.z_ref`, `tool.e_pos`
+(m) and `tool.e_rot` (rad), so runs of one command under two systems compare directly.
 
 ## Gains
 

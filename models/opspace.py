@@ -23,6 +23,16 @@ The last term feeds the drives' nominal Coulomb and viscous friction forward alo
 (c_f = control.friction_comp): through reducers of 100-160 the friction is the largest torque the
 tool task would otherwise leave to its integral. The integral runs only while no current set point is
 saturated (anti-windup).
+
+Hybrid force/motion control (`opspace_hybrid`) is the same law with a selection: along the axis n a
+Cartesian node's `force` f pushes along, the position rows' motion law is replaced by a force law on
+the contact force the tool feels (f_meas, what a force sensor at the tool reads: contact.py), and f
+is fed forward:
+
+    a_n = kf_force (f - f_meas) + ki_force int(f - f_meas) - kd_force (n . v)
+    a   <- (I - n n^T) a + n a_n  (position rows),   F <- F + n f
+
+The force integral runs only while the tool touches; the position integral leaves the axis out.
 """
 
 from __future__ import annotations
@@ -79,9 +89,27 @@ GAIN_INFO = {
         0.0,
         1.0,
     ),
+    # Hybrid control along the force axis: on a surface of stiffness k the force error settles at
+    # sqrt(kf_force k) rad/s (30 rad/s on the default 1e5 N/m), damped by kd_force; ki_force at 37 % of
+    # its stability bound kd_force kf_force.
+    "kf_force": (
+        0.009,
+        "m/(s^2*N)",
+        "hybrid control: tool acceleration along the force axis per N of force error",
+        0.0,
+        10.0,
+    ),
+    "ki_force": (0.2, "m/(s^3*N)", "hybrid control: integral gain on the force error", 0.0, 100.0),
+    "kd_force": (60.0, "1/s", "hybrid control: damping of the tool's speed along the force axis", 0.0, 1e3),
 }
 GAINS = tuple(GAIN_INFO)
-G_KP, G_KD, G_KI, G_KPR, G_KDR, G_KIR, G_KPN, G_KDN, G_FRIC, G_DAMP = range(len(GAINS))
+G_KP, G_KD, G_KI, G_KPR, G_KDR, G_KIR, G_KPN, G_KDN, G_FRIC, G_DAMP, G_KF, G_KIF, G_KDF = range(len(GAINS))
+#: The force input of one control period (`opspace_currents`): the axis the tool pushes along (unit,
+#: world), the force wanted (N, 0: none) and the force measured along the axis (N).
+F_AXIS, F_WANT, F_MEAS = 0, 3, 4
+NFORCE = 5
+#: Rows of a force profile (`Plan.forces`): from time t (s), push along (x, y, z) with f N.
+FP_T, FP_AXIS, FP_F = 0, 1, 4
 JDOT_STEP = 1e-6  # s: Jdot qd as (J(q + h qd) - J(q)) qd / h
 FRICTION_BAND = 0.5  # rad/s of motor speed over which the Coulomb feed-forward changes sign (tanh)
 
@@ -118,11 +146,14 @@ def opspace_currents(
     qr_next,
     qdr_next,
     period,
+    force,
     integ,
     i_ref,
 ):
-    """The current set point of every joint (i_ref, A) for this control period; integ (6) is the
-    controller's integral state, advanced here. Returns True when a set point saturated.
+    """The current set point of every joint (i_ref, A) for this control period; integ (7: the tool's
+    position and orientation errors, the force error) is the controller's integral state, advanced
+    here. Returns True when a set point saturated. `force` (F_*): the hybrid controller's force input;
+    with force[F_WANT] = 0 the law is pure motion control.
 
     With y the posture acceleration, the law of the module docstring is
     tau = J^T Lambda (a - Jdot qd - J y) + M y + b: one Cholesky factor of M, one of J M^-1 J^T."""
@@ -176,11 +207,26 @@ def opspace_currents(
         kd = gains[G_KDR] if rot else gains[G_KD]
         ki = gains[G_KIR] if rot else gains[G_KI]
         xdd_r = (v_r2[a] - v_r[a]) / period
-        jdqd = (vh[a] - v[a]) / JDOT_STEP
-        r = xdd_r + kp * e[a] + kd * (v_r[a] - v[a]) + ki * integ[a] - jdqd
+        rhs[a] = xdd_r + kp * e[a] + kd * (v_r[a] - v[a]) + ki * integ[a]
+    # hybrid: along the force axis the force law replaces the motion law (selection S = n n^T)
+    f_want = force[F_WANT]
+    f_err = f_want - force[F_MEAS]
+    nx, ny, nz = force[F_AXIS], force[F_AXIS + 1], force[F_AXIS + 2]
+    if f_want > 0.0:
+        along = nx * rhs[0] + ny * rhs[1] + nz * rhs[2]
+        v_n = nx * v[0] + ny * v[1] + nz * v[2]
+        a_n = gains[G_KF] * f_err + gains[G_KIF] * integ[6] - gains[G_KDF] * v_n
+        rhs[0] += nx * (a_n - along)
+        rhs[1] += ny * (a_n - along)
+        rhs[2] += nz * (a_n - along)
+        e_n = nx * e[0] + ny * e[1] + nz * e[2]  # no position error along the axis: no integral of it
+        e[0] -= nx * e_n
+        e[1] -= ny * e_n
+        e[2] -= nz * e_n
+    for a in range(6):
+        rhs[a] -= (vh[a] - v[a]) / JDOT_STEP  # Jdot qd
         for j in range(n):
-            r -= J[a, j] * y[j]
-        rhs[a] = r
+            rhs[a] -= J[a, j] * y[j]
     # the controller's model: the chain's mass matrix and the reflected rotor and gear inertia
     M = np.empty((n, n))
     mass_matrix_at(R_all, p_all, masses, coms, inertias, M)
@@ -210,6 +256,10 @@ def opspace_currents(
     cholesky(A, gains[G_DAMP], L6)
     F = np.empty(6)
     cholesky_solve(L6, rhs, F)
+    if f_want > 0.0:  # the force wanted, fed forward
+        F[0] += nx * f_want
+        F[1] += ny * f_want
+        F[2] += nz * f_want
     b = np.empty(n)
     bias_forces_at(R_all, p_all, masses, coms, inertias, gravity, qd, b)
     saturated = False
@@ -230,6 +280,8 @@ def opspace_currents(
     if not saturated:
         for a in range(6):
             integ[a] += e[a] * period
+        if f_want > 0.0 and force[F_MEAS] > 0.0:  # the force integral runs in contact only
+            integ[6] += f_err * period
     return saturated
 
 
@@ -254,12 +306,26 @@ def control_update(
     qd,
     t,
     period,
+    forces,
+    f_tool,
     integ,
     i_ref,
 ):
     """One control period from t: the set points now and one period on (drive.ref_eval), the current
-    set points into i_ref and live[:, LV_IREF] (held until the next period). True when one saturated."""
+    set points into i_ref and live[:, LV_IREF] (held until the next period). True when one saturated.
+    `forces`: the force profile (rows FP_*; none: motion control); f_tool: the contact force on the
+    tool now (N, world), what a force sensor at the tool reads."""
     n = q.shape[0]
+    force = np.zeros(NFORCE)
+    for k in range(forces.shape[0]):  # the profile's row in force at t (a few rows: one per node)
+        if forces[k, FP_T] <= t + 1e-12:
+            for a in range(3):
+                force[F_AXIS + a] = forces[k, FP_AXIS + a]
+            force[F_WANT] = forces[k, FP_F]
+    # the force the tool pushes with along the axis: the contact force on it, turned round
+    force[F_MEAS] = -(
+        force[F_AXIS] * f_tool[0] + force[F_AXIS + 1] * f_tool[1] + force[F_AXIS + 2] * f_tool[2]
+    )
     qr = np.empty(n)
     qdr = np.empty(n)
     qr2 = np.empty(n)
@@ -284,6 +350,7 @@ def control_update(
         qr2,
         qdr2,
         period,
+        force,
         integ,
         i_ref,
     )
@@ -295,9 +362,12 @@ def control_update(
 class OpspaceController:
     """The controller of one run: its gains, its integral state and the period it is updated at."""
 
-    def __init__(self, values: Mapping[str, float], n: int, steps: int, step: float) -> None:
+    def __init__(
+        self, values: Mapping[str, float], n: int, steps: int, step: float, forces: np.ndarray
+    ) -> None:
         self.gains = np.array([float(values[f"control.{g}"]) for g in GAINS])
+        self.forces = forces  # the force profile (FP_* rows; none: motion control only)
         self.steps = steps  # solver steps per control period
         self.period = steps * step
-        self.integ = np.zeros(6)
+        self.integ = np.zeros(7)
         self.i_ref = np.zeros(n)

@@ -68,6 +68,7 @@ class Plan:
     final_q: np.ndarray
     joint_nodes: list[tuple[np.ndarray, float, float]] | None = None
     segments: np.ndarray | None = None  # joint paths: the trapezoid rows of drive.plan_segment
+    forces: np.ndarray = field(default_factory=lambda: np.zeros((0, 5)))  # opspace.FP_* rows
     tab: np.ndarray | None = None
     jmode: np.ndarray | None = None
     events: list[tuple[float, dict[str, float]]] = field(default_factory=list)
@@ -82,6 +83,14 @@ class Plan:
         else:
             assert self.tab is not None and self.jmode is not None
             sim.set_reference(self.tab, self.jmode, self.events)
+        sim.set_forces(self.forces)
+
+    def pushing(self, times: np.ndarray) -> np.ndarray:
+        """Whether the tool is meant to push (a force set point above 0) at each of `times`."""
+        out = np.zeros(times.shape[0], dtype=bool)
+        for row in self.forces:
+            out[times >= row[0] - 1e-12] = row[4] > 0.0
+        return out
 
     def joint_samples(self, q0: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray] | None:
         """(times, joint positions) of the set points every dt s from 0 to the plan's end; None when a
@@ -226,7 +235,7 @@ class Planner:
     def collision(self, plan: Plan, obstacles: Sequence[Obstacle]) -> tuple[str, str] | None:
         """(field, why) when the planned path makes the arm touch an obstacle: the field is `initial`
         or the step's path under `command`. A path that follows speeds or currents is not known before
-        the run: None."""
+        the run: None. While a node sets a force the tool may touch (it is meant to push)."""
         sampled = plan.joint_samples(self.q0, PATH_CHECK_PERIOD)
         if sampled is None or not obstacles:
             return None
@@ -239,6 +248,7 @@ class Planner:
             arrays.pre_R,
             arrays.pre_p,
             np.ascontiguousarray(qs),
+            plan.pushing(times),  # where the tool is meant to push, only the rest of the arm must not touch
             found,
         )
         if k < 0:
@@ -269,9 +279,12 @@ class Planner:
             return self._direct_input(command)
         ref = _Reference(self.q0, self.max_rows)
         steps: list[PlanStep] = []
+        forces = []
         if isinstance(command, m.CartesianPath):
             for i, node in enumerate(command.nodes):
                 t0 = ref.t
+                axis = np.asarray(node.force_axis, float)
+                forces.append([t0, *(axis / np.linalg.norm(axis)), node.force])
                 path = f"nodes[{i}]"
                 target = rot_rpy(node.rpy)
                 if node.move == "lin":
@@ -294,6 +307,7 @@ class Planner:
             jmode=np.full(self.n, dr.JM_POSITION, dtype=np.int64),
             events=ref.events,
             tool_path=self._tool_path(tab[:, 1 : 1 + self.n]),
+            forces=np.array(forces) if any(f[4] > 0 for f in forces) else np.zeros((0, 5)),
         )
 
     def check_arguments(self, program: m.Action | m.Task | m.Mission) -> None:

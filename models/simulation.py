@@ -21,7 +21,7 @@ from simecs.mesh.model import CONTROL_SYSTEMS
 
 from . import chain_dynamics
 from . import drive as dr
-from .contact import contact_prestep, link_bounds, obstacle_table, pair_width, sphere_table
+from .contact import contact_prestep, link_bounds, obstacle_table, pair_width, sphere_table, tool_force
 from .description import ArmDescription
 from .errors import SimulationError
 from .exudyn_chain import GRAVITY, ExudynChain, exudyn
@@ -50,6 +50,7 @@ class Simulation:
         self.seg = np.zeros((0, 3 + 2 * self.n))
         self.tab = np.zeros((0, 1 + 2 * self.n))  # a sampled reference (planner.py), when not a joint path
         self.jmode = np.zeros(self.n, dtype=np.int64)
+        self.forces = np.zeros((0, 5))  # the hybrid controller's force profile (opspace.FP_*)
         #: Live inputs per joint (drive.LV_*): the jog, superposed on the reference, and the current set
         #: points of an external controller for the joints it drives.
         self.live = np.zeros((self.n, dr.NLIVE))
@@ -164,6 +165,7 @@ class Simulation:
         self.seg = self._plan(t0)
         self.tab = np.zeros((0, 1 + 2 * self.n))
         self.jmode = np.zeros(self.n, dtype=np.int64)
+        self.forces = np.zeros((0, 5))
         self._events = []
 
     def set_reference(
@@ -186,6 +188,7 @@ class Simulation:
         self._events = sorted(((float(t), dict(c)) for t, c in events), key=lambda e: e[0])
         self._nodes = []
         self.seg = np.zeros((0, 3 + 2 * self.n))
+        self.forces = np.zeros((0, 5))
 
     def _plan(self, t0: float) -> np.ndarray:
         vmax = self.P[:, dr.P_VMAX]
@@ -241,6 +244,14 @@ class Simulation:
         self._external = mask.copy()
         self.live[:, dr.LV_EXTERNAL] = mask
         self.live[:, dr.LV_IREF] = 0.0
+
+    def set_forces(self, forces: np.ndarray) -> None:
+        """The force set points of the next run (rows of opspace.FP_*: from t, push along an axis with
+        f N), for the hybrid controller; the planner makes them from the Cartesian nodes' `force`."""
+        table = np.ascontiguousarray(forces, dtype=float).reshape(-1, 5)
+        if not np.all(np.isfinite(table)) or np.any(table[:, 4] < 0) or np.any(np.diff(table[:, 0]) < 0):
+            raise ValueError("a force profile needs finite rows, forces >= 0 and times that do not decrease")
+        self.forces = table
 
     def set_control(self, system: str, period: float) -> None:
         """The built-in control system of the runs that follow (mesh.model.CONTROL_SYSTEMS), updated
@@ -335,6 +346,7 @@ class Simulation:
         self._Xbak = self.X.copy()
         self._last_k = -1
         self._tau = np.zeros(self.n)
+        self._f_tool = np.zeros(3)
         self._caps[:] = 0.0
         self._work = np.zeros((5, self.n, dr.NL))
         self._fail: str | None = None
@@ -368,13 +380,18 @@ class Simulation:
             )
         if self._external.any():
             raise ValueError(f"settings.control_system: {system} is built in: it needs controller builtin")
-        return OpspaceController(self.values, self.n, k, h)
+        pushing = bool(np.any(self.forces[:, 4] > 0))
+        if pushing and system != "opspace_hybrid":
+            raise ValueError(f"settings.control_system: the command sets forces: {system} cannot follow them")
+        return OpspaceController(self.values, self.n, k, h, self.forces if pushing else np.zeros((0, 5)))
 
     def _control_update(self, k: int, q: np.ndarray, qd: np.ndarray) -> None:
         """The operational-space controller's current set points for the period that starts at step k."""
         ctl = self._opspace
         assert ctl is not None
         m = self._mech_arrays
+        if ctl.forces.shape[0]:
+            tool_force(*self._contact_rows, m[0], m[1], q, qd, self._f_tool)
         control_update(
             self.P,
             self.seg,
@@ -391,6 +408,8 @@ class Simulation:
             qd,
             k * self.h,
             ctl.period,
+            ctl.forces,
+            self._f_tool,
             ctl.integ,
             ctl.i_ref,
         )

@@ -167,8 +167,9 @@ class SettingsWindow:
                 "Control system",
                 tuple(CONTROL_LABEL[c] for c in control_systems),
                 initial_value=CONTROL_LABEL[settings.control_system],
-                hint="what drives the joints: each joint's cascade, or the tool tracked in task space "
-                "(the model's documentation, Control systems)",
+                hint="what drives the joints: each joint's cascade, the tool tracked in task space, or "
+                "that with force control where a Cartesian node sets a force (the model's documentation, "
+                "Control systems)",
             )
             apply = gui.add_button("Apply settings", color="green")
             apply.on_click(lambda _e: on_apply(self.values()))
