@@ -366,6 +366,9 @@ class Simulation:
     def _make_opspace(self, h: float) -> OpspaceController | None:
         """The operational-space controller of the coming run, or None under joint-independent control."""
         system, period = self._control
+        pushing = bool(np.any(self.forces[:, 4] > 0))
+        if pushing and system != "opspace_hybrid":
+            raise ValueError(f"settings.control_system: the command sets forces: {system} cannot follow them")
         if system == "joint_independent":
             return None
         k = round(period / h)
@@ -380,9 +383,6 @@ class Simulation:
             )
         if self._external.any():
             raise ValueError(f"settings.control_system: {system} is built in: it needs controller builtin")
-        pushing = bool(np.any(self.forces[:, 4] > 0))
-        if pushing and system != "opspace_hybrid":
-            raise ValueError(f"settings.control_system: the command sets forces: {system} cannot follow them")
         return OpspaceController(self.values, self.n, k, h, self.forces if pushing else np.zeros((0, 5)))
 
     def _control_update(self, k: int, q: np.ndarray, qd: np.ndarray) -> None:
