@@ -158,6 +158,7 @@ def warmup() -> float:
     sim.set_control("opspace_hybrid", 0.002)
     sim.start(0.004, 0.002)
     sim.advance(0.004)
+    sim.set_forces(np.zeros((0, 5)))
     sim.set_control("joint_independent", 0.001)
     sim.set_values({"drives.enabled": 0.0})  # contact with the drives off
     sim.start(0.004, 0.002)
