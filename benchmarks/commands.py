@@ -227,11 +227,16 @@ def run_commands_bench(as_json: bool = False) -> dict[str, Any]:
         k: (min if k in worst_is_low else max)(f[k] for f in per_model.values()) for k in keys
     }
     result["per_model"] = per_model
+    print_per_model(result, as_json, 32)
+    return result
+
+
+def print_per_model(result: dict[str, Any], as_json: bool, width: int) -> None:
+    """A bench's result as JSON, or its `per_model` figures as a table (name column `width` wide)."""
     if as_json:
         print(json.dumps(result, indent=1))
-    else:
-        for model_id, figures in per_model.items():
-            print(model_id)
-            for k, v in figures.items():
-                print(f"  {k:32s} {v:12.4g}")
-    return result
+        return
+    for model_id, figures in result["per_model"].items():
+        print(model_id)
+        for k, v in figures.items():
+            print(f"  {k:{width}s} {v:12.4g}")

@@ -26,14 +26,13 @@ Per model in `per_model` (Spider and PUMA 560); the top-level keys are the Spide
 
 from __future__ import annotations
 
-import json
 import math
 import time
 from typing import Any
 
 import numpy as np
 
-from .commands import run_line, standard_line
+from .commands import print_per_model, run_line, standard_line
 
 SYSTEMS = ("opspace", "joint_independent")
 SYSTEM_NAMES = {"opspace": "opspace_motion", "joint_independent": "joint_independent"}
@@ -69,7 +68,7 @@ def _run(sim: Any, stop: float) -> tuple[np.ndarray, float]:
 def _contact_figures() -> dict[str, float]:
     from simecs import models
     from simecs.mesh import messages as m
-    from simecs.models.contact import TOOL_RADIUS
+    from simecs.models.contact_geometry import TOOL_RADIUS
     from simecs.models.ik import ArmKinematics
 
     pkg = models.get_model("spider")
@@ -137,7 +136,7 @@ SETTLE_S = 0.5
 def _hybrid_figures() -> dict[str, float]:
     from simecs import models
     from simecs.mesh import messages as m
-    from simecs.models.contact import TOOL_RADIUS
+    from simecs.models.contact_geometry import TOOL_RADIUS
     from simecs.models.ik import rpy_of
     from simecs.models.planner import Planner
 
@@ -185,11 +184,5 @@ def run_control_bench(as_json: bool = False) -> dict[str, Any]:
     per_model["spider"].update(contact)
     result.update(contact)
     result["per_model"] = per_model
-    if as_json:
-        print(json.dumps(result, indent=1))
-    else:
-        for model_id, figures in per_model.items():
-            print(model_id)
-            for k, v in figures.items():
-                print(f"  {k:40s} {v:12.4g}")
+    print_per_model(result, as_json, 40)
     return result

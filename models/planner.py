@@ -28,7 +28,7 @@ from simecs.mesh.limits import limit
 from simecs.mesh.model import check_joints
 from simecs.mesh.robot_commands import ACTION_ARGS
 
-from . import contact, signals
+from . import contact, contact_geometry, signals
 from . import drive as dr
 from .description import ArmDescription
 from .errors import CommandError
@@ -243,8 +243,8 @@ class Planner:
         arrays = chain_arrays(self.model.spec, self.values)
         found = np.zeros(3)
         k = contact.first_touch(
-            contact.sphere_table(self.model.spec, self.values),
-            contact.obstacle_table(obstacles),
+            contact_geometry.sphere_table(self.model.spec, self.values),
+            contact_geometry.obstacle_table(obstacles),
             arrays.pre_R,
             arrays.pre_p,
             np.ascontiguousarray(qs),

@@ -21,7 +21,8 @@ from simecs.mesh.model import CONTROL_SYSTEMS
 
 from . import chain_dynamics
 from . import drive as dr
-from .contact import contact_prestep, link_bounds, obstacle_table, pair_width, sphere_table, tool_force
+from .contact import contact_prestep, pair_width, tool_force
+from .contact_geometry import link_bounds, obstacle_table, sphere_table
 from .description import ArmDescription
 from .errors import SimulationError
 from .exudyn_chain import GRAVITY, ExudynChain, exudyn
@@ -273,12 +274,7 @@ class Simulation:
         """What an external controller reads now into `out` (models/sensors.py, mesh/hil.py)."""
         sd = self._sd
         ok = sensor_row(
-            self.P,
-            self.seg,
-            self.hold,
-            self.tab,
-            self.jmode,
-            self.live,
+            *self._command_state(),
             self.X,
             np.asarray(sd.GetODE2Coordinates()),
             np.asarray(sd.GetODE2Coordinates_t()),
@@ -385,6 +381,11 @@ class Simulation:
             raise ValueError(f"settings.control_system: {system} is built in: it needs controller builtin")
         return OpspaceController(self.values, self.n, k, h, self.forces if pushing else np.zeros((0, 5)))
 
+    def _command_state(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """What every kernel reads the set points from (drive.ref_eval): drive parameters, joint-path
+        segments, held positions, sampled reference, joint modes, live inputs."""
+        return self.P, self.seg, self.hold, self.tab, self.jmode, self.live
+
     def _control_update(self, k: int, q: np.ndarray, qd: np.ndarray) -> None:
         """The operational-space controller's current set points for the period that starts at step k."""
         ctl = self._opspace
@@ -393,12 +394,7 @@ class Simulation:
         if ctl.forces.shape[0]:
             tool_force(*self._contact_rows, m[0], m[1], q, qd, self._f_tool)
         control_update(
-            self.P,
-            self.seg,
-            self.hold,
-            self.tab,
-            self.jmode,
-            self.live,
+            *self._command_state(),
             *m,  # the chain arrays (mechanics.ChainArrays)
             self._gravity,
             self._Rrpy[-1],
@@ -454,12 +450,7 @@ class Simulation:
         if self._opspace is not None and not repeat and k % self._opspace.steps == 0:
             self._control_update(k, q, qd)
         status = dr.drive_prestep(
-            self.P,
-            self.seg,
-            self.hold,
-            self.tab,
-            self.jmode,
-            self.live,
+            *self._command_state(),
             *m,  # the chain arrays (mechanics.ChainArrays)
             self._gravity,
             self.X,
@@ -509,12 +500,7 @@ class Simulation:
             self._rows = np.concatenate([self._rows, np.empty((k + 8, self._rows.shape[1]))])
         m = self._mech_arrays
         status = dr.output_row(
-            self.P,
-            self.seg,
-            self.hold,
-            self.tab,
-            self.jmode,
-            self.live,
+            *self._command_state(),
             self.X,
             q,
             qd,

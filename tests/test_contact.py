@@ -20,7 +20,7 @@ from simecs import models
 from simecs.mesh import keys
 from simecs.mesh import messages as m
 from simecs.mesh.client import RemoteError
-from simecs.models.contact import TOOL_RADIUS
+from simecs.models.contact_geometry import TOOL_RADIUS
 from simecs.models.ik import ArmKinematics, rpy_of
 
 from tests.conftest import Service
