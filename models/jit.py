@@ -1,10 +1,38 @@
-"""The options every compiled kernel of models/ is built with (drive.py, chain_dynamics.py, ik.py)."""
+"""The options every compiled kernel of models/ is built with (drive.py, chain_dynamics.py, ik.py).
+
+numba keys a cached kernel on its own file's time stamp only: a kernel that calls one of another file
+keeps the old callee compiled in when only that file changes, and returns stale results. So the cache
+lives in a directory named after the contents of every module here: any change starts a fresh cache.
+"""
 
 from __future__ import annotations
 
+import hashlib
 import os
+from pathlib import Path
+
+import numba
 
 #: numba's on-disk cache (SIMECS_NUMBA_CACHE=0 turns it off; NUMBA_CACHE_DIR moves it).
 CACHE = os.environ.get("SIMECS_NUMBA_CACHE", "1") != "0"
 #: fast-math without "nnan"/"ninf": NaN detection must survive.
 FAST = {"nsz", "arcp", "contract", "afn", "reassoc"}
+
+
+def _sources_stamp() -> str:
+    """A digest of every module of models/ (about 1 ms to read them)."""
+    digest = hashlib.sha256()
+    for path in sorted(Path(__file__).resolve().parent.glob("*.py")):
+        digest.update(path.name.encode())
+        digest.update(path.read_bytes())
+    return digest.hexdigest()[:16]
+
+
+def _cache_dir() -> str:
+    base = os.environ.get("NUMBA_CACHE_DIR") or str(Path(__file__).resolve().parent / "__pycache__" / "numba")
+    return str(Path(base) / _sources_stamp())
+
+
+if CACHE:
+    # read by numba when each kernel is decorated: every module here imports this one first
+    numba.config.CACHE_DIR = _cache_dir()  # type: ignore[attr-defined]
