@@ -66,7 +66,7 @@ def standard_line(model_id: str) -> StandardLine:
     can follow (the same move for every bench that quotes "the standard LIN move")."""
     from simecs import models
     from simecs.mesh import messages as m
-    from simecs.models.ik import rpy_of
+    from simecs.mesh.kinematics import rpy_of
 
     pkg, planner = _planner(model_id, 60.0)
     p0, R0 = planner.kin.tool_pose(planner.q0)

@@ -136,8 +136,8 @@ SETTLE_S = 0.5
 def _hybrid_figures() -> dict[str, float]:
     from simecs import models
     from simecs.mesh import messages as m
+    from simecs.mesh.kinematics import rpy_of
     from simecs.models.contact_geometry import TOOL_RADIUS
-    from simecs.models.ik import rpy_of
     from simecs.models.planner import Planner
 
     pkg = models.get_model("spider")

@@ -403,30 +403,6 @@ class _Run(NamedTuple):
     ok: bool
 
 
-def rpy_of(R: np.ndarray) -> np.ndarray:
-    """Roll, pitch, yaw with R = Rz(yaw) Ry(pitch) Rx(roll), pitch in [-pi/2, pi/2]: the inverse of
-    `rot_rpy`, for poses given to clients and docs as rpy.
-
-    Yaw comes from the first column, roll and pitch from R with the yaw taken out, so the three angles
-    rebuild R to rounding even at pitch = +-pi/2 (where only roll - yaw or roll + yaw is defined and
-    yaw is set to 0)."""
-    M = np.asarray(R, dtype=float)
-    if M.shape != (3, 3):
-        raise ValueError(f"expected a 3 x 3 rotation matrix, got shape {M.shape}")
-    if math.hypot(M[0, 0], M[1, 0]) < 1e-12:
-        yaw = 0.0
-    else:
-        yaw = math.atan2(M[1, 0], M[0, 0])
-    cy, sy = math.cos(yaw), math.sin(yaw)
-    # Rz(-yaw) R = Ry(pitch) Rx(roll) = [[cp, sp sr, sp cr], [0, cr, -sr], [-sp, cp sr, cp cr]]
-    m00 = cy * M[0, 0] + sy * M[1, 0]
-    m11 = -sy * M[0, 1] + cy * M[1, 1]
-    m12 = -sy * M[0, 2] + cy * M[1, 2]
-    pitch = math.atan2(-M[2, 0], m00)
-    roll = math.atan2(-m12, m11)
-    return np.array([roll, pitch, yaw])
-
-
 def orientation_error(R_now: np.ndarray, R_target: np.ndarray) -> np.ndarray:
     """Rotation vector (3,), world frame, that turns R_now into R_target: exp([e]x) R_now = R_target.
 

@@ -14,8 +14,8 @@ from simecs import models
 from simecs.mesh import keys
 from simecs.mesh import messages as m
 from simecs.mesh.client import RemoteError, SessionClient
-from simecs.mesh.kinematics import matrix_from_quat, rot_rpy
-from simecs.models.ik import ArmKinematics, rpy_of
+from simecs.mesh.kinematics import matrix_from_quat, rot_rpy, rpy_of
+from simecs.models.ik import ArmKinematics
 from simecs.nodes import mcapread
 
 from tests.conftest import Mesh, Service, restart_every_node, start_service

@@ -18,10 +18,9 @@ from simecs import models
 from simecs.mesh import keys
 from simecs.mesh import messages as m
 from simecs.mesh.client import RemoteError, SessionClient
-from simecs.mesh.kinematics import matrix_from_quat, rot_rpy
+from simecs.mesh.kinematics import matrix_from_quat, rot_rpy, rpy_of
 from simecs.mesh.primitives import FieldProblem
 from simecs.models.contact_geometry import TOOL_RADIUS
-from simecs.models.ik import rpy_of
 from simecs.models.planner import Planner
 
 from tests.conftest import Service

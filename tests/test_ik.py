@@ -10,9 +10,9 @@ import math
 import numpy as np
 import pytest
 from scipy.optimize import minimize
-from simecs.mesh.kinematics import link_frames, quat_from_matrix, rot_rpy
+from simecs.mesh.kinematics import link_frames, quat_from_matrix, rot_rpy, rpy_of
 from simecs.models import ModelPackage, chain_dynamics, get_model
-from simecs.models.ik import ArmKinematics, IKResult, orientation_error, rpy_of
+from simecs.models.ik import ArmKinematics, IKResult, orientation_error
 from simecs.models.mechanics import chain_arrays, tool_point
 
 MODELS = ["spider", "puma560"]
