@@ -324,6 +324,7 @@ class SessionClient:
         on_full: Callable[[frames.Frame], None] | None = None,
         on_layout: Callable[[m.RunLayout], None] | None = None,
         on_params: Callable[[m.ParamValues], None] | None = None,
+        on_obstacles: Callable[[m.ObstacleValues], None] | None = None,
     ) -> Watch:
         watch = Watch()
         z = self.client.z
@@ -349,6 +350,13 @@ class SessionClient:
             add(keys.state(self.user, self.id), on_state, lambda b: codec.loads(m.SessionState, b), True)
         if on_params:
             add(keys.params(self.user, self.id), on_params, lambda b: codec.loads(m.ParamValues, b), True)
+        if on_obstacles:
+            add(
+                keys.obstacles(self.user, self.id),
+                on_obstacles,
+                lambda b: codec.loads(m.ObstacleValues, b),
+                True,
+            )
         if on_layout:
             add(keys.layout(self.user, self.id), on_layout, lambda b: codec.loads(m.RunLayout, b), True)
         if on_live:

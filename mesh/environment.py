@@ -37,7 +37,8 @@ class Obstacle(Record):
     `radius` and `length` along its frame's z; a sphere `radius`; a plane is the half-space below
     its frame's x-y plane (its normal is the frame's z, pointing out of the solid). The contact law:
     normal force `stiffness` x penetration + `damping` x penetration rate (never pulling), friction
-    up to `friction` x normal force against the sliding velocity."""
+    up to `friction` x normal force against the sliding velocity. An obstacle with a `mass` can be
+    grasped: the tool carries it from a `grasp` action to a `release` (mesh/robot_commands.py)."""
 
     name: Annotated[Name, Meta(description="unique in the session; notices and refusals name it")]
     kind: ObstacleKind
@@ -51,6 +52,9 @@ class Obstacle(Record):
     stiffness: Annotated[float, Meta(ge=1e2, le=1e7, description="N/m, normal penalty stiffness")] = 1e5
     damping: Annotated[float, Meta(ge=0.0, le=1e5, description="N*s/m, normal damping")] = 300.0
     friction: Annotated[float, Meta(ge=0.0, le=2.0, description="Coulomb coefficient")] = 0.3
+    mass: Annotated[
+        float, Meta(ge=0.0, le=500.0, description="kg, a homogeneous solid; 0: fixed, it cannot be grasped")
+    ] = 0.0
     color: Annotated[list[Annotated[int, Meta(ge=0, le=255)]], Meta(min_length=3, max_length=3)] = (
         msgspec.field(default_factory=lambda: [150, 110, 90])
     )
@@ -67,6 +71,15 @@ class Obstacle(Record):
             raise FieldProblem("radius", f"a {self.kind} has a radius above 0 m")
         if self.kind == "cylinder" and self.length <= 0.0:
             raise FieldProblem("length", "a cylinder has a length above 0 m")
+
+
+def grasp_problem(ob: Obstacle) -> str:
+    """Why the tool cannot take `ob` ('' if it can): a plane is the world's, a massless solid is fixed."""
+    if ob.kind == "plane":
+        return f"obstacle {ob.name} is a plane: a plane cannot be grasped"
+    if ob.mass <= 0.0:
+        return f"obstacle {ob.name} has mass 0 (fixed to the world): give it its mass to grasp it"
+    return ""
 
 
 ObstacleList = Annotated[

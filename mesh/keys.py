@@ -195,6 +195,14 @@ _TABLE = (
         meaning="every parameter value, after each change",
     ),
     KeySpec(
+        name="obstacles",
+        pattern="simecs/u/<user>/sessions/<session>/obstacles",
+        kind="cached put",
+        writer="proxy",
+        payload="ObstacleValues",
+        meaning="the session's obstacles, after each set_obstacles (what every client of it draws)",
+    ),
+    KeySpec(
         name="state",
         pattern="simecs/u/<user>/sessions/<session>/state",
         kind="cached put",
@@ -499,6 +507,10 @@ def cmd(user: str, session: str) -> str:
 
 def params(user: str, session: str) -> str:
     return build("params", user=user, session=session)
+
+
+def obstacles(user: str, session: str) -> str:
+    return build("obstacles", user=user, session=session)
 
 
 def state(user: str, session: str) -> str:

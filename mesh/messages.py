@@ -393,6 +393,13 @@ class ParamValues(Message, tag="params"):
     changed: list[Name] = []
 
 
+class ObstacleValues(Message, tag="obstacles"):
+    """The obstacles of a session, published on <session>/obstacles after each set_obstacles."""
+
+    session: SessionId
+    obstacles: ObstacleList
+
+
 class RunInfo(Record):
     """One run of a session, as its list of runs shows it."""
 

@@ -18,6 +18,7 @@ import msgspec
 from msgspec import Meta
 
 from .codec import DecodeError
+from .columns import RESERVED_FRAMES
 from .environment import ObstacleList, check_obstacles
 from .primitives import NAME_PATTERN, FieldProblem, Message, Name, Record, Text
 
@@ -186,6 +187,11 @@ class ModelDescription(Message, tag="model"):
 
     def __post_init__(self) -> None:
         check_obstacles(self.obstacles)
+        for i, link in enumerate(self.links):
+            if link.name in RESERVED_FRAMES:
+                raise FieldProblem(
+                    f"links[{i}].name", f"{link.name!r} is a frame of every run: rename the link"
+                )
 
     def mesh_names(self) -> list[str]:
         """The meshes its mesh shapes name (each fetched from simecs/library/<model>/mesh/<name>)."""

@@ -46,7 +46,7 @@ GROUPS: list[tuple[str, list[str]]] = [
     (
         "sessions",
         ["CreateSession", "ListSessions", "SessionRequest", "SessionEntry", "SessionSnapshot", "SessionState"]
-        + ["HilStats", "ParamValues", "RunInfo", "RunList", "Notice"],
+        + ["HilStats", "ParamValues", "ObstacleValues", "RunInfo", "RunList", "Notice"],
     ),
     (
         "runs",

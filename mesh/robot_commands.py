@@ -175,8 +175,13 @@ class DirectInput(RobotCommandBase, tag="direct_input"):
 
 
 # -- high level: actions, tasks, missions ----------------------------------------------------------
-Primitive = Literal["move_joints", "move_linear", "move_to_pose", "wait", "home", "set_payload"]
-ArgValue = Annotated[float | list[float], Meta(description="a number, or a vector (q, position, rpy)")]
+Primitive = Literal[
+    "move_joints", "move_linear", "move_to_pose", "wait", "home", "set_payload", "grasp", "release"
+]
+ArgValue = Annotated[
+    float | list[float] | Name,
+    Meta(description="a number, a vector (q, position, rpy) or a name (grasp's object)"),
+]
 
 
 class Action(RobotCommandBase, tag="action"):
@@ -210,7 +215,8 @@ COMMAND_LEVELS = ("direct_input", "joint_path", "cartesian_path", "action", "tas
 
 @dataclass(frozen=True)
 class ArgSpec:
-    """One argument of a primitive: `size` 0 for a number, -1 for one value per joint, else a vector."""
+    """One argument of a primitive: `size` 0 for a number, -1 for one value per joint, NAME_ARG for a
+    name, else a vector."""
 
     size: int
     unit: str
@@ -221,6 +227,11 @@ class ArgSpec:
     max: float = 1e300
     above_min: bool = False  # the value must be greater than `min`, not equal to it
 
+
+#: ArgSpec.size of an argument that is a name (of an obstacle of the session).
+NAME_ARG = -2
+#: m: the farthest the tool point may be from an object's surface for `grasp` to take it.
+GRASP_REACH = 0.01
 
 _SPEED = ArgSpec(
     0, "%", "speed, percent of the maxima (joints' or cart.*)", 100.0, min=0.0, max=100.0, above_min=True
@@ -248,6 +259,8 @@ ACTION_ARGS: dict[str, dict[str, ArgSpec]] = {
             0, "m", "its cube edge (payload.size); left out: unchanged", optional=True, min=0.01, max=2.0
         ),
     },
+    "grasp": {"object": ArgSpec(NAME_ARG, "", "the obstacle to take: its name in the session's list")},
+    "release": {},
 }
 #: What each primitive does, for the documentation and the pendant.
 ACTION_DOC: dict[str, str] = {
@@ -256,7 +269,13 @@ ACTION_DOC: dict[str, str] = {
     "move_to_pose": "inverse kinematics of the pose, then a joint trapezoid (as a `ptp` node)",
     "wait": "hold the current set point for `duration` s",
     "home": "a joint trapezoid to the model's home posture (`home` in its description)",
-    "set_payload": "the payload changes at once (grasp / release of a known mass)",
+    "set_payload": "the payload changes at once (a known mass taken or put down without a shape)",
+    "grasp": (
+        "the tool takes the obstacle `object` (it needs a mass, and the tool point within "
+        f"{GRASP_REACH * 1000:g} mm of it): from now on it moves with the tool, its mass and inertia "
+        "are the tool's load and it touches the other obstacles"
+    ),
+    "release": "the tool lets go of what it holds: the object stays where it is, fixed, from now on",
 }
 
 

@@ -22,7 +22,9 @@ import msgspec
 from . import frames, hil, keys, phases
 from . import messages as m
 from . import model as md
-from .robot_commands import ACTION_ARGS, ACTION_DOC
+from .robot_commands import ACTION_ARGS, ACTION_DOC, NAME_ARG
+
+_ARG_SIZES = {0: "number", -1: "one per joint", NAME_ARG: "a name"}
 
 #: Named unions: they get a $defs entry of their own, like the Structs.
 UNIONS = {
@@ -180,7 +182,7 @@ def protocol_schema() -> dict[str, Any]:
                 "does": ACTION_DOC[name],
                 "args": {
                     arg: {
-                        "size": {0: "number", -1: "one per joint"}.get(spec.size, f"{spec.size} numbers"),
+                        "size": _ARG_SIZES.get(spec.size, f"{spec.size} numbers"),
                         "unit": spec.unit,
                         "description": spec.description,
                         **({"default": spec.default} if spec.default is not None else {}),

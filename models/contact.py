@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from numba import njit
+from simecs.mesh import columns
 
 from .chain_dynamics import bias_forces_at, chain_frames, mass_matrix_at
 from .contact_geometry import (
@@ -35,6 +36,7 @@ from .contact_geometry import (
     SP_LINK,
     SP_R,
     SP_TOOL,
+    can_touch,
     near_obstacles,
     speed_bound,
     sphere_centre,
@@ -61,7 +63,14 @@ def pair_width(n: int) -> int:
 
 #: Output columns of the contact model (`contact.*` variables), after the per-link ones.
 CONTACT_OUTPUTS = ("depth", "tool_fx", "tool_fy", "tool_fz", "tool_fn")
-PER_LINK_OUTPUTS = ("force", "obstacle")
+PER_LINK_OUTPUTS = (
+    columns.CONTACT_FORCE,
+    columns.CONTACT_OBSTACLE,
+    *columns.CONTACT_VECTOR,
+    *columns.CONTACT_POINT,
+)
+# per-link output offsets: force magnitude, obstacle number, force vector, the point it acts at
+PL_FORCE, PL_OBST, PL_F, PL_P = 0, 1, 2, 5
 NPL, NCO = len(PER_LINK_OUTPUTS), len(CONTACT_OUTPUTS)
 
 
@@ -124,6 +133,7 @@ def find_pairs(spheres, bounds, obs, R_all, p_all, qd, Minv, h, pairs, scratch):
             for o in range(obs.shape[0]):
                 if (
                     not near[o]
+                    or not can_touch(obs[o], sp, n - 1)
                     or surface_contact(obs[o], c, sp[SP_R], nrm) < -margin
                     or count >= pairs.shape[0]
                 ):
@@ -223,8 +233,8 @@ def tool_force(spheres, bounds, obs, caps, pre_R, pre_p, q, qd, F):
 @njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
 def first_touch(spheres, obs, pre_R, pre_p, qs, tool_free, found):
     """The first row of qs (joint positions) at which a sphere touches an obstacle, or -1; found =
-    (link index, obstacle index, depth m) of the deepest touch in that row. The tool's spheres may
-    touch in the rows where tool_free is set (it pushes there on purpose)."""
+    (link index, obstacle index, depth m, what the sphere is on: SP_TOOL) of the deepest touch there.
+    The tool's spheres may touch in the rows where tool_free is set (it pushes there on purpose)."""
     n = qs.shape[1]
     R_all = np.empty((n, 3, 3))
     p_all = np.empty((n, 3))
@@ -238,12 +248,15 @@ def first_touch(spheres, obs, pre_R, pre_p, qs, tool_free, found):
                 continue
             sphere_centre(spheres[s], R_all, p_all, c)
             for o in range(obs.shape[0]):
+                if not can_touch(obs[o], spheres[s], n - 1):
+                    continue
                 depth = surface_contact(obs[o], c, spheres[s, SP_R], nrm)
                 if depth > deepest:
                     deepest = depth
                     found[0] = spheres[s, SP_LINK]
                     found[1] = o
                     found[2] = depth
+                    found[3] = spheres[s, SP_TOOL]
         if deepest > 0.0:
             return k
     return -1
@@ -252,27 +265,35 @@ def first_touch(spheres, obs, pre_R, pre_p, qs, tool_free, found):
 # ---- the result rows: the contact state at a sample, from the chain state -----------------------------
 @njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
 def contact_outputs(spheres, bounds, obs, caps, R_all, p_all, qd, out):
-    """out = per link (force N, obstacle number 1.. or 0), then depth m (the deepest), the tool's force
-    (x, y, z) and its normal part. Evaluated at the state itself; `caps` (spheres x obstacles) holds
-    the friction caps of the last step (0: none yet, the pure Coulomb law)."""
+    """out = per link (PER_LINK_OUTPUTS: force N, obstacle number 1.. or 0, the force vector N and the
+    point it acts at m, world), then depth m (the deepest), the tool's force (x, y, z) and its normal
+    part. The point is the mean of the link's contact points on the obstacles' surfaces, weighted by
+    their normal forces. Evaluated at the state itself; `caps` (spheres x obstacles) holds the friction
+    caps of the last step (0: none yet, the pure Coulomb law)."""
     n = qd.shape[0]
     for k in range(out.shape[0]):
         out[k] = 0.0
-    F_link = np.zeros((n, 3))
+    weight = np.zeros(n)
     best = np.zeros(n)
     near = np.empty(obs.shape[0], dtype=np.bool_)
     c = np.empty(3)
     nrm = np.empty(3)
     for b in range(bounds.shape[0]):
         if near_obstacles(bounds[b], obs, R_all, p_all, 0.0, near, c, nrm):
-            _link_outputs(spheres, bounds[b], obs, caps, R_all, p_all, qd, near, F_link, best, out)
+            _link_outputs(spheres, bounds[b], obs, caps, R_all, p_all, qd, near, weight, best, out)
     for i in range(n):
-        out[2 * i] = math.sqrt(F_link[i, 0] ** 2 + F_link[i, 1] ** 2 + F_link[i, 2] ** 2)
+        row = NPL * i
+        out[row + PL_FORCE] = math.sqrt(
+            out[row + PL_F] ** 2 + out[row + PL_F + 1] ** 2 + out[row + PL_F + 2] ** 2
+        )
+        if weight[i] > 0.0:
+            for a in range(3):
+                out[row + PL_P + a] /= weight[i]
 
 
 @njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
-def _link_outputs(spheres, bound, obs, caps, R_all, p_all, qd, near, F_link, best, out):
-    """contact_outputs' sums over one link's spheres."""
+def _link_outputs(spheres, bound, obs, caps, R_all, p_all, qd, near, weight, best, out):
+    """contact_outputs' sums over one link's spheres (the points still multiplied by their weights)."""
     c = np.empty(3)
     v = np.empty(3)
     nrm = np.empty(3)
@@ -283,7 +304,7 @@ def _link_outputs(spheres, bound, obs, caps, R_all, p_all, qd, near, F_link, bes
         sphere_centre(sp, R_all, p_all, c)
         link = int(sp[SP_LINK])
         for o in range(obs.shape[0]):
-            if not near[o]:
+            if not near[o] or not can_touch(obs[o], sp, qd.shape[0] - 1):
                 continue
             depth = surface_contact(obs[o], c, sp[SP_R], nrm)
             if depth <= 0.0:
@@ -300,11 +321,14 @@ def _link_outputs(spheres, bound, obs, caps, R_all, p_all, qd, near, F_link, bes
                 v[2] += (z0 * r1 - z1 * r0) * qd[j]
             cap = caps[s, o] if caps[s, o] > 0.0 else 1e300
             fn = contact_force(obs[o], depth, nrm, v, cap, F)
+            row = NPL * link
             for a in range(3):
-                F_link[link, a] += F[a]
+                out[row + PL_F + a] += F[a]
+                out[row + PL_P + a] += fn * (c[a] - nrm[a] * (sp[SP_R] - depth))  # on the surface
+            weight[link] += fn
             if fn > best[link]:
                 best[link] = fn
-                out[2 * link + 1] = o + 1
+                out[row + PL_OBST] = o + 1
             out[base] = max(out[base], depth)
             if sp[SP_TOOL] > 0.5:
                 for a in range(3):
@@ -383,8 +407,10 @@ class ContactLog:
 
     def __post_init__(self) -> None:
         index = {c: k for k, c in enumerate(self.columns)}
-        self._force = [index[f"contact.link{i + 1}.force"] for i in range(self.n)]
-        self._obstacle = [index[f"contact.link{i + 1}.obstacle"] for i in range(self.n)]
+        self._force = [index[columns.contact_column(i + 1, columns.CONTACT_FORCE)] for i in range(self.n)]
+        self._obstacle = [
+            index[columns.contact_column(i + 1, columns.CONTACT_OBSTACLE)] for i in range(self.n)
+        ]
 
     def scan(self, rows: np.ndarray) -> list[str]:
         out = []

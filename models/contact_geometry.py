@@ -25,13 +25,19 @@ from .spec import ArmSpec
 #: m: the tool is a probe of this radius from the last link's end to the tool point.
 TOOL_RADIUS = 0.01
 
-# sphere table columns: the joint frame it hangs on, its centre in that frame, radius, on the tool
+# sphere table columns: the joint frame it hangs on, its centre in that frame, radius, what it is on
 SP_LINK, SP_X, SP_Y, SP_Z, SP_R, SP_TOOL = range(6)
 NSP = 6
+#: SP_TOOL values: on a link, on the tool probe, inside an object the tool carries (grasp.py). The
+#: probe and a carried object are what the tool's force sensor feels.
+ON_LINK, PROBE, CARRIED = 0.0, 1.0, 2.0
 # obstacle table columns: kind (index into OBSTACLE_KINDS), centre, rotation (row-major), dimensions
-# (box: half edges; cylinder: radius, half length; sphere: radius), the contact law
-OB_KIND, OB_P, OB_R, OB_DIM, OB_K, OB_D, OB_MU = 0, 1, 4, 13, 16, 17, 18
-NOB = 19
+# (box: half edges; cylinder: radius, half length; sphere: radius), the contact law, grasp state
+OB_KIND, OB_P, OB_R, OB_DIM, OB_K, OB_D, OB_MU, OB_GRASP = 0, 1, 4, 13, 16, 17, 18, 19
+NOB = 20
+#: OB_GRASP values: a plain obstacle; one the run grasps (the last link, the gripper's, passes through
+#: it); one the tool holds now (nothing touches it: it is part of the last link).
+FREE, GRASPED, HELD = 0.0, 1.0, 2.0
 K_BOX, K_CYLINDER, K_SPHERE, K_PLANE = (
     OBSTACLE_KINDS.index(k) for k in ("box", "cylinder", "sphere", "plane")
 )
@@ -48,18 +54,18 @@ def sphere_table(spec: ArmSpec, values: Mapping[str, float]) -> np.ndarray:
         L = float(values[f"link{i + 1}.length"])
         end = np.array([L, 0.0, 0.0])
         final = end + np.asarray(lk.final, dtype=float)
-        rows.append([i, 0.0, 0.0, 0.0, 1.25 * r, 0.0])  # the joint housing
+        rows.append([i, 0.0, 0.0, 0.0, 1.25 * r, ON_LINK])  # the joint housing
         for a, b in ((np.zeros(3), end), (end, final)):
-            _row_of_spheres(rows, i, Rr, a, b, r, 0.0, skip_first=True)
+            _row_of_spheres(rows, i, Rr, a, b, r, ON_LINK, skip_first=True)
     lk = spec.links[-1]
     Rr = rot_rpy(lk.rpy)
     L = float(values[f"link{n}.length"])
     start = np.array([L, 0.0, 0.0]) + np.asarray(lk.final, dtype=float)
     tip = start + np.asarray(spec.tool_translation, dtype=float)
     if np.linalg.norm(tip - start) < 1e-9:
-        rows.append([n - 1, *(Rr @ tip), TOOL_RADIUS, 1.0])
+        rows.append([n - 1, *(Rr @ tip), TOOL_RADIUS, PROBE])
     else:
-        _row_of_spheres(rows, n - 1, Rr, start, tip, TOOL_RADIUS, 1.0, skip_first=False)
+        _row_of_spheres(rows, n - 1, Rr, start, tip, TOOL_RADIUS, PROBE, skip_first=False)
     return np.array(rows, dtype=float)
 
 
@@ -119,6 +125,19 @@ def obstacle_table(obstacles: Sequence[Obstacle]) -> np.ndarray:
             row[OB_DIM] = ob.radius
         row[OB_K], row[OB_D], row[OB_MU] = ob.stiffness, ob.damping, ob.friction
     return out
+
+
+@njit(cache=_CACHE)
+def can_touch(ob, sp, last):
+    """Whether sphere row `sp` touches obstacle row `ob` at all, by the obstacle's grasp state: the
+    last link (`last`: its joint frame), which holds the gripper, passes through an object the run
+    grasps; what the tool carries touches it."""
+    state = ob[OB_GRASP]
+    if state == FREE:
+        return True
+    if state == HELD:
+        return False
+    return sp[SP_LINK] != last or sp[SP_TOOL] == CARRIED
 
 
 @njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
@@ -215,6 +234,6 @@ def near_obstacles(bound, obs, R_all, p_all, margin, near, c, nrm):
     sphere_centre(bound, R_all, p_all, c)
     anything = False
     for o in range(obs.shape[0]):
-        near[o] = surface_contact(obs[o], c, bound[LB_R], nrm) >= -margin
+        near[o] = obs[o, OB_GRASP] != HELD and surface_contact(obs[o], c, bound[LB_R], nrm) >= -margin
         anything = anything or near[o]
     return anything

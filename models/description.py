@@ -12,6 +12,7 @@ from typing import Literal
 
 import msgspec
 import numpy as np
+from simecs.mesh import columns
 from simecs.mesh.codec import DecodeError
 from simecs.mesh.kinematics import rot_rpy
 from simecs.mesh.model import (
@@ -26,7 +27,7 @@ from simecs.mesh.model import (
 from simecs.mesh.model import check_values as check_bounds
 from simecs.mesh.robot_commands import COMMAND_LEVELS
 
-from . import contact
+from . import contact, grasp
 from . import drive as dr
 from .docs import build_docs
 from .errors import ParameterError
@@ -67,6 +68,12 @@ CONTACT_LINK_VAR_INFO = {
         "",
         "the obstacle pressing hardest on the link: its number in the session's list, 1..; 0 = none",
     ),
+    "fx": ("N", "contact force on the link, x (world)"),
+    "fy": ("N", "contact force on the link, y (world)"),
+    "fz": ("N", "contact force on the link, z (world)"),
+    "px": ("m", "where the contact force acts, x: the mean of the contact points (0 without contact)"),
+    "py": ("m", "where the contact force acts, y"),
+    "pz": ("m", "where the contact force acts, z"),
 }
 assert tuple(CONTACT_LINK_VAR_INFO) == contact.PER_LINK_OUTPUTS
 CONTACT_VAR_INFO = {
@@ -77,6 +84,15 @@ CONTACT_VAR_INFO = {
     "tool_fn": ("N", "the tool's normal contact force: what presses it onto the surfaces it touches"),
 }
 assert tuple(CONTACT_VAR_INFO) == contact.CONTACT_OUTPUTS
+GRASP_VAR_INFO = {
+    "object": (
+        "",
+        "the obstacle the tool took last: its number in the run's list, 1..; 0 = none yet (its pose: "
+        "the `grasped` frame)",
+    ),
+    "held": ("", "1 while the tool holds that obstacle, 0 once released"),
+}
+assert tuple(GRASP_VAR_INFO) == grasp.GRASP_OUTPUTS
 
 
 def _vec(a: Sequence[float]) -> np.ndarray:
@@ -284,9 +300,12 @@ class ArmDescription:
             out.append(Variable(f"tool.{name}", unit, desc, "tool"))
         for i in range(1, self.n + 1):
             for name, (unit, desc) in CONTACT_LINK_VAR_INFO.items():
-                out.append(Variable(f"contact.link{i}.{name}", unit, f"link {i}: {desc}", "contact"))
+                out.append(Variable(columns.contact_column(i, name), unit, f"link {i}: {desc}", "contact"))
         for name, (unit, desc) in CONTACT_VAR_INFO.items():
             out.append(Variable(f"contact.{name}", unit, desc, "contact"))
+        for name, (unit, desc) in GRASP_VAR_INFO.items():
+            out.append(Variable(f"grasp.{name}", unit, desc, "grasp"))
+        assert {columns.GRASP_OBJECT, columns.GRASP_HELD} <= {v.name for v in out}
         return out
 
     def init_equations(self) -> list[InitEquation]:

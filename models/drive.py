@@ -20,6 +20,7 @@ from numba import njit
 from .chain_dynamics import bias_forces_at, chain_frames, mass_matrix_at, pose_rows_at
 from .chain_kinematics import rotation_vector, tool_frames
 from .contact import CONTACT_RATE_STEP, contact_outputs, find_pairs, output_count, pair_torques, set_caps
+from .grasp import GRASP_OUTPUTS, grasp_outputs
 from .jit import CACHE as _CACHE
 from .jit import FAST as _FAST
 
@@ -665,9 +666,12 @@ def drive_outputs(P, seg, hold, tab, jmode, live, X, q, qd, t, out):
 
 # ---- output rows: variables and link poses, no Exudyn call -------------------------------------------
 @njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
-def output_row(P, seg, hold, tab, jmode, live, X, q, qd, t, pre_R, pre_p, Rrpy, tool_local, contact, rows, k):
+def output_row(
+    P, seg, hold, tab, jmode, live, X, q, qd, t, pre_R, pre_p, Rrpy, tool_local, contact, grasp, rows, k
+):
     """One result row into rows[k]: time, the variables of every joint, the tool's, the contacts', the
-    link and tool poses. `contact` = (spheres, link bounds, obstacles, caps) of contact.py.
+    grasp's, the link and tool poses and the grasped object's. `contact` = (spheres, link bounds,
+    obstacles, caps) of contact.py; `grasp` the grasp state of grasp.py.
 
     Returns 0, or 1 when the chain coordinates are not finite (row untouched), 2 when an output is not.
     """
@@ -707,9 +711,14 @@ def output_row(P, seg, hold, tab, jmode, live, X, q, qd, t, pre_R, pre_p, Rrpy, 
     for c in range(touch.shape[0]):
         row[k0 + c] = touch[c]
     k0 += touch.shape[0]
-    poses = np.empty((n + 1, 7))
+    held = np.empty(len(GRASP_OUTPUTS))
+    poses = np.empty((n + 2, 7))
+    grasp_outputs(grasp, R_all[n - 1], p_all[n - 1], held, poses[n + 1])
+    for c in range(held.shape[0]):
+        row[k0 + c] = held[c]
+    k0 += held.shape[0]
     pose_rows_at(R_all, p_all, Rrpy, tool_local, poses)
-    for i in range(n + 1):
+    for i in range(n + 2):
         for c in range(7):
             row[k0 + 7 * i + c] = poses[i, c]
     for c in range(row.shape[0]):

@@ -35,8 +35,14 @@ def vec(a: Sequence[float]) -> np.ndarray:
     return np.asarray(a, dtype=float)
 
 
-def chain_arrays(spec: ArmSpec, values: Mapping[str, float]) -> ChainArrays:
-    """Joint frames, masses, COMs and inertias of the chain at these link lengths, masses and radii."""
+#: A body the last link carries besides its payload (a grasped object, grasp.held_body): mass (kg),
+#: centre and inertia about it (kg m^2), both in the last joint's frame.
+Carried = tuple[float, np.ndarray, np.ndarray]
+
+
+def chain_arrays(spec: ArmSpec, values: Mapping[str, float], carried: Carried | None = None) -> ChainArrays:
+    """Joint frames, masses, COMs and inertias of the chain at these link lengths, masses and radii,
+    with the body the last link `carried` (a grasped object) added to it."""
     n = len(spec.links)
     pre_R = np.zeros((n, 3, 3))
     pre_p = np.zeros((n, 3))
@@ -67,20 +73,30 @@ def chain_arrays(spec: ArmSpec, values: Mapping[str, float]) -> ChainArrays:
             if mp > 0:
                 a = float(values["payload.size"])
                 cp = np.array([L, 0, 0]) + vec(lk.final) + vec(spec.tool_translation)
-                Ip = np.eye(3) * mp * a * a / 6.0
-                mt = m + mp
-                ct = (m * c_l + mp * cp) / mt if mt > 0 else c_l
-                I_new = np.zeros((3, 3))
-                for mk, ck, Ik in ((m, c_l, I_l), (mp, cp, Ip)):
-                    d = ck - ct
-                    I_new += Ik + mk * (d @ d * np.eye(3) - np.outer(d, d))
-                m, c_l, I_l = mt, ct, I_new
+                m, c_l, I_l = _joined((m, c_l, I_l), (mp, cp, np.eye(3) * mp * a * a / 6.0))
         masses[i] = m
         coms[i] = Rr @ c_l
         inertias[i] = Rr @ I_l @ Rr.T
+        if i == n - 1 and carried is not None and carried[0] > 0.0:
+            masses[i], coms[i], inertias[i] = _joined(
+                (m, coms[i], inertias[i]), (carried[0], np.asarray(carried[1]), np.asarray(carried[2]))
+            )
         prev_R = Rr
         prev_off = Rr @ (np.array([L, 0.0, 0.0]) + vec(lk.final))
     return ChainArrays(pre_R, pre_p, masses, coms, inertias)
+
+
+def _joined(*bodies: Carried) -> Carried:
+    """One rigid body of several (mass, centre, inertia about the centre; one frame): parallel axes."""
+    mt = float(sum(b[0] for b in bodies))
+    if mt <= 0:
+        return bodies[0]
+    ct = np.sum([b[0] * b[1] for b in bodies], axis=0) / mt
+    inertia = np.zeros((3, 3))
+    for mk, ck, Ik in bodies:
+        d = ck - ct
+        inertia += Ik + mk * (d @ d * np.eye(3) - np.outer(d, d))
+    return mt, ct, inertia
 
 
 def tool_point(spec: ArmSpec, values: Mapping[str, float]) -> np.ndarray:

@@ -4,8 +4,8 @@ A joint path stays a table of trapezoid segments (drive.traj_eval, exact). Every
 sampled reference table (drive.ref_eval): Cartesian `lin` moves are sampled every REFERENCE_PERIOD
 through inverse kinematics and handed to the joint-independent cascade as joint set points; joint
 moves (a `ptp` node, move_joints, home) are their trapezoids sampled where they curve; direct inputs
-are expanded by signals.py. Actions, tasks and missions expand into those lower levels, and the
-payload changes of set_payload become events of the run.
+are expanded by signals.py. Actions, tasks and missions expand into those lower levels; the payload
+changes of set_payload and the grasps and releases become events of the run.
 
 Everything that can be known before the run is checked here, so a command the arm cannot carry out
 is refused as a whole before anything runs, naming the field inside the command (CommandError).
@@ -22,17 +22,18 @@ from typing import Any
 import numpy as np
 from simecs.mesh import messages as m
 from simecs.mesh.codec import DecodeError
-from simecs.mesh.environment import Obstacle
-from simecs.mesh.kinematics import rot_rpy
+from simecs.mesh.environment import Obstacle, grasp_problem
+from simecs.mesh.kinematics import rot_rpy, rpy_of
 from simecs.mesh.limits import limit
 from simecs.mesh.model import check_joints
-from simecs.mesh.robot_commands import ACTION_ARGS
+from simecs.mesh.robot_commands import ACTION_ARGS, NAME_ARG
 
-from . import contact, contact_geometry, signals
+from . import contact, contact_geometry, grasp, signals
 from . import drive as dr
+from .chain_dynamics import chain_frames
 from .description import ArmDescription
 from .errors import CommandError
-from .ik import ArmKinematics, orientation_error, rpy_of
+from .ik import ArmKinematics, orientation_error
 from .mechanics import chain_arrays
 
 #: s between the samples of a Cartesian reference (and of the curved parts of sampled joint moves).
@@ -59,6 +60,16 @@ class PlanStep:
 
 
 @dataclass
+class World:
+    """What the arm can touch from time `t` on: the obstacles where they are (a released object where
+    the tool left it) and the object the tool holds."""
+
+    t: float
+    obstacles: list[Obstacle]
+    held: grasp.Held | None = None
+
+
+@dataclass
 class Plan:
     """What a run follows: joint-path nodes, or a reference table with joint modes and events."""
 
@@ -72,6 +83,8 @@ class Plan:
     tab: np.ndarray | None = None
     jmode: np.ndarray | None = None
     events: list[tuple[float, dict[str, float]]] = field(default_factory=list)
+    grasps: list[tuple[float, str]] = field(default_factory=list)  # (t, object taken; '': a release)
+    worlds: list[World] = field(default_factory=list)  # from each grasp and release on (planned poses)
     tool_path: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     start_pose: list[float] = field(default_factory=list)  # the tool: x, y, z, roll, pitch, yaw
     end_pose: list[float] = field(default_factory=list)
@@ -82,7 +95,7 @@ class Plan:
             sim.set_joint_path(self.joint_nodes)
         else:
             assert self.tab is not None and self.jmode is not None
-            sim.set_reference(self.tab, self.jmode, self.events)
+            sim.set_reference(self.tab, self.jmode, self.events, self.grasps)
         sim.set_forces(self.forces)
 
     def pushing(self, times: np.ndarray) -> np.ndarray:
@@ -156,9 +169,10 @@ def _where(path: str, sub: str) -> str:
 
 
 class _Reference:
-    """A reference table being built move by move: rows [t, q, qd], the set point moving on."""
+    """A reference table being built move by move: rows [t, q, qd], the set point moving on, and the
+    world the arm moves in (objects grasped and released on the way)."""
 
-    def __init__(self, q0: np.ndarray, max_rows: int) -> None:
+    def __init__(self, q0: np.ndarray, max_rows: int, obstacles: Sequence[Obstacle]) -> None:
         self.n = q0.shape[0]
         self.t = 0.0
         self.q = q0.copy()
@@ -166,6 +180,12 @@ class _Reference:
         self.blocks: list[np.ndarray] = [np.concatenate([[0.0], q0, np.zeros(self.n)])[None, :]]
         self.rows = 1
         self.events: list[tuple[float, dict[str, float]]] = []
+        self.grasps: list[tuple[float, str]] = []
+        self.worlds = [World(0.0, list(obstacles))]
+
+    @property
+    def world(self) -> World:
+        return self.worlds[-1]
 
     def add(self, path: str, times: np.ndarray, qs: np.ndarray, qds: np.ndarray) -> None:
         """Rows at times after the current end (the first sample, the current one, is left out)."""
@@ -211,8 +231,11 @@ class Planner:
         initial: Sequence[float] | np.ndarray,
         stop_time: float,
         max_rows: int | None = None,
+        obstacles: Sequence[Obstacle] = (),
     ) -> None:
+        """`obstacles`: the session's, which grasps take (and the path check looks at)."""
         self.model = model
+        self.obstacles = list(obstacles)
         self.n = model.n
         self.values = dict(values)
         self.q0 = np.asarray(initial, dtype=float)
@@ -224,6 +247,7 @@ class Planner:
         self.upper = np.array([lk.joint_max for lk in model.spec.links])
         self.vmax = np.array([self.values[f"{j}.traj.max_speed"] for j in self.names])
         self.amax = np.array([self.values[f"{j}.traj.max_acc"] for j in self.names])
+        self._arrays = chain_arrays(model.spec, self.values)
 
     # ---- entry ----
     def plan(self, command: m.RobotCommand) -> Plan:
@@ -232,29 +256,61 @@ class Planner:
         plan.start_pose, plan.end_pose = self.pose(self.q0), self.pose(plan.final_q)
         return plan
 
-    def collision(self, plan: Plan, obstacles: Sequence[Obstacle]) -> tuple[str, str] | None:
-        """(field, why) when the planned path makes the arm touch an obstacle: the field is `initial`
-        or the step's path under `command`. A path that follows speeds or currents is not known before
-        the run: None. While a node sets a force the tool may touch (it is meant to push)."""
+    def collision(self, plan: Plan) -> tuple[str, str] | None:
+        """(field, why) when the planned path makes the arm (or what it carries) touch an obstacle: the
+        field is `initial` or the step's path under `command`. A path that follows speeds or currents
+        is not known before the run: None. While a node sets a force the tool may touch (it is meant
+        to push); the tool probe passes through the objects the command grasps."""
         sampled = plan.joint_samples(self.q0, PATH_CHECK_PERIOD)
-        if sampled is None or not obstacles:
+        if sampled is None or not self.obstacles:
             return None
         times, qs = sampled
-        arrays = chain_arrays(self.model.spec, self.values)
-        found = np.zeros(3)
-        k = contact.first_touch(
-            contact_geometry.sphere_table(self.model.spec, self.values),
-            contact_geometry.obstacle_table(obstacles),
-            arrays.pre_R,
-            arrays.pre_p,
-            np.ascontiguousarray(qs),
-            plan.pushing(times),  # where the tool is meant to push, only the rest of the arm must not touch
-            found,
-        )
-        if k < 0:
-            return None
-        t = float(times[k])
-        what = f"link{int(found[0]) + 1} would touch obstacle {obstacles[int(found[1])].name}"
+        pushing = plan.pushing(times)  # where the tool pushes, only the rest of the arm must not touch
+        worlds = plan.worlds or [World(0.0, self.obstacles)]
+        taken = {name for _t, name in plan.grasps if name}
+        found = np.zeros(4)
+        for w, world in enumerate(worlds):
+            end = worlds[w + 1].t if w + 1 < len(worlds) else math.inf
+            rows = np.flatnonzero((times >= world.t - 1e-12) & (times < end - 1e-12))
+            if rows.size == 0:
+                continue
+            spheres, obs = self.contact_tables(world, taken)
+            hit = contact.first_touch(
+                spheres,
+                obs,
+                self._arrays.pre_R,
+                self._arrays.pre_p,
+                np.ascontiguousarray(qs[rows]),
+                pushing[rows],
+                found,
+            )
+            if hit >= 0:
+                return self._touch(plan, int(rows[hit]), float(times[rows[hit]]), world.obstacles, found)
+        return None
+
+    def contact_tables(self, world: World, taken: set[str]) -> tuple[np.ndarray, np.ndarray]:
+        """The arm's spheres (with those of the object it holds) and the obstacles' table (the objects
+        of `taken` marked grasped, the held one held) in `world`."""
+        spheres = contact_geometry.sphere_table(self.model.spec, self.values)
+        obs = contact_geometry.obstacle_table(world.obstacles)
+        for k, ob in enumerate(world.obstacles):
+            if ob.name in taken:
+                obs[k, contact_geometry.OB_GRASP] = contact_geometry.GRASPED
+        if world.held is not None:
+            obs[world.held.index, contact_geometry.OB_GRASP] = contact_geometry.HELD
+            carried = grasp.carried_spheres(world.obstacles[world.held.index], world.held, self.n - 1)
+            spheres = np.vstack([spheres, carried])
+        return spheres, obs
+
+    def _touch(
+        self, plan: Plan, k: int, t: float, obstacles: Sequence[Obstacle], found: np.ndarray
+    ) -> tuple[str, str]:
+        hit = obstacles[int(found[1])].name
+        world = next(w for w in reversed(plan.worlds or [World(0.0, [])]) if w.t <= t + 1e-12)
+        if found[3] == contact_geometry.CARRIED and world.held is not None:
+            what = f"the carried {world.obstacles[world.held.index].name} would touch obstacle {hit}"
+        else:
+            what = f"link{int(found[0]) + 1} would touch obstacle {hit}"
         depth = f"{found[2] * 1000:.1f} mm deep"
         if k == 0:
             return "initial", f"at the initial pose {what} ({depth}): move the arm or the obstacle clear"
@@ -277,7 +333,7 @@ class Planner:
             return self._joint_path(command)
         if isinstance(command, m.DirectInput):
             return self._direct_input(command)
-        ref = _Reference(self.q0, self.max_rows)
+        ref = _Reference(self.q0, self.max_rows, self.obstacles)
         steps: list[PlanStep] = []
         forces = []
         if isinstance(command, m.CartesianPath):
@@ -306,6 +362,8 @@ class Planner:
             tab=tab,
             jmode=np.full(self.n, dr.JM_POSITION, dtype=np.int64),
             events=ref.events,
+            grasps=ref.grasps,
+            worlds=ref.worlds,
             tool_path=self._tool_path(tab[:, 1 : 1 + self.n]),
             forces=np.array(forces) if any(f[4] > 0 for f in forces) else np.zeros((0, 5)),
         )
@@ -489,7 +547,45 @@ class Planner:
             if "size" in args:
                 changes["payload.size"] = float(args["size"])
             ref.events.append((ref.t, changes))
+        elif act.primitive == "grasp":
+            self._grasp(ref, str(args["object"]), _where(path, "args.object"))
+        elif act.primitive == "release":
+            self._release(ref, _where(path, "primitive"))
         return PlanStep(path or "action", act.primitive, t0, ref.t, task, act.name or act.primitive)
+
+    def _last_frame(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The last joint's frame (R, p) at q: what a grasped object hangs on."""
+        R_all, p_all = np.empty((self.n, 3, 3)), np.empty((self.n, 3))
+        chain_frames(self._arrays.pre_R, self._arrays.pre_p, q, R_all, p_all)
+        return R_all[-1], p_all[-1]
+
+    def _grasp(self, ref: _Reference, name: str, where: str) -> None:
+        world = ref.world
+        index = next((k for k, ob in enumerate(world.obstacles) if ob.name == name), -1)
+        if index < 0:
+            known = ", ".join(ob.name for ob in world.obstacles) or "none"
+            raise CommandError(where, f"no obstacle named {name} in the session (obstacles: {known})")
+        if world.held is not None:
+            holding = world.obstacles[world.held.index].name
+            raise CommandError(where, f"the tool holds {holding} already: release it first")
+        ob = world.obstacles[index]
+        why = grasp_problem(ob) or grasp.reach_problem(ob, self.kin.tool_pose(ref.q)[0])
+        if why:
+            raise CommandError(where, why)
+        R, p = self._last_frame(ref.q)
+        ref.grasps.append((ref.t, name))
+        ref.worlds.append(World(ref.t, world.obstacles, grasp.take(index, ob, R, p)))
+
+    def _release(self, ref: _Reference, where: str) -> None:
+        world = ref.world
+        if world.held is None:
+            raise CommandError(where, "the tool holds nothing to release (grasp comes first)")
+        R, p = self._last_frame(ref.q)
+        obstacles = list(world.obstacles)
+        k = world.held.index
+        obstacles[k] = grasp.placed(obstacles[k], *grasp.world_pose(world.held, R, p))
+        ref.grasps.append((ref.t, ""))
+        ref.worlds.append(World(ref.t, obstacles))
 
     def _args(self, act: m.Action, where: str) -> dict[str, Any]:
         """The action's arguments checked against its primitive's table, defaults filled in."""
@@ -508,7 +604,13 @@ class Planner:
                     raise CommandError(field_, f"{act.primitive} needs {name} ({arg.description})")
                 continue
             size = self.n if arg.size == -1 else arg.size
-            if size == 0:
+            if size == NAME_ARG:
+                if not isinstance(raw, str):
+                    raise CommandError(field_, f"must be a name ({arg.description})")
+                out[name] = raw
+            elif isinstance(raw, str):
+                raise CommandError(field_, f"must be a number in {arg.unit}, not a name")
+            elif size == 0:
                 if isinstance(raw, list):
                     raise CommandError(field_, f"must be a number in {arg.unit}, not a list")
                 low_ok = raw > arg.min if arg.above_min else raw >= arg.min

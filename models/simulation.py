@@ -19,10 +19,10 @@ from simecs.mesh.environment import Obstacle, check_obstacles
 from simecs.mesh.kinematics import rot_rpy
 from simecs.mesh.model import CONTROL_SYSTEMS
 
-from . import chain_dynamics
+from . import chain_dynamics, grasp
 from . import drive as dr
 from .contact import contact_prestep, pair_width, tool_force
-from .contact_geometry import link_bounds, obstacle_table, sphere_table
+from .contact_geometry import GRASPED, HELD, OB_GRASP, link_bounds, obstacle_table, sphere_table
 from .description import ArmDescription
 from .errors import SimulationError
 from .exudyn_chain import GRAVITY, ExudynChain, exudyn
@@ -58,8 +58,10 @@ class Simulation:
         self._external = np.zeros(self.n, dtype=bool)  # the joints an external controller drives
         self._control = ("joint_independent", 0.001)  # the built-in control system and its period
         self._opspace: OpspaceController | None = None
-        self._events: list[tuple[float, dict[str, float]]] = []  # (t, parameter changes) during a run
-        self._pending_events: list[tuple[float, dict[str, float]]] = []
+        #: what happens during a run: (t, parameter changes, grasp: an object's name, '' a release, None
+        #: neither), in time order
+        self._events: list[tuple[float, dict[str, float], str | None]] = []
+        self._pending_events: list[tuple[float, dict[str, float], str | None]] = []
         self._run_values: dict[str, float] | None = None  # the values a run started with
         self._nodes: list[tuple[np.ndarray, float, float]] = []
         self._solver: Any = None
@@ -74,6 +76,13 @@ class Simulation:
         self._k_next = 0
         self._t_next = 0.0
         self._obstacles: list[Obstacle] = list(self._desc.obstacles)
+        # the run's own world: its obstacles (a released object where it was left), the object held,
+        # the names the run grasps, the grasp state of the result rows, what the user must be told
+        self._world: list[Obstacle] = list(self._obstacles)
+        self._held: grasp.Held | None = None
+        self._taken: set[str] = set()
+        self._grasp_state = grasp.no_grasp()
+        self._notices: list[str] = []
         self._contact_tables()
         self._chain = ExudynChain(self._mech, self._tool_local(), self._prestep)
         self._mbs: Any = self._chain.mbs  # the hot path reads these two on every step
@@ -83,14 +92,24 @@ class Simulation:
         return tool_point(self.package.spec, self.values)
 
     def _update_mechanics(self) -> None:
-        self._mech = chain_arrays(self.package.spec, self.values)
+        held = self._held
+        carried = None if held is None else grasp.held_body(self._world[held.index], held)
+        self._mech = chain_arrays(self.package.spec, self.values, carried)
         self._chain.update(self._mech, self._tool_local())
         self._contact_tables()
 
     def _contact_tables(self) -> None:
-        """The arm's contact spheres at the values now, the obstacles' table and the kernels' work."""
+        """The arm's contact spheres at the values now (with the object it holds), the obstacles' table
+        (grasp states marked) and the kernels' work arrays."""
         spheres = sphere_table(self.package.spec, self.values)
-        self._obs = obstacle_table(self._obstacles)
+        self._obs = obstacle_table(self._world)
+        for k, ob in enumerate(self._world):
+            if ob.name in self._taken:
+                self._obs[k, OB_GRASP] = GRASPED
+        if self._held is not None:
+            self._obs[self._held.index, OB_GRASP] = HELD
+            carried = grasp.carried_spheres(self._world[self._held.index], self._held, self.n - 1)
+            spheres = np.vstack([spheres, carried])
         ns, no = spheres.shape[0], self._obs.shape[0]
         self._caps = np.zeros((ns, no))
         pairs = np.zeros((ns * no, pair_width(self.n)))
@@ -103,12 +122,36 @@ class Simulation:
     def set_obstacles(self, obstacles: Sequence[Obstacle]) -> None:
         """What the arm can touch in the runs that follow (the model's own obstacles until then)."""
         check_obstacles(obstacles)
+        if self._running:
+            self._finalize()
         self._obstacles = list(obstacles)
-        self._contact_tables()
+        self._reset_world()
 
     @property
     def obstacles(self) -> list[Obstacle]:
         return list(self._obstacles)
+
+    @property
+    def world(self) -> list[Obstacle]:
+        """The run's obstacles now: those of `obstacles`, a released object where the tool left it."""
+        return list(self._world)
+
+    def take_notices(self) -> list[str]:
+        """What the run has to tell its user since the last call (a grasp that missed its object)."""
+        out, self._notices = self._notices, []
+        return out
+
+    def _reset_world(self) -> None:
+        """The world of the coming run: the obstacles as set, nothing held, the run's grasps known."""
+        was_holding = self._held is not None
+        self._world = list(self._obstacles)
+        self._held = None
+        self._taken = {name for _t, _c, name in self._events if name}
+        self._grasp_state = grasp.no_grasp()
+        if was_holding:
+            self._update_mechanics()
+        else:
+            self._contact_tables()
 
     # ---- API ----
     def set_values(self, values: Mapping[str, float]) -> None:
@@ -168,13 +211,19 @@ class Simulation:
         self.jmode = np.zeros(self.n, dtype=np.int64)
         self.forces = np.zeros((0, 5))
         self._events = []
+        self._taken = set()
 
     def set_reference(
-        self, tab: np.ndarray, jmode: np.ndarray, events: Sequence[tuple[float, Mapping[str, float]]] = ()
+        self,
+        tab: np.ndarray,
+        jmode: np.ndarray,
+        events: Sequence[tuple[float, Mapping[str, float]]] = (),
+        grasps: Sequence[tuple[float, str]] = (),
     ) -> None:
         """The next run follows a sampled reference (rows [t, r, rd], drive.ref_eval) with each joint in
-        its mode (drive.JM_*), and applies `events` (parameter changes, e.g. a payload) at their times.
-        The planner (planner.py) makes these from a robot command; it has checked them."""
+        its mode (drive.JM_*), applies `events` (parameter changes, e.g. a payload) at their times and
+        takes (a name) or releases ('') an obstacle at the times of `grasps`. The planner (planner.py)
+        makes these from a robot command; it has checked them."""
         tab = np.ascontiguousarray(tab, dtype=float)
         if tab.ndim != 2 or tab.shape[1] != 1 + 2 * self.n or tab.shape[0] < 1:
             raise ValueError(f"a reference table has rows of {1 + 2 * self.n} numbers")
@@ -184,9 +233,18 @@ class Simulation:
             self.package.check_values({**self.values, **changes})
             if any(not k.startswith("payload.") for k in changes):
                 raise ValueError("only payload.* parameters change during a run")
+        names = {ob.name for ob in self._obstacles}
+        for _t, name in grasps:
+            if name and name not in names:
+                raise ValueError(f"grasp: no obstacle named {name}")
         self.tab = tab
         self.jmode = np.ascontiguousarray(jmode, dtype=np.int64)
-        self._events = sorted(((float(t), dict(c)) for t, c in events), key=lambda e: e[0])
+        timed: list[tuple[float, dict[str, float], str | None]] = [
+            (float(t), dict(c), None) for t, c in events
+        ]
+        timed += [(float(t), {}, name) for t, name in grasps]
+        self._events = sorted(timed, key=lambda e: e[0])  # stable: the plan's order at one time
+        self._taken = {name for _t, name in grasps if name}
         self._nodes = []
         self.seg = np.zeros((0, 3 + 2 * self.n))
         self.forces = np.zeros((0, 5))
@@ -308,6 +366,7 @@ class Simulation:
         if self._run_values is not None and self._run_values != self.values:
             self.values = self._run_values  # undo the previous run's events
             self._update_mechanics()
+        self._reset_world()
         self._run_values = dict(self.values)
         self._pending_events = list(self._events)
         self.live[:, [dr.LV_OFFSET, dr.LV_RATE, dr.LV_T0, dr.LV_IREF]] = 0.0  # set_external stays
@@ -510,6 +569,7 @@ class Simulation:
             self._Rrpy,
             self._tool_loc,
             self._contact_rows,
+            self._grasp_state,
             self._rows,
             k,
         )
@@ -545,14 +605,46 @@ class Simulation:
             raise SimulationError("advance() before start()")
         parts = []
         while self._pending_events and self._pending_events[0][0] <= float(until) and not self.finished:
-            t_event, changes = self._pending_events.pop(0)
+            t_event, changes, name = self._pending_events.pop(0)
             if t_event > self._time + 0.5 * self.h or self._k_next == 0:
                 parts.append(self._advance_chunk(t_event))
             self.values.update(changes)
+            if name is not None:
+                self._grasp(name)
             self._update_mechanics()
             self._mech_arrays = self._mech
         parts.append(self._advance_chunk(until))
         return parts[0] if len(parts) == 1 else np.concatenate(parts)
+
+    def _grasp(self, name: str) -> None:
+        """Take obstacle `name` ('': release what the tool holds) at the pose the arm has now. A grasp
+        whose object is out of the tool's reach (the arm did not get there) takes nothing: the user
+        is told."""
+        q = np.asarray(self._sd.GetODE2Coordinates(), dtype=float)
+        R_all, p_all = np.empty((self.n, 3, 3)), np.empty((self.n, 3))
+        chain_dynamics.chain_frames(self._mech.pre_R, self._mech.pre_p, q, R_all, p_all)
+        R, p = R_all[-1], p_all[-1]
+        state = self._grasp_state
+        if not name:
+            if self._held is not None:
+                k = self._held.index
+                centre, frame = grasp.world_pose(self._held, R, p)
+                self._world[k] = grasp.placed(self._world[k], centre, frame)
+                self._held = None
+                state[grasp.GS_HELD] = 0.0
+                state[grasp.GS_P : grasp.GS_P + 3] = centre
+                state[grasp.GS_R : grasp.GS_R + 9] = frame.reshape(9)
+            return
+        k = next(i for i, ob in enumerate(self._world) if ob.name == name)
+        why = grasp.reach_problem(self._world[k], p + R @ self._tool_loc)
+        if why:
+            self._notices.append(f"the grasp at t = {self._time:.3f} s took nothing: {why}")
+            return
+        self._held = grasp.take(k, self._world[k], R, p)
+        state[grasp.GS_OBJECT] = k + 1
+        state[grasp.GS_HELD] = 1.0
+        state[grasp.GS_P : grasp.GS_P + 3] = self._held.p
+        state[grasp.GS_R : grasp.GS_R + 9] = self._held.R.reshape(9)
 
     def _advance_chunk(self, until: float) -> np.ndarray:
         """One solver call up to `until`: the rows inside the chunk are taken in the PreStep at the

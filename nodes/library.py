@@ -122,14 +122,16 @@ class ModelLibrary:
         command: m.RobotCommand,
         stop_time: float,
         obstacles: Sequence[m.Obstacle] = (),
+        collisions: bool = False,
     ) -> Any:
-        """The command expanded for this model, values and initial pose (models.planner.Plan), or a
-        refusal naming the field inside `command` (a level the model does not accept: unsupported).
-        With `obstacles`, a path that makes the arm touch one is refused too (naming the step)."""
-        planner = self._planner(model_id, command.kind, "command", values, initial, stop_time)
+        """The command expanded for this model, values and initial pose (models.planner.Plan) among
+        `obstacles` (what grasps take), or a refusal naming the field inside `command` (a level the
+        model does not accept: unsupported). With `collisions`, a path that makes the arm touch an
+        obstacle is refused too (naming the step)."""
+        planner = self._planner(model_id, command.kind, "command", values, initial, stop_time, obstacles)
         with _refused_as("command"):
             plan = planner.plan(command)
-        touch = planner.collision(plan, obstacles)
+        touch = planner.collision(plan) if collisions else None
         if touch is not None:
             raise RequestError("bad_request", touch[1], touch[0])
         return plan
@@ -151,6 +153,7 @@ class ModelLibrary:
         values: Mapping[str, float],
         initial: Sequence[float] | None = None,
         stop_time: float = 1.0,
+        obstacles: Sequence[m.Obstacle] = (),
     ) -> Any:
         """A planner of the model, once it is known to accept commands of `kind`."""
         from simecs.models.planner import Planner
@@ -163,7 +166,7 @@ class ModelLibrary:
                 f"{where}.kind",
             )
         start = initial if initial is not None else [0.0] * len(desc.links)
-        return Planner(self._packages[model_id], values, start, stop_time)
+        return Planner(self._packages[model_id], values, start, stop_time, obstacles=obstacles)
 
 
 @contextmanager

@@ -30,8 +30,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import msgspec
 import numpy as np
-from simecs.mesh import columns, shapes
+from simecs.mesh import columns, scene_state, shapes
 from simecs.mesh.environment import Obstacle
 from simecs.mesh.model import ModelDescription
 
@@ -352,33 +353,121 @@ def scene_update(
     run's parameter values; a mesh shape carries the GLB of `meshes` (left out when it is missing)."""
     entities: dict[str, dict[str, Any]] = {}
     drawn_solids = [(s, "") for s in shapes.solids(model, values)]
-    drawn_solids += [(s, "obstacles") for s in shapes.obstacle_solids(obstacles)]
+    drawn_solids += [(s, OBSTACLES_ENTITY) for s in shapes.obstacle_solids(obstacles)]
     for solid, group in drawn_solids:
         if not solid.geometry.visible:
             continue
         world = solid.frame == shapes.WORLD
         eid = group or ("environment" if world else solid.frame)
         if eid not in entities:
-            entities[eid] = {
-                "timestamp": stamp(stamp_ns),
-                "frame_id": WORLD_FRAME if world else solid.frame,
-                "id": eid,
-                "lifetime": {"sec": 0, "nsec": 0},
-                "frame_locked": not world,
-                "metadata": [{"key": "model", "value": model.id}],
-                "arrows": [],
-                "cubes": [],
-                "spheres": [],
-                "cylinders": [],
-                "lines": [],
-                "triangles": [],
-                "texts": [],
-                "models": [],
-            }
+            entities[eid] = _entity(eid, WORLD_FRAME if world else solid.frame, stamp_ns, model.id)
         drawn = scene_primitive(solid, meshes or {})
         if drawn is not None:
             entities[eid][drawn[0]].append(drawn[1])
     return {"deletions": [], "entities": list(entities.values())}
+
+
+def _entity(eid: str, frame: str, stamp_ns: int, model_id: str) -> dict[str, Any]:
+    """An empty foxglove.SceneEntity; frame-locked unless its frame is the world."""
+    return {
+        "timestamp": stamp(stamp_ns),
+        "frame_id": frame,
+        "id": eid,
+        "lifetime": {"sec": 0, "nsec": 0},
+        "frame_locked": frame != WORLD_FRAME,
+        "metadata": [{"key": "model", "value": model_id}],
+        "arrows": [],
+        "cubes": [],
+        "spheres": [],
+        "cylinders": [],
+        "lines": [],
+        "triangles": [],
+        "texts": [],
+        "models": [],
+    }
+
+
+#: /scene entities of the world around the arm: the obstacles where they are, the one the tool holds
+#: (locked to the `grasped` frame of /tf), the contact forces' arrows.
+OBSTACLES_ENTITY, HELD_ENTITY, CONTACTS_ENTITY = "obstacles", "held", "contacts"
+CONTACT_COLOR = {"r": 0.86, "g": 0.12, "b": 0.12, "a": 1.0}
+
+
+class WorldScene:
+    """The /scene updates that follow a run's rows (mesh/scene_state.py): obstacles moved by a grasp
+    or a release, and the contact arrows at the /tf rate. The first /scene (scene_update) drew the
+    obstacles where the run's list puts them."""
+
+    def __init__(self, names: Sequence[str], obstacles: Sequence[Obstacle], model_id: str) -> None:
+        self.world = scene_state.WorldColumns(names)
+        self.obstacles = list(obstacles)
+        self.model_id = model_id
+        self.state = (0, 0)  # (object, held) of the last row seen
+        self.moved: dict[int, np.ndarray] = {}
+        self._arrows = 0  # arrows drawn by the last contact update
+
+    def grasp_updates(self, rows: np.ndarray, log_ns: Sequence[int]) -> list[tuple[int, dict[str, Any]]]:
+        """(log time, SceneUpdate) at each row where what the tool holds changes."""
+        out: list[tuple[int, dict[str, Any]]] = []
+        if not self.obstacles:
+            return out
+        for k, state in self.world.grasp_changes(rows, self.state):
+            self.state = state
+            self.world.moved(rows[k : k + 1], self.moved)
+            out.append((int(log_ns[k]), self._obstacles_update(int(log_ns[k]))))
+        return out
+
+    def _obstacles_update(self, ns: int) -> dict[str, Any]:
+        number, held = self.state
+        here = scene_state.placed(self.obstacles, self.moved)
+        carried = number - 1 if held else -1
+        world = _entity(OBSTACLES_ENTITY, WORLD_FRAME, ns, self.model_id)
+        for solid in shapes.obstacle_solids([ob for k, ob in enumerate(here) if k != carried]):
+            drawn = scene_primitive(solid, {})
+            if drawn is not None and solid.geometry.visible:
+                world[drawn[0]].append(drawn[1])
+        update: dict[str, Any] = {"deletions": [], "entities": [world]}
+        if 0 <= carried < len(here):
+            at_frame = msgspec.structs.replace(here[carried], position=[0.0] * 3, rotation_rpy=[0.0] * 3)
+            entity = _entity(HELD_ENTITY, columns.GRASPED_FRAME, ns, self.model_id)
+            for solid in shapes.obstacle_solids([at_frame]):
+                drawn = scene_primitive(solid, {})
+                if drawn is not None:
+                    entity[drawn[0]].append(drawn[1])
+            update["entities"].append(entity)
+        else:
+            update["deletions"].append({"timestamp": stamp(ns), "type": 0, "id": HELD_ENTITY})
+        return update
+
+    def contacts_update(self, row: np.ndarray, ns: int) -> dict[str, Any] | None:
+        """The contact arrows of a row as a SceneUpdate; None when there were none and are none."""
+        arrows = self.world.arrows(row)
+        if arrows.shape[0] == 0 and self._arrows == 0:
+            return None
+        self._arrows = arrows.shape[0]
+        entity = _entity(CONTACTS_ENTITY, WORLD_FRAME, ns, self.model_id)
+        for start, end in arrows:
+            entity["arrows"].append(_arrow(start, end))
+        return {"deletions": [], "entities": [entity]}
+
+
+def _arrow(start: np.ndarray, end: np.ndarray) -> dict[str, Any]:
+    """A foxglove.ArrowPrimitive from start to end (it points along its pose's +x)."""
+    d = end - start
+    length = float(np.linalg.norm(d))
+    x = d / length if length > 0 else np.array([1.0, 0.0, 0.0])
+    w = 1.0 + float(x[0])  # the rotation taking +x onto x: half-way quaternion (w, x cross v)
+    q = np.array([w, 0.0, -float(x[2]), float(x[1])]) if w > 1e-9 else np.array([0.0, 0.0, 0.0, 1.0])
+    q /= np.linalg.norm(q)
+    head = min(0.025, 0.4 * length)
+    return {
+        "pose": _pose(start, q),
+        "shaft_length": max(length - head, 0.0),
+        "shaft_diameter": 0.008,
+        "head_length": head,
+        "head_diameter": 0.024,
+        "color": CONTACT_COLOR,
+    }
 
 
 def ros2_field_paths(codec_: VarsCodec) -> dict[str, str]:

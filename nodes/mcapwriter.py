@@ -46,6 +46,7 @@ from .mcapfmt import (
     FormatError,
     JointEncoder,
     PoseEncoder,
+    WorldScene,
     build_vars_codec,
     foxglove_schema,
     scene_update,
@@ -196,6 +197,7 @@ class RunWriter:
         self.vars = build_vars_codec(layout.columns, layout.units)
         self.poses = PoseEncoder(layout.columns)
         self.joints = JointEncoder(layout.columns)
+        self.world = WorldScene(layout.columns, layout.context.obstacles, layout.model_id)
         self.messages = 0
         self.rows = 0
         self.frames = 0
@@ -290,6 +292,8 @@ class RunWriter:
         )
         log_ns = log_arr.tolist()
         written = n
+        for ns, update in self.world.grasp_updates(rows, log_ns):
+            self.write_json(self.ch_scene, update, ns)
         if self.poses or self.joints:
             tl = times.tolist()
             pick = []
@@ -314,6 +318,9 @@ class RunWriter:
                             self.ch_joints, [log_ns[i]], [self.joints.encode(jv[k], ts)], frame.wall_ns, seq
                         )
                         written += 1
+                    contacts = self.world.contacts_update(sel[k], log_ns[i]) if finite else None
+                    if contacts is not None:
+                        self.write_json(self.ch_scene, contacts, log_ns[i])
         self.rows += n
         self.messages += written
         self.dirty = True

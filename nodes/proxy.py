@@ -301,10 +301,10 @@ class Proxy(Node):
             )
             # a run's path is checked against the obstacles, unless the user asks for the contact
             check = isinstance(cmd, m.Run) and rec.settings.collisions == "refuse"
-            obstacles = list(rec.obstacles) if check else []
+            obstacles = list(rec.obstacles)
         if command is None:
             return None
-        return self.models.plan(model_id, values, initial, command, stop_time, obstacles)
+        return self.models.plan(model_id, values, initial, command, stop_time, obstacles, check)
 
     def _set_params(self, rec: SessionRecord, cmd: m.SetParams) -> dict[str, float]:
         rec.values = self.models.check(rec.model_id, cmd.values, rec.values)
@@ -374,6 +374,7 @@ class Proxy(Node):
 
     def _set_obstacles(self, rec: SessionRecord, cmd: m.SetObstacles) -> list[m.Obstacle]:
         rec.obstacles = list(cmd.obstacles)
+        self.store.publish_obstacles(rec)
         self.store.edited(rec)
         return rec.obstacles
 

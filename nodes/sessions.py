@@ -144,6 +144,7 @@ class SessionStore:
         self.records[rec.id] = rec
         rec.pubs["state"] = self._publisher(keys.state(rec.user, rec.id))
         rec.pubs["params"] = self._publisher(keys.params(rec.user, rec.id))
+        rec.pubs["obstacles"] = self._publisher(keys.obstacles(rec.user, rec.id))
 
     def create(self, user: str, desc: ModelDescription) -> SessionRecord:
         sid = keys.new_session_id()
@@ -161,6 +162,7 @@ class SessionStore:
         self._add(rec)
         self.publish_state(rec)
         self.publish_params(rec, [])
+        self.publish_obstacles(rec)
         return rec
 
     def get(self, key: str) -> SessionRecord:
@@ -209,6 +211,9 @@ class SessionStore:
     def publish_params(self, rec: SessionRecord, changed: list[str]) -> None:
         msg = m.ParamValues(session=rec.id, model_id=rec.model_id, values=rec.values, changed=changed)
         rec.pubs["params"].put(codec.dumps(msg))
+
+    def publish_obstacles(self, rec: SessionRecord) -> None:
+        rec.pubs["obstacles"].put(codec.dumps(m.ObstacleValues(session=rec.id, obstacles=rec.obstacles)))
 
     def move(self, rec: SessionRecord, event: str, persist: bool = True, **fields: Any) -> None:
         """Apply a lifecycle event (mesh.phases) and publish the new state."""

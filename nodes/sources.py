@@ -65,7 +65,9 @@ class SimulationSource:
         self.model_id = req.model_id
         package = models.get_model(req.model_id)
         try:
-            planner = Planner(package, req.values, req.initial, req.settings.stop_time)
+            planner = Planner(
+                package, req.values, req.initial, req.settings.stop_time, obstacles=req.obstacles
+            )
             self.plan = planner.plan(req.command)
         except models.CommandError as exc:
             field = f"command.{exc.field}" if exc.field else "command"
@@ -108,9 +110,10 @@ class SimulationSource:
         return self.sim.advance(until)
 
     def notices(self, rows: np.ndarray) -> list[str]:
-        """What the user must be told about the run's next rows (the contacts that began in them),
-        however they were made (the source's advance, or an external controller's exchange)."""
-        return self.contacts.scan(rows)
+        """What the user must be told about the run's next rows (the contacts that began in them, a
+        grasp that took nothing), however they were made (the source's advance, or an external
+        controller's exchange)."""
+        return self.sim.take_notices() + self.contacts.scan(rows)
 
     def seek(self, t: float) -> None:
         raise ValueError("a simulation cannot seek: only replay runs can")

@@ -56,6 +56,7 @@ def forged_messages(
         (keys.layout(user, session), codec.dumps(layout)),
         (keys.state(user, session), codec.dumps(m.SessionState(session, "finished", 10**6, run_id))),
         (keys.params(user, session), codec.dumps(params)),
+        (keys.obstacles(user, session), codec.dumps(m.ObstacleValues(session, []))),
         (
             keys.notices(user, session),
             codec.dumps(m.Notice(session, run_id, "recorder", "re-login at http://evil.example")),

@@ -53,6 +53,7 @@ class ServiceKeyPuts:
                 keys.vars_live(u, s),
                 keys.state(u, s),
                 keys.params(u, s),
+                keys.obstacles(u, s),
                 keys.notices(u, s),
                 keys.control(u, s),
                 keys.jog(u, s),

@@ -17,11 +17,12 @@ import math
 import numpy as np
 import pytest
 from simecs import models
-from simecs.mesh import keys
+from simecs.mesh import keys, scene_state
 from simecs.mesh import messages as m
 from simecs.mesh.client import RemoteError
+from simecs.mesh.kinematics import rpy_of
 from simecs.models.contact_geometry import TOOL_RADIUS
-from simecs.models.ik import ArmKinematics, rpy_of
+from simecs.models.ik import ArmKinematics
 
 from tests.conftest import Service
 from tests.test_commands import SPIDER_Q0, kinematics, run_to_end
@@ -68,6 +69,17 @@ def test_the_tool_pressed_on_a_plane_settles_at_force_over_stiffness() -> None:
     assert abs(last[c["contact.tool_fz"]] + K_PLANE * depth) < 1e-4 * K_PLANE * depth
     assert last[c["contact.link7.obstacle"]] == 1
     assert all(last[c[f"contact.link{j}.force"]] == 0.0 for j in range(1, pkg.n))
+    # The link's force vector is the tool's (only the tip touches), and it acts on the plane's surface
+    # right under the tip: what the viewer and /scene draw as an arrow.
+    link_f = np.array([last[c[f"contact.link7.f{a}"]] for a in "xyz"])
+    tool_f = np.array([last[c[f"contact.tool_f{a}"]] for a in "xyz"])
+    assert (
+        np.array_equal(link_f, tool_f) and abs(np.linalg.norm(link_f) - last[c["contact.link7.force"]]) < 1e-9
+    )
+    point = np.array([last[c[f"contact.link7.p{a}"]] for a in "xyz"])
+    assert abs(point[2] - z_plane) < 1e-12 and np.linalg.norm(point[:2] - tool[:2]) < 1e-12
+    arrows = scene_state.WorldColumns(sim.columns).arrows(last)
+    assert arrows.shape == (1, 2, 3) and np.array_equal(arrows[0, 0], point) and arrows[0, 1, 2] < point[2]
 
 
 @pytest.mark.parametrize("model_id", ["spider", "puma560", "panda", "ur5", "jaco2"])

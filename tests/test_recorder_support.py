@@ -99,6 +99,7 @@ def make_rows(model: ModelDescription, n: int, dt: float = 0.002, t_start: float
         for j in range(2):
             row += [q[j], 0.5 * np.cos(t), float(rng.standard_normal()), float(rng.standard_normal()) / 3]
         row += kinematics.link_poses(model, values, q).ravel().tolist()
+        row += [0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0]  # the grasped frame before any grasp: the origin
         rows[i] = row
     return rows
 

@@ -56,6 +56,7 @@ H = math.pi / 2
 #: Modules of the session controller and what it uses: no viser, no GUI.
 HEADLESS = (
     "session",
+    "opening",
     "edits",
     "results_io",
     "runs",
@@ -368,7 +369,7 @@ def attached(*models: ModelDescription) -> tuple[session.SessionController, Fake
     """A controller that loaded the first model (as the Load button does), workers drained."""
     ctl, mesh, got = controller(*models)
     ctl.start()
-    ctl.load_model((models or (arm(),))[0].id)
+    ctl.opening.load_model((models or (arm(),))[0].id)
     ctl.drain()
     assert ctl.session is not None
     return ctl, mesh.sessions[ctl.session.id], got
@@ -408,7 +409,7 @@ def live_frame(lay: m.RunLayout, model: ModelDescription, q: list[float], t: flo
     for name, qi in zip(columns.joint_position_columns(model), q, strict=True):
         row[where[name]] = qi
     poses = link_poses(model, lay.context.values, q)
-    for frame, pose in zip(columns.pose_frames(model), poses, strict=True):
+    for frame, pose in zip(columns.pose_frames(model)[: len(poses)], poses, strict=True):
         for field, value in zip(columns.POSE_FIELDS, pose, strict=True):
             row[where[columns.pose_column(frame, field)]] = value
     return frames.Frame(lay.run_index, 0, time.time_ns(), row[None, :], frames.FLAG_LIVE)
@@ -613,7 +614,8 @@ def test_pose_indices_map_the_pose_columns() -> None:
     model = arm()
     names, _units = columns.run_columns(model)
     idx = columns.pose_indices(names, columns.pose_frames(model))
-    assert idx is not None and idx.shape == (4, 7) and names[idx[1, 0]] == "pose.link2.x"
+    # three links, the tool and the grasped object
+    assert idx is not None and idx.shape == (5, 7) and names[idx[1, 0]] == "pose.link2.x"
     assert columns.pose_indices([columns.TIME, "joint1.q"], columns.pose_frames(model)) is None
 
 
@@ -1049,12 +1051,12 @@ def test_controller_starts_with_the_library_then_attaches_a_new_session() -> Non
     assert got.of(events.UserChanged)[0].user == "tester"  # the viewer's --user for a new browser
     listed = got.of(events.LibraryListed)[-1]
     assert [s.id for s in listed.models] == ["arm3"] and not listed.can_dismiss and listed.current == ""
-    ctl.load_model("arm3")
+    ctl.opening.load_model("arm3")
     ctl.drain()
     sc = mesh.sessions[ctl.session.id]
     assert got.of(events.SessionRemembered)[-1].session == sc.id
     assert got.of(events.ModelLoaded)[-1].model.id == "arm3" and got.of(events.LibraryClosed)
-    assert set(sc.watched) == {"on_state", "on_params", "on_layout", "on_live"}
+    assert set(sc.watched) == {"on_state", "on_params", "on_obstacles", "on_layout", "on_live"}
     assert ctl.values == arm().default_values() and ctl.streamed == {v.name for v in arm().variables}
     assert got.of(events.ParamSetsChanged)[-1].names == ["light"]
     assert got.of(events.StateShown)[-1].state.phase == "created"
@@ -1071,7 +1073,7 @@ def test_on_a_secured_mesh_a_tab_logs_in_first_and_acts_as_its_user_only() -> No
     ctl.drain()
     listed = got.of(events.LibraryListed)[-1]
     assert listed.login and listed.sessions == [] and ctl.session is None  # nothing before the password
-    ctl.load_model("arm3")
+    ctl.opening.load_model("arm3")
     ctl.drain()
     assert "log in first" in got.of(events.Notice)[-1].body and ctl.session is None
     ctl.login("not-her-password")
@@ -1081,14 +1083,14 @@ def test_on_a_secured_mesh_a_tab_logs_in_first_and_acts_as_its_user_only() -> No
     ctl.drain()
     assert [c.user for c in host.logins] == ["ann"]
     assert ctl.session is not None and ctl.session.id == kept.id  # the remembered session, reopened
-    ctl.load_model("arm3")
+    ctl.opening.load_model("arm3")
     ctl.drain()
     assert mesh.sessions[ctl.session.id].snap.user == "ann"
     # Another name logs ann out: her client is closed, nothing is asked as her any more.
-    ctl.set_user("bob")
+    ctl.opening.set_user("bob")
     ctl.drain()
     assert host.logins[0].closed and not ctl.identity.logged_in
-    ctl.open_library()
+    ctl.opening.open_library()
     ctl.drain()
     assert got.of(events.LibraryListed)[-1].login and got.of(events.LibraryListed)[-1].sessions == []
     ctl.close()
@@ -1116,11 +1118,11 @@ def test_one_tab_per_session() -> None:
     second.subscribe(seen)
     second.start()  # the same browser: the same user
     second.drain()
-    second.open_session(sc.id)
+    second.opening.open_session(sc.id)
     second.drain()
     assert second.session is None and seen.of(events.Notice)[-1].title == "Session already open"
     ctl.close()  # the first tab went away: the session is free
-    second.open_session(sc.id)
+    second.opening.open_session(sc.id)
     second.drain()
     assert second.session is not None and second.session.id == sc.id
 
@@ -1423,7 +1425,7 @@ def test_the_tab_applies_controller_events_to_its_panels(server: Any) -> None:
     ctl.start()
     ctl.drain()
     assert tab.library is not None and client.stored["simecs.user"] == "tester"
-    ctl.load_model("arm3")
+    ctl.opening.load_model("arm3")
     ctl.drain()
     page = tab.page
     assert page is not None and tab.library is None
@@ -1641,3 +1643,94 @@ def test_a_switch_parameter_is_a_check_box_and_applies_as_0_or_1(server: Any) ->
     assert box.value is False and panel.drafts == {}
     panel.show_values(desc.default_values())
     assert box.value is True
+
+
+# -- obstacles: the session's list, a run's grasps and contacts, the panel ---------------------------------
+def grasp_layout(sc: FakeSession, model: ModelDescription) -> m.RunLayout:
+    """A run's layout with the grasp's and the contacts' columns (a simulated model has them)."""
+    lay = layout(sc, model)
+    extra = [columns.GRASP_OBJECT, columns.GRASP_HELD]
+    extra += [
+        columns.contact_column(i, f) for i in (1, 2, 3) for f in ("force", "fx", "fy", "fz", "px", "py", "pz")
+    ]
+    lay.columns = [*lay.columns, *extra]
+    lay.units = [*lay.units, *[""] * len(extra)]
+    lay.live_columns = columns.live_columns(lay.columns, columns.joint_position_columns(model))
+    return lay
+
+
+def test_the_page_draws_the_sessions_obstacles_and_a_runs_grasps_and_contacts(server: Any) -> None:
+    from simecs.viewer.obstacles import NEW
+
+    model = arm()
+    mesh = FakeMesh(model)
+    client = FakeClient(server)
+    tab = Tab(FakeHost(mesh), client)
+    tab.build_frame()
+    ctl = tab.controller
+    ctl.start()
+    ctl.opening.load_model("arm3")
+    ctl.drain()
+    page = tab.page
+    assert page is not None
+    sc = mesh.sessions[ctl.session.id]
+    try:
+        # another client's set_obstacles reaches this tab: drawn, and offered in the panel
+        box = m.Obstacle("box1", "box", [0.5, 0.0, 0.1], size=[0.1, 0.1, 0.1], mass=1.0)
+        sc.watched["on_obstacles"](m.ObstacleValues(sc.id, [box]))
+        assert ctl.obstacles == [box] and len(page.scene._obstacles) == 1
+        assert tuple(page.obstacles.pick.options) == ("box1", NEW)
+        assert tuple(page.scene._obstacles[0].position) == pytest.approx((0.5, 0.0, 0.1))
+        # a run grasps box1 and pushes link2 onto something: the box moves with the rows, the force
+        # shows as an arrow; the live columns carry what the scene draws even when few are chosen
+        lay = grasp_layout(sc, model)
+        assert columns.GRASP_OBJECT in lay.live_columns and "contact.link2.fx" in lay.live_columns
+        assert "contact.link2.force" not in lay.live_columns
+        sc.watched["on_layout"](lay)
+        frame = live_frame(lay, model, [0.1, 0.2, 0.3])
+        row = frame.rows[0]
+        where = {c: i for i, c in enumerate(lay.live_columns)}
+        pose = [0.2, 0.3, 0.4, 1.0, 0.0, 0.0, 0.0]
+        for f, v in zip(columns.POSE_FIELDS, pose, strict=True):
+            row[where[columns.pose_column(columns.GRASPED_FRAME, f)]] = v
+        row[where[columns.GRASP_OBJECT]], row[where[columns.GRASP_HELD]] = 1.0, 1.0
+        for f, v in zip(("fx", "fy", "fz", "px", "py", "pz"), (0.0, 0.0, 50.0, 0.1, 0.1, 0.1), strict=True):
+            row[where[columns.contact_column(2, f)]] = v
+        sc.watched["on_live"](frame)
+        assert tuple(page.scene._obstacles[0].position) == pytest.approx((0.2, 0.3, 0.4))
+        assert page.scene._contacts is not None
+        assert np.allclose(page.scene._arrows, [[[0.1, 0.1, 0.1], [0.1, 0.1, 0.15]]])
+        # the next run starts from the list: the box is back where it is listed, no arrows
+        sc.watched["on_layout"](grasp_layout(sc, model))
+        assert tuple(page.scene._obstacles[0].position) == pytest.approx((0.5, 0.0, 0.1))
+        assert page.scene._contacts is None
+        # the panel: a new sphere, applied, goes to the server with the list it joins
+        panel = page.obstacles
+        panel.pick.value = NEW
+        panel.name.value = "ball"
+        panel.kind.value = "sphere"
+        panel.radius.value = 0.04
+        panel.position.value = (0.3, 0.3, 0.2)
+        panel.apply()
+        ctl.drain()
+        sent = sc.of(m.SetObstacles)[-1].obstacles
+        assert [ob.name for ob in sent] == ["box1", "ball"] and sent[1].radius == 0.04
+        assert len(page.scene._obstacles) == 2 and tuple(panel.pick.options) == ("box1", "ball", NEW)
+        # a wrong field is named and nothing is sent; a name twice neither
+        panel.radius.value = -1.0
+        panel.apply()
+        panel.pick.value = NEW
+        panel.name.value = "box1"
+        panel.radius.value = 0.04
+        panel.apply()
+        assert len(sc.of(m.SetObstacles)) == 1
+        assert client.notes[-2][1].startswith("radius:") and "box1" in client.notes[-1][1]
+        # refused by the server: the list drawn comes back to the stored one
+        sc.refuse[m.SetObstacles] = RemoteError(m.Error("bad_request", "no", "obstacles[0].name"))
+        panel.pick.value = "ball"
+        panel.remove()
+        ctl.drain()
+        assert [ob.name for ob in ctl.obstacles] == ["box1", "ball"] and len(page.scene._obstacles) == 2
+    finally:
+        tab.close()
+        page.remove()

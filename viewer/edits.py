@@ -125,6 +125,38 @@ class Edits:
         if c.replaying is None:
             c.emit(ev.ShapesChanged(dict(c.values)))
 
+    # -- obstacles ---------------------------------------------------------------------------------
+    def set_obstacles(self, obstacles: list[m.Obstacle]) -> None:
+        """The session's whole obstacle list as the user edited it: drawn at once, then stored by the
+        server (a refusal names the field, and the list drawn comes back to the stored one)."""
+        c = self.c
+        before = list(c.obstacles)
+        self.show_obstacles(obstacles)
+
+        def job() -> None:
+            try:
+                self.command(m.SetObstacles(list(obstacles)))
+            except (RemoteError, NoReply, ValueError):
+                self.show_obstacles(before)
+                raise
+            c.notify("Obstacles", f"{len(obstacles)} obstacle(s) stored for the next runs.", "ok")
+
+        c.submit("Obstacles refused", job)
+
+    def show_obstacles(self, obstacles: list[m.Obstacle]) -> None:
+        self.c.obstacles = list(obstacles)
+        self.c.emit(ev.ObstaclesChanged(list(obstacles)))
+
+    def on_obstacles(self, published: m.ObstacleValues) -> None:
+        """The server's list (after any client's set_obstacles): drawn when it is not the one shown."""
+        session = self.c.session
+        if (
+            session is not None
+            and published.session == session.id
+            and published.obstacles != self.c.obstacles
+        ):
+            self.show_obstacles(published.obstacles)
+
     # -- variables, pose, path, settings -------------------------------------------------------------
     def set_streamed(self, wanted: set[str], plotted: set[str]) -> None:
         """Variables streamed live: the chosen ones (the plotted ones when none), and the joint

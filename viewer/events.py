@@ -137,10 +137,20 @@ class LayoutChanged:
 
 @dataclass
 class LiveSamples:
-    """Decimated samples of the shown run; `poses` (links, 7) of the newest row, when streamed."""
+    """Decimated samples of the shown run; `poses` (links, 7) of the newest row, when streamed; where
+    the run's grasps left its obstacles (index -> pose) and the newest row's contact arrows."""
 
     rows: np.ndarray
     poses: np.ndarray | None
+    moved: dict[int, np.ndarray] = field(default_factory=dict)
+    arrows: np.ndarray = field(default_factory=lambda: np.zeros((0, 2, 3)))
+
+
+@dataclass
+class ObstaclesChanged:
+    """The session's obstacles (the user's edit, or another client's): draw them."""
+
+    obstacles: list[m.Obstacle]
 
 
 @dataclass
@@ -201,6 +211,7 @@ Event = (
     | ParamSetsChanged
     | LayoutChanged
     | LiveSamples
+    | ObstaclesChanged
     | PosePreview
     | TransientLoaded
     | PreviousLoaded

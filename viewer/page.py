@@ -18,6 +18,7 @@ from . import events as ev
 from .docs import DocsWindow
 from .jog_panel import JogPanel
 from .joints import InitPanel
+from .obstacles import ObstaclePanel
 from .params import ParamPanel, VariablePanel
 from .path import clamp_to_limits
 from .pendant import PendantPanel
@@ -87,6 +88,10 @@ class ModelPage:
                 gui.add_markdown(f"_This model accepts {levels} commands; this viewer edits joint paths._")
         with command.add_tab("Jog"):
             self.jog = JogPanel(gui, c.jog, self._warn("Jog"))
+        with command.add_tab("Obstacles"):
+            self.obstacles = ObstaclePanel(
+                gui, c.obstacles, model.obstacles, c.edits.set_obstacles, self._warn("Obstacles")
+            )
         command.float(x=12, y=-12, width=620, height=360)
 
         actions = PlotActions(
@@ -106,7 +111,8 @@ class ModelPage:
             ev.StreamedChanged: self._show_streamed,
             ev.RunsChanged: lambda e: self.results.show_runs(e.runs, e.newest),
             ev.ParamSetsChanged: lambda e: self.params.set_names(e.names),
-            ev.LayoutChanged: lambda _e: self.plots.new_run(),
+            ev.LayoutChanged: self._new_run,
+            ev.ObstaclesChanged: self._show_obstacles,
             ev.LiveSamples: self._show_live,
             ev.PosePreview: lambda e: self.scene.show_q(e.q),
             ev.TransientLoaded: self._show_transient,
@@ -140,7 +146,22 @@ class ModelPage:
     def _show_live(self, event: ev.LiveSamples) -> None:
         if event.poses is not None:
             self.scene.apply_poses(event.poses)
+        self.scene.move_obstacles(event.moved)
+        self.scene.show_contacts(event.arrows)
         self.plots.mark_all()
+
+    def _new_run(self, _event: ev.LayoutChanged) -> None:
+        self.plots.new_run()
+        self._draw_obstacles()
+
+    def _show_obstacles(self, event: ev.ObstaclesChanged) -> None:
+        self.obstacles.show(event.obstacles)
+        self._draw_obstacles()
+
+    def _draw_obstacles(self) -> None:
+        """The session's obstacles where they are listed; a replay's run's while it plays."""
+        replay = self.c.replaying
+        self.scene.show_obstacles(replay.context.obstacles if replay is not None else self.c.obstacles)
 
     # -- variables and plots ------------------------------------------------------------------------
     def _set_streamed(self, wanted: set[str]) -> None:

@@ -171,7 +171,7 @@ class ResultsIO:
             )
 
             def elsewhere() -> None:
-                if self.c.open_new_now(info.model_id):
+                if self.c.opening.open_new_now(info.model_id):
                     self.c.control.replay_now(name)
 
             self.c.submit("Replay refused", elsewhere)

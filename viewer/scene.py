@@ -44,6 +44,8 @@ class ArmScene:
         self._pipe_meshes: dict[float, tuple[np.ndarray, np.ndarray]] = {}
         self._env: list[Any] = []
         self._obstacles: list[Any] = []
+        self._contacts: Any = None  # the contact forces' arrows, when any
+        self._arrows = np.zeros((0, 2, 3))
         self.q: list[float] = [0.0] * len(model.links)
 
     # -- building ------------------------------------------------------------------------------
@@ -195,15 +197,47 @@ class ArmScene:
         return max(far + biggest, 0.5)
 
     def show_obstacles(self, obstacles: Sequence[Obstacle]) -> None:
-        """Draw what the arm can touch (the session's obstacles), in place of what was drawn before."""
+        """Draw what the arm can touch (the session's obstacles, or a run's), each where it is listed,
+        in place of what was drawn before; no contact arrows."""
         for handle in self._obstacles:
             handle.remove()
         self._obstacles = [
             self._add_solid(f"/env/obstacles/{solid.index}", solid.shape, solid.geometry)[0]
             for solid in shapes.obstacle_solids(obstacles)
         ]
+        self.show_contacts(np.zeros((0, 2, 3)))
+
+    def move_obstacles(self, moved: Mapping[int, np.ndarray]) -> None:
+        """Put obstacles where a run's grasps took them (index -> x, y, z, qw, qx, qy, qz)."""
+        for index, pose in moved.items():
+            if 0 <= index < len(self._obstacles):
+                handle = self._obstacles[index]
+                handle.position = tuple(float(v) for v in pose[:3])
+                handle.wxyz = tuple(float(v) for v in pose[3:7])
+
+    def show_contacts(self, arrows: np.ndarray) -> None:
+        """The contact forces as red arrows ((k, 2, 3): from where a link is pushed, along the force;
+        mesh/scene_state.py); sent only when they change."""
+        if arrows.shape == self._arrows.shape and np.array_equal(arrows, self._arrows):
+            return
+        self._arrows = arrows.copy()
+        if self._contacts is not None:
+            self._contacts.remove()
+            self._contacts = None
+        if arrows.shape[0]:
+            self._contacts = self.scene.add_arrows(
+                "/env/contacts",
+                points=arrows.astype(np.float32),
+                colors=(220, 30, 30),
+                shaft_radius=0.004,
+                head_radius=0.012,
+                head_length=0.025,
+            )
 
     def remove(self) -> None:
+        if self._contacts is not None:
+            self._env.append(self._contacts)
+            self._contacts = None
         for handle in [*self._env, *self._obstacles, *self.frames]:
             try:
                 handle.remove()

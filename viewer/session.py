@@ -29,8 +29,9 @@ from . import events as ev
 from .edits import SYNC_DELAY_S, Edits
 from .errors import describe_error
 from .host import Host
-from .identity import Identity, NotLoggedIn, new_user_name
+from .identity import Identity, new_user_name
 from .jog import JogControl
+from .opening import Opening
 from .path import JointPathEditor, clamp_to_limits
 from .results_io import ResultsIO
 from .runs import RunControl
@@ -43,7 +44,7 @@ log = logging.getLogger("simecs.viewer")
 class SessionController(Dispatcher):
     """One tab's session and what the tab shows of it; see the module docstring. Its parts:
     `edits` sends the user's edits, `control` starts and steers runs, `results` fetches and saves
-    them."""
+    them, `opening` lists the models and the user's sessions and opens one."""
 
     def __init__(self, host: Host, tab_id: int = 0, sync_delay_s: float = SYNC_DELAY_S) -> None:
         super().__init__(tab_id)
@@ -70,6 +71,7 @@ class SessionController(Dispatcher):
         self.results = ResultsIO(self)
         self.control = RunControl(self)
         self.jog = JogControl(self)
+        self.opening = Opening(self)
         self.live_frames = 0  # frames shown (diagnostics)
         self._recordings: dict[str, str] = {}  # run id -> the recording it replays
         self._notified_end: set[str] = set()
@@ -119,10 +121,10 @@ class SessionController(Dispatcher):
         sid, self._remembered = self._remembered, ""
         if not self.identity.logged_in:
             self._remembered = sid
-            self._list_library(can_dismiss=False)
+            self.opening.list_library(can_dismiss=False)
             return
         if not (sid and keys.is_session_id(sid) and self._attach(sid, quiet_missing=True)):
-            self._list_library(can_dismiss=False)
+            self.opening.list_library(can_dismiss=False)
 
     def login(self, password: str) -> None:
         """Log the tab's user in (secured mesh), then reopen the tab's session or list theirs."""
@@ -154,72 +156,6 @@ class SessionController(Dispatcher):
                 watch.close()
             except Exception as exc:
                 log.debug("watch close: %s", exc)
-
-    # == the models window and sessions ==========================================================
-    def open_library(self, can_dismiss: bool = True) -> None:
-        self.submit("Models", lambda: self._list_library(can_dismiss))
-
-    def _list_library(self, can_dismiss: bool) -> None:
-        try:
-            models = self.host.mc.list_models()  # the library is everyone's
-        except (RemoteError, NoReply) as exc:
-            self.fail("Cannot list the models", exc)
-            models = []
-        try:
-            sessions = self.mc.list_sessions(self.user)
-        except (RemoteError, NoReply, NotLoggedIn):
-            sessions = []
-        current = self.session.id if self.session is not None else ""
-        login = not self.identity.logged_in
-        self.emit(
-            ev.LibraryListed(self.user, models, sessions, current, can_dismiss and bool(current), login)
-        )
-
-    def set_user(self, name: str) -> None:
-        try:
-            changed = self.identity.choose(name)
-        except ValueError as exc:
-            self.notify("User name refused", str(exc), "error")
-            return
-        if not changed:
-            return
-        self.emit(ev.UserChanged(self.user))
-        if self.identity.secured:
-            self.notify("User", f"Log in as **{self.user}** with your password.", "info")
-        else:
-            self.notify(
-                "User", f"You are now **{self.user}**; reopen Models to see this user's sessions.", "ok"
-            )
-
-    def load_model(self, model_id: str) -> None:
-        """A new session on `model_id` with its defaults, shown in this tab."""
-        self.submit(f"Load {model_id}", lambda: self.open_new_now(model_id))
-
-    def open_new_now(self, model_id: str) -> bool:
-        """Create a session on `model_id` and show it (on a worker: it waits for the server)."""
-        sc = self.mc.create_session(self.user, model_id)
-        return self._open(sc.id, sc.created)
-
-    def open_session(self, sid: str) -> None:
-        self.submit("Open session", lambda: self._open(sid))
-
-    def _open(self, sid: str, snapshot: m.SessionSnapshot | None = None) -> bool:
-        if (self.session is not None and self.session.id == sid) or self._attach(sid, snapshot):
-            self.emit(ev.LibraryClosed())
-            return True
-        return False
-
-    def close_session(self, sid: str) -> None:
-        """End another of the user's sessions for good (from the models window)."""
-
-        def job() -> None:
-            if self.host.claims.held_by_other(sid, self):
-                raise ValueError("that session is open in another tab: close it there")
-            self.mc.session(self.user, sid).close()
-            self.notify("Session closed", f"Session {sid[:8]}… is closed.", "ok")
-            self._list_library(can_dismiss=True)
-
-        self.submit("Close session", job)
 
     def _attach(
         self, sid: str, snapshot: m.SessionSnapshot | None = None, quiet_missing: bool = False
@@ -267,6 +203,7 @@ class SessionController(Dispatcher):
         watch = sc.watch(
             on_state=self.on_state,
             on_params=self.on_params,
+            on_obstacles=self.edits.on_obstacles,
             on_layout=self.on_layout,
             on_live=partial(self._on_live_of, sid),
         )
@@ -414,7 +351,7 @@ class SessionController(Dispatcher):
             self.notify(*LIVE_BEHIND)
         if sample.q is not None:
             self.shown_q = sample.q
-        self.emit(ev.LiveSamples(sample.rows, sample.poses))
+        self.emit(ev.LiveSamples(sample.rows, sample.poses, sample.moved, sample.arrows))
         self.live_frames += 1
         if stream.layout is not None:
             self.control.shown(stream.layout.run_id)

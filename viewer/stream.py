@@ -7,12 +7,13 @@ another width are dropped here.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from simecs.mesh import columns, frames
 from simecs.mesh import messages as m
 from simecs.mesh.model import ModelDescription
+from simecs.mesh.scene_state import WorldColumns
 
 from .series import LiveBuffer
 
@@ -20,12 +21,15 @@ from .series import LiveBuffer
 @dataclass
 class Sample:
     """What one live frame gives the tab: its rows, the links' poses and the joint positions of the
-    newest row (None when the run does not stream them)."""
+    newest row (None when the run does not stream them), where the grasped obstacles are after it
+    (index in the run's list -> pose) and its contact forces as arrows (k, 2, 3)."""
 
     rows: np.ndarray
     poses: np.ndarray | None
     q: list[float] | None
     first_gap: bool = False  # the first live frames of this run that never came were before this one
+    moved: dict[int, np.ndarray] = field(default_factory=dict)
+    arrows: np.ndarray = field(default_factory=lambda: np.zeros((0, 2, 3)))
 
 
 #: What a tab says (title, text, kind) when its first live frame of a run is missing.
@@ -51,6 +55,8 @@ class RunStream:
         # The scene draws the link frames: the poses of pose_frames() up to the tool.
         self._frames = columns.pose_frames(model)[: len(model.links)]
         self._joints = columns.joint_position_columns(model)
+        self._world = WorldColumns([])
+        self.moved: dict[int, np.ndarray] = {}  # where the run's grasps left its obstacles so far
         #: Live frames of the shown run that never reached this tab (gaps in their numbers): the hub
         #: drops them for a link that cannot keep up (PROTOCOL.md §1), so a slow tab slows only itself.
         self.missed = 0
@@ -62,6 +68,8 @@ class RunStream:
         self.missed, self._next_seq = 0, None
         self.live.reset(layout.live_columns)
         self._poses = columns.pose_indices(layout.live_columns, self._frames)
+        self._world = WorldColumns(layout.live_columns)
+        self.moved = {}
         where = {c: i for i, c in enumerate(layout.live_columns)}
         complete = len(self._joints) == len(self.model.links) and all(c in where for c in self._joints)
         self._q = [where[c] for c in self._joints] if complete else None
@@ -85,4 +93,5 @@ class RunStream:
         last = rows[-1]
         poses = last[self._poses] if self._poses is not None else None
         q = [float(last[i]) for i in self._q] if self._q is not None else None
-        return Sample(rows, poses, q, first_gap)
+        self._world.moved(rows, self.moved)
+        return Sample(rows, poses, q, first_gap, dict(self.moved), self._world.arrows(last))

@@ -116,10 +116,10 @@ class Tab:
             event.models,
             event.sessions,
             event.current,
-            on_load=c.load_model,
-            on_open=c.open_session,
-            on_close_session=c.close_session,
-            on_user=c.set_user,
+            on_load=c.opening.load_model,
+            on_open=c.opening.open_session,
+            on_close_session=c.opening.close_session,
+            on_user=c.opening.set_user,
             can_dismiss=event.can_dismiss,
             on_login=c.login if event.login else None,
         )
@@ -132,7 +132,7 @@ class Tab:
     # -- toolbar -------------------------------------------------------------------------------------
     def _on_window(self, name: str) -> None:
         if name == "Models":
-            self.controller.open_library(can_dismiss=True)
+            self.controller.opening.open_library(can_dismiss=True)
             return
         page = self.page
         if page is None:
