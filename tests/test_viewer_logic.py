@@ -1700,6 +1700,12 @@ def test_the_page_draws_the_sessions_obstacles_and_a_runs_grasps_and_contacts(se
         assert tuple(page.scene._obstacles[0].position) == pytest.approx((0.2, 0.3, 0.4))
         assert page.scene._contacts is not None
         assert np.allclose(page.scene._arrows, [[[0.1, 0.1, 0.1], [0.1, 0.1, 0.15]]])
+        # the user poses the arm again: the run's world is over, the box is back, no arrows
+        ctl.preview([0.0, 0.0, 0.0])
+        assert tuple(page.scene._obstacles[0].position) == pytest.approx((0.5, 0.0, 0.1))
+        assert page.scene._contacts is None
+        sc.watched["on_live"](frame)
+        assert tuple(page.scene._obstacles[0].position) == pytest.approx((0.2, 0.3, 0.4))
         # the next run starts from the list: the box is back where it is listed, no arrows
         sc.watched["on_layout"](grasp_layout(sc, model))
         assert tuple(page.scene._obstacles[0].position) == pytest.approx((0.5, 0.0, 0.1))

@@ -114,7 +114,7 @@ class ModelPage:
             ev.LayoutChanged: self._new_run,
             ev.ObstaclesChanged: self._show_obstacles,
             ev.LiveSamples: self._show_live,
-            ev.PosePreview: lambda e: self.scene.show_q(e.q),
+            ev.PosePreview: self._show_preview,
             ev.TransientLoaded: self._show_transient,
             ev.PreviousLoaded: self._show_previous,
             ev.DocFetched: self._show_doc,
@@ -149,6 +149,10 @@ class ModelPage:
         self.scene.move_obstacles(event.moved)
         self.scene.show_contacts(event.arrows)
         self.plots.mark_all()
+
+    def _show_preview(self, event: ev.PosePreview) -> None:
+        self.scene.settle_world()
+        self.scene.show_q(event.q)
 
     def _new_run(self, _event: ev.LayoutChanged) -> None:
         self.plots.new_run()

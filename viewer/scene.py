@@ -46,6 +46,8 @@ class ArmScene:
         self._obstacles: list[Any] = []
         self._contacts: Any = None  # the contact forces' arrows, when any
         self._arrows = np.zeros((0, 2, 3))
+        self._listed: list[Obstacle] = []  # the obstacles drawn, where their list puts them
+        self._moved = False  # a run's grasps moved some
         self.q: list[float] = [0.0] * len(model.links)
 
     # -- building ------------------------------------------------------------------------------
@@ -201,6 +203,7 @@ class ArmScene:
         in place of what was drawn before; no contact arrows."""
         for handle in self._obstacles:
             handle.remove()
+        self._listed, self._moved = list(obstacles), False
         self._obstacles = [
             self._add_solid(f"/env/obstacles/{solid.index}", solid.shape, solid.geometry)[0]
             for solid in shapes.obstacle_solids(obstacles)
@@ -211,9 +214,17 @@ class ArmScene:
         """Put obstacles where a run's grasps took them (index -> x, y, z, qw, qx, qy, qz)."""
         for index, pose in moved.items():
             if 0 <= index < len(self._obstacles):
+                self._moved = True
                 handle = self._obstacles[index]
                 handle.position = tuple(float(v) for v in pose[:3])
                 handle.wxyz = tuple(float(v) for v in pose[3:7])
+
+    def settle_world(self) -> None:
+        """The obstacles back where their list puts them and no arrows (the user poses the arm: what a
+        run showed is over)."""
+        if self._moved:
+            self.show_obstacles(self._listed)
+        self.show_contacts(np.zeros((0, 2, 3)))
 
     def show_contacts(self, arrows: np.ndarray) -> None:
         """The contact forces as red arrows ((k, 2, 3): from where a link is pushed, along the force;
