@@ -79,7 +79,7 @@ def output_count(n: int) -> int:
     return NPL * n + NCO
 
 
-@njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
+@njit(cache=_CACHE, inline="always", error_model="numpy", fastmath=_FAST)
 def contact_force(ob, depth, nrm, v, cap, F):
     """The force on a sphere touching obstacle `ob` (depth > 0) moving at v: normal penalty with
     damping, never pulling, and friction against the sliding velocity, viscous up to `cap` N*s/m and

@@ -140,7 +140,7 @@ def can_touch(ob, sp, last):
     return sp[SP_LINK] != last or sp[SP_TOOL] == CARRIED
 
 
-@njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
+@njit(cache=_CACHE, inline="always", error_model="numpy", fastmath=_FAST)
 def surface_contact(ob, c, r, nrm):
     """Penetration depth (> 0: touching) of a sphere (centre c, radius r) into obstacle row `ob`, and
     the outward surface normal at the nearest point into nrm (world)."""

@@ -46,6 +46,7 @@ from numba import njit
 from . import drive as dr
 from .chain_dynamics import bias_forces_at, mass_matrix_at
 from .chain_kinematics import cholesky, cholesky_solve, rotation_vector, tool_frames, tool_jacobian
+from .contact import tool_force
 from .jit import CACHE as _CACHE
 from .jit import FAST as _FAST
 
@@ -307,15 +308,20 @@ def control_update(
     t,
     period,
     forces,
+    contact,
     f_tool,
     integ,
     i_ref,
 ):
     """One control period from t: the set points now and one period on (drive.ref_eval), the current
     set points into i_ref and live[:, LV_IREF] (held until the next period). True when one saturated.
-    `forces`: the force profile (rows FP_*; none: motion control); f_tool: the contact force on the
-    tool now (N, world), what a force sensor at the tool reads."""
+    `forces`: the force profile (rows FP_*; none: motion control); with one, f_tool gets the contact
+    force on the tool now (N, world: what a force sensor at the tool reads) from `contact` = (spheres,
+    link bounds, obstacles, caps) of contact.py."""
     n = q.shape[0]
+    if forces.shape[0]:
+        spheres, bounds, obs, caps = contact
+        tool_force(spheres, bounds, obs, caps, pre_R, pre_p, q, qd, f_tool)
     force = np.zeros(NFORCE)
     for k in range(forces.shape[0]):  # the profile's row in force at t (a few rows: one per node)
         if forces[k, FP_T] <= t + 1e-12:

@@ -21,7 +21,7 @@ from simecs.mesh.model import CONTROL_SYSTEMS
 
 from . import chain_dynamics, grasp
 from . import drive as dr
-from .contact import contact_prestep, pair_width, tool_force
+from .contact import contact_prestep, pair_width
 from .contact_geometry import GRASPED, HELD, OB_GRASP, link_bounds, obstacle_table, sphere_table
 from .description import ArmDescription
 from .errors import SimulationError
@@ -449,12 +449,9 @@ class Simulation:
         """The operational-space controller's current set points for the period that starts at step k."""
         ctl = self._opspace
         assert ctl is not None
-        m = self._mech_arrays
-        if ctl.forces.shape[0]:
-            tool_force(*self._contact_rows, m[0], m[1], q, qd, self._f_tool)
         control_update(
             *self._command_state(),
-            *m,  # the chain arrays (mechanics.ChainArrays)
+            *self._mech_arrays,
             self._gravity,
             self._Rrpy[-1],
             self._tool_loc,
@@ -464,6 +461,7 @@ class Simulation:
             k * self.h,
             ctl.period,
             ctl.forces,
+            self._contact_rows,
             self._f_tool,
             ctl.integ,
             ctl.i_ref,
