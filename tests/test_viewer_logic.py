@@ -1415,15 +1415,21 @@ class FakeClient:
         self.downloads.append(name)
 
 
-def test_the_tab_applies_controller_events_to_its_panels(server: Any) -> None:
-    model = arm()
+def started_tab(server: Any, model: ModelDescription) -> tuple[Tab, FakeClient, FakeMesh]:
+    """A tab on a fake mesh offering `model`, started (its models window open)."""
     mesh = FakeMesh(model)
     client = FakeClient(server)
     tab = Tab(FakeHost(mesh), client)
     tab.build_frame()
+    tab.controller.start()
+    tab.controller.drain()
+    return tab, client, mesh
+
+
+def test_the_tab_applies_controller_events_to_its_panels(server: Any) -> None:
+    model = arm()
+    tab, client, mesh = started_tab(server, model)
     ctl = tab.controller
-    ctl.start()
-    ctl.drain()
     assert tab.library is not None and client.stored["simecs.user"] == "tester"
     ctl.opening.load_model("arm3")
     ctl.drain()
@@ -1663,12 +1669,8 @@ def test_the_page_draws_the_sessions_obstacles_and_a_runs_grasps_and_contacts(se
     from simecs.viewer.obstacles import NEW
 
     model = arm()
-    mesh = FakeMesh(model)
-    client = FakeClient(server)
-    tab = Tab(FakeHost(mesh), client)
-    tab.build_frame()
+    tab, client, mesh = started_tab(server, model)
     ctl = tab.controller
-    ctl.start()
     ctl.opening.load_model("arm3")
     ctl.drain()
     page = tab.page
