@@ -24,7 +24,7 @@ from simecs.mesh.kinematics import rot_rpy, rpy_of
 from simecs.mesh.robot_commands import GRASP_REACH
 
 from .chain_dynamics import quats_from_matrices
-from .contact_geometry import CARRIED, obstacle_table, surface_contact
+from .contact_geometry import CARRIED, GRASPED, HELD, OB_GRASP, obstacle_table, surface_contact
 from .jit import CACHE as _CACHE
 
 #: Spheres along one axis of a carried box or cylinder at most: a long thin object is covered by
@@ -166,6 +166,22 @@ def carried_spheres(ob: Obstacle, held: Held, link: int) -> np.ndarray:
         centre = held.p + held.R @ c
         rows.append([link, *centre, r, CARRIED])
     return np.array(rows, dtype=float)
+
+
+def world_tables(
+    spheres: np.ndarray, obstacles: Sequence[Obstacle], taken: set[str], held: Held | None, link: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """The contact tables of a world: the arm's `spheres` with those of the object held (on joint frame
+    `link`, the last), and the obstacles' table with the objects of `taken` (the command grasps them)
+    marked GRASPED and the one held HELD (contact_geometry.can_touch)."""
+    obs = obstacle_table(obstacles)
+    for k, ob in enumerate(obstacles):
+        if ob.name in taken:
+            obs[k, OB_GRASP] = GRASPED
+    if held is not None:
+        obs[held.index, OB_GRASP] = HELD
+        spheres = np.vstack([spheres, carried_spheres(obstacles[held.index], held, link)])
+    return spheres, obs
 
 
 def _axis_points(half_span: float, r: float) -> list[float]:

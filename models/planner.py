@@ -248,6 +248,7 @@ class Planner:
         self.vmax = np.array([self.values[f"{j}.traj.max_speed"] for j in self.names])
         self.amax = np.array([self.values[f"{j}.traj.max_acc"] for j in self.names])
         self._arrays = chain_arrays(model.spec, self.values)
+        self._spheres = contact_geometry.sphere_table(model.spec, self.values)
 
     # ---- entry ----
     def plan(self, command: m.RobotCommand) -> Plan:
@@ -260,7 +261,7 @@ class Planner:
         """(field, why) when the planned path makes the arm (or what it carries) touch an obstacle: the
         field is `initial` or the step's path under `command`. A path that follows speeds or currents
         is not known before the run: None. While a node sets a force the tool may touch (it is meant
-        to push); the tool probe passes through the objects the command grasps."""
+        to push); the last link (the gripper's) passes through the objects the command grasps."""
         sampled = plan.joint_samples(self.q0, PATH_CHECK_PERIOD)
         if sampled is None or not self.obstacles:
             return None
@@ -274,7 +275,7 @@ class Planner:
             rows = np.flatnonzero((times >= world.t - 1e-12) & (times < end - 1e-12))
             if rows.size == 0:
                 continue
-            spheres, obs = self.contact_tables(world, taken)
+            spheres, obs = grasp.world_tables(self._spheres, world.obstacles, taken, world.held, self.n - 1)
             hit = contact.first_touch(
                 spheres,
                 obs,
@@ -287,20 +288,6 @@ class Planner:
             if hit >= 0:
                 return self._touch(plan, int(rows[hit]), float(times[rows[hit]]), world.obstacles, found)
         return None
-
-    def contact_tables(self, world: World, taken: set[str]) -> tuple[np.ndarray, np.ndarray]:
-        """The arm's spheres (with those of the object it holds) and the obstacles' table (the objects
-        of `taken` marked grasped, the held one held) in `world`."""
-        spheres = contact_geometry.sphere_table(self.model.spec, self.values)
-        obs = contact_geometry.obstacle_table(world.obstacles)
-        for k, ob in enumerate(world.obstacles):
-            if ob.name in taken:
-                obs[k, contact_geometry.OB_GRASP] = contact_geometry.GRASPED
-        if world.held is not None:
-            obs[world.held.index, contact_geometry.OB_GRASP] = contact_geometry.HELD
-            carried = grasp.carried_spheres(world.obstacles[world.held.index], world.held, self.n - 1)
-            spheres = np.vstack([spheres, carried])
-        return spheres, obs
 
     def _touch(
         self, plan: Plan, k: int, t: float, obstacles: Sequence[Obstacle], found: np.ndarray

@@ -22,7 +22,7 @@ from simecs.mesh.model import CONTROL_SYSTEMS
 from . import chain_dynamics, grasp
 from . import drive as dr
 from .contact import contact_prestep, pair_width
-from .contact_geometry import GRASPED, HELD, OB_GRASP, link_bounds, obstacle_table, sphere_table
+from .contact_geometry import link_bounds, sphere_table
 from .description import ArmDescription
 from .errors import SimulationError
 from .exudyn_chain import GRAVITY, ExudynChain, exudyn
@@ -101,15 +101,8 @@ class Simulation:
     def _contact_tables(self) -> None:
         """The arm's contact spheres at the values now (with the object it holds), the obstacles' table
         (grasp states marked) and the kernels' work arrays."""
-        spheres = sphere_table(self.package.spec, self.values)
-        self._obs = obstacle_table(self._world)
-        for k, ob in enumerate(self._world):
-            if ob.name in self._taken:
-                self._obs[k, OB_GRASP] = GRASPED
-        if self._held is not None:
-            self._obs[self._held.index, OB_GRASP] = HELD
-            carried = grasp.carried_spheres(self._world[self._held.index], self._held, self.n - 1)
-            spheres = np.vstack([spheres, carried])
+        arm = sphere_table(self.package.spec, self.values)
+        spheres, self._obs = grasp.world_tables(arm, self._world, self._taken, self._held, self.n - 1)
         ns, no = spheres.shape[0], self._obs.shape[0]
         self._caps = np.zeros((ns, no))
         pairs = np.zeros((ns * no, pair_width(self.n)))
