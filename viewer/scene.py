@@ -47,7 +47,7 @@ class ArmScene:
         self._contacts: Any = None  # the contact forces' arrows, when any
         self._arrows = np.zeros((0, 2, 3))
         self._listed: list[Obstacle] = []  # the obstacles drawn, where their list puts them
-        self._moved = False  # a run's grasps moved some
+        self._moved: dict[int, np.ndarray] = {}  # where a run's grasps put some (as last sent)
         self.q: list[float] = [0.0] * len(model.links)
 
     # -- building ------------------------------------------------------------------------------
@@ -203,7 +203,7 @@ class ArmScene:
         in place of what was drawn before; no contact arrows."""
         for handle in self._obstacles:
             handle.remove()
-        self._listed, self._moved = list(obstacles), False
+        self._listed, self._moved = list(obstacles), {}
         self._obstacles = [
             self._add_solid(f"/env/obstacles/{solid.index}", solid.shape, solid.geometry)[0]
             for solid in shapes.obstacle_solids(obstacles)
@@ -211,10 +211,12 @@ class ArmScene:
         self.show_contacts(np.zeros((0, 2, 3)))
 
     def move_obstacles(self, moved: Mapping[int, np.ndarray]) -> None:
-        """Put obstacles where a run's grasps took them (index -> x, y, z, qw, qx, qy, qz)."""
+        """Put obstacles where a run's grasps took them (index -> x, y, z, qw, qx, qy, qz); a pose
+        already shown is not sent again (a released object stays put for many frames)."""
         for index, pose in moved.items():
-            if 0 <= index < len(self._obstacles):
-                self._moved = True
+            shown = self._moved.get(index)
+            if 0 <= index < len(self._obstacles) and (shown is None or not np.array_equal(shown, pose)):
+                self._moved[index] = np.array(pose, dtype=float)
                 handle = self._obstacles[index]
                 handle.position = tuple(float(v) for v in pose[:3])
                 handle.wxyz = tuple(float(v) for v in pose[3:7])
