@@ -85,13 +85,19 @@ class WorldColumns:
         return [(int(k), (int(state[k]) // 2, int(state[k]) % 2)) for k in np.flatnonzero(state != previous)]
 
 
+def at_pose(ob: Obstacle, centre: Sequence[float] | np.ndarray, frame: np.ndarray) -> Obstacle:
+    """`ob` moved: its centre to `centre`, its frame to `frame` (3 x 3, world): where a grasp and a
+    release leave it."""
+    rpy = rpy_of(frame)
+    return msgspec.structs.replace(
+        ob, position=[float(v) for v in centre], rotation_rpy=[float(v) for v in rpy]
+    )
+
+
 def placed(obstacles: Sequence[Obstacle], moved: Mapping[int, np.ndarray]) -> list[Obstacle]:
     """`obstacles` with the moved ones at their poses (index -> x, y, z, qw, qx, qy, qz)."""
     out = list(obstacles)
     for index, pose in moved.items():
         if 0 <= index < len(out):
-            rpy = rpy_of(matrix_from_quat(pose[3:7]))
-            out[index] = msgspec.structs.replace(
-                out[index], position=[float(v) for v in pose[:3]], rotation_rpy=[float(v) for v in rpy]
-            )
+            out[index] = at_pose(out[index], pose[:3], matrix_from_quat(pose[3:7]))
     return out

@@ -16,11 +16,10 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-import msgspec
 import numpy as np
 from numba import njit
 from simecs.mesh.environment import Obstacle
-from simecs.mesh.kinematics import rot_rpy, rpy_of
+from simecs.mesh.kinematics import rot_rpy
 from simecs.mesh.robot_commands import GRASP_REACH
 
 from .chain_dynamics import quats_from_matrices
@@ -41,10 +40,18 @@ GS_OBJECT, GS_HELD, GS_P, GS_R = 0, 1, 2, 5
 NGS = 14
 
 
+def set_state(state: np.ndarray, number: float, held: bool, p: np.ndarray, R: np.ndarray) -> None:
+    """Fill the grasp state (GS_*): the object's number, whether it is held, its centre and frame."""
+    state[GS_OBJECT] = number
+    state[GS_HELD] = 1.0 if held else 0.0
+    state[GS_P : GS_P + 3] = p
+    state[GS_R : GS_R + 9] = np.asarray(R).reshape(9)
+
+
 def no_grasp() -> np.ndarray:
     """The grasp state before any grasp."""
     state = np.zeros(NGS)
-    state[GS_R : GS_R + 9] = np.eye(3).reshape(9)
+    set_state(state, 0, False, np.zeros(3), np.eye(3))
     return state
 
 
@@ -106,13 +113,6 @@ def take(index: int, ob: Obstacle, R_last: np.ndarray, p_last: np.ndarray) -> He
 def world_pose(held: Held, R_last: np.ndarray, p_last: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Where the held object is when the last joint frame is at (R_last, p_last): (centre, frame)."""
     return p_last + R_last @ held.p, R_last @ held.R
-
-
-def placed(ob: Obstacle, p: np.ndarray, R: np.ndarray) -> Obstacle:
-    """`ob` moved to centre p, frame R (world): where a release leaves it."""
-    return msgspec.structs.replace(
-        ob, position=[float(x) for x in p], rotation_rpy=[float(x) for x in rpy_of(R)]
-    )
 
 
 def body(ob: Obstacle) -> tuple[float, np.ndarray]:

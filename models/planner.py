@@ -21,6 +21,7 @@ from typing import Any
 
 import numpy as np
 from simecs.mesh import messages as m
+from simecs.mesh import scene_state
 from simecs.mesh.codec import DecodeError
 from simecs.mesh.environment import Obstacle, grasp_problem
 from simecs.mesh.kinematics import rot_rpy, rpy_of
@@ -570,7 +571,7 @@ class Planner:
         R, p = self._last_frame(ref.q)
         obstacles = list(world.obstacles)
         k = world.held.index
-        obstacles[k] = grasp.placed(obstacles[k], *grasp.world_pose(world.held, R, p))
+        obstacles[k] = scene_state.at_pose(obstacles[k], *grasp.world_pose(world.held, R, p))
         ref.grasps.append((ref.t, ""))
         ref.worlds.append(World(ref.t, obstacles))
 

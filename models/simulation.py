@@ -14,7 +14,7 @@ from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
-from simecs.mesh import columns
+from simecs.mesh import columns, scene_state
 from simecs.mesh.environment import Obstacle, check_obstacles
 from simecs.mesh.kinematics import rot_rpy
 from simecs.mesh.model import CONTROL_SYSTEMS
@@ -134,14 +134,16 @@ class Simulation:
         out, self._notices = self._notices, []
         return out
 
-    def _reset_world(self) -> None:
-        """The world of the coming run: the obstacles as set, nothing held, the run's grasps known."""
-        was_holding = self._held is not None
+    def _reset_world(self, rebuild: bool = False) -> None:
+        """The world of the coming run: the obstacles as set, nothing held, the run's grasps known;
+        the chain rebuilt when something was held (or `rebuild`: the values changed), else only the
+        contact tables."""
+        rebuild = rebuild or self._held is not None
         self._world = list(self._obstacles)
         self._held = None
         self._taken = {name for _t, _c, name in self._events if name}
         self._grasp_state = grasp.no_grasp()
-        if was_holding:
+        if rebuild:
             self._update_mechanics()
         else:
             self._contact_tables()
@@ -204,7 +206,6 @@ class Simulation:
         self.jmode = np.zeros(self.n, dtype=np.int64)
         self.forces = np.zeros((0, 5))
         self._events = []
-        self._taken = set()
 
     def set_reference(
         self,
@@ -237,7 +238,6 @@ class Simulation:
         ]
         timed += [(float(t), {}, name) for t, name in grasps]
         self._events = sorted(timed, key=lambda e: e[0])  # stable: the plan's order at one time
-        self._taken = {name for _t, name in grasps if name}
         self._nodes = []
         self.seg = np.zeros((0, 3 + 2 * self.n))
         self.forces = np.zeros((0, 5))
@@ -356,10 +356,10 @@ class Simulation:
             raise ValueError("output_interval must be > 0")
         if self._running:
             self._finalize()
-        if self._run_values is not None and self._run_values != self.values:
-            self.values = self._run_values  # undo the previous run's events
-            self._update_mechanics()
-        self._reset_world()
+        values_changed = self._run_values is not None and self._run_values != self.values
+        if values_changed:
+            self.values = dict(self._run_values or {})  # undo the previous run's events
+        self._reset_world(rebuild=values_changed)
         self._run_values = dict(self.values)
         self._pending_events = list(self._events)
         self.live[:, [dr.LV_OFFSET, dr.LV_RATE, dr.LV_T0, dr.LV_IREF]] = 0.0  # set_external stays
@@ -615,16 +615,13 @@ class Simulation:
         R_all, p_all = np.empty((self.n, 3, 3)), np.empty((self.n, 3))
         chain_dynamics.chain_frames(self._mech.pre_R, self._mech.pre_p, q, R_all, p_all)
         R, p = R_all[-1], p_all[-1]
-        state = self._grasp_state
         if not name:
             if self._held is not None:
                 k = self._held.index
                 centre, frame = grasp.world_pose(self._held, R, p)
-                self._world[k] = grasp.placed(self._world[k], centre, frame)
+                self._world[k] = scene_state.at_pose(self._world[k], centre, frame)
                 self._held = None
-                state[grasp.GS_HELD] = 0.0
-                state[grasp.GS_P : grasp.GS_P + 3] = centre
-                state[grasp.GS_R : grasp.GS_R + 9] = frame.reshape(9)
+                grasp.set_state(self._grasp_state, k + 1, False, centre, frame)
             return
         k = next(i for i, ob in enumerate(self._world) if ob.name == name)
         why = grasp.reach_problem(self._world[k], p + R @ self._tool_loc)
@@ -632,10 +629,7 @@ class Simulation:
             self._notices.append(f"the grasp at t = {self._time:.3f} s took nothing: {why}")
             return
         self._held = grasp.take(k, self._world[k], R, p)
-        state[grasp.GS_OBJECT] = k + 1
-        state[grasp.GS_HELD] = 1.0
-        state[grasp.GS_P : grasp.GS_P + 3] = self._held.p
-        state[grasp.GS_R : grasp.GS_R + 9] = self._held.R.reshape(9)
+        grasp.set_state(self._grasp_state, k + 1, True, self._held.p, self._held.R)
 
     def _advance_chunk(self, until: float) -> np.ndarray:
         """One solver call up to `until`: the rows inside the chunk are taken in the PreStep at the

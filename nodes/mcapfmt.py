@@ -30,7 +30,6 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import msgspec
 import numpy as np
 from simecs.mesh import columns, scene_state, shapes
 from simecs.mesh.environment import Obstacle
@@ -422,18 +421,11 @@ class WorldScene:
         here = scene_state.placed(self.obstacles, self.moved)
         carried = number - 1 if held else -1
         world = _entity(OBSTACLES_ENTITY, WORLD_FRAME, ns, self.model_id)
-        for solid in shapes.obstacle_solids([ob for k, ob in enumerate(here) if k != carried]):
-            drawn = scene_primitive(solid, {})
-            if drawn is not None and solid.geometry.visible:
-                world[drawn[0]].append(drawn[1])
+        _draw_obstacles(world, [ob for k, ob in enumerate(here) if k != carried])
         update: dict[str, Any] = {"deletions": [], "entities": [world]}
         if 0 <= carried < len(here):
-            at_frame = msgspec.structs.replace(here[carried], position=[0.0] * 3, rotation_rpy=[0.0] * 3)
             entity = _entity(HELD_ENTITY, columns.GRASPED_FRAME, ns, self.model_id)
-            for solid in shapes.obstacle_solids([at_frame]):
-                drawn = scene_primitive(solid, {})
-                if drawn is not None:
-                    entity[drawn[0]].append(drawn[1])
+            _draw_obstacles(entity, [scene_state.at_pose(here[carried], np.zeros(3), np.eye(3))])
             update["entities"].append(entity)
         else:
             update["deletions"].append({"timestamp": stamp(ns), "type": 0, "id": HELD_ENTITY})
@@ -449,6 +441,14 @@ class WorldScene:
         for start, end in arrows:
             entity["arrows"].append(_arrow(start, end))
         return {"deletions": [], "entities": [entity]}
+
+
+def _draw_obstacles(entity: dict[str, Any], obstacles: Sequence[Obstacle]) -> None:
+    """The obstacles' primitives into `entity` (the geometry scene_update draws them with)."""
+    for solid in shapes.obstacle_solids(obstacles):
+        drawn = scene_primitive(solid, {})
+        if drawn is not None and solid.geometry.visible:
+            entity[drawn[0]].append(drawn[1])
 
 
 def _arrow(start: np.ndarray, end: np.ndarray) -> dict[str, Any]:
