@@ -19,26 +19,34 @@ from .jit import FAST as _FAST
 
 @njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
 def chain_frames(pre_R, pre_p, q, R_out, p_out):
-    """Joint frames after rotation: R_out[i], p_out[i] (world); scalar loops, no allocation."""
+    """Joint frames after rotation: R_out[i], p_out[i] (world); scalar loops, no allocation (every
+    kernel of a step calls it): frame i is frame i - 1 carried by pre_R[i], pre_p[i], turned by q[i]."""
     n = q.shape[0]
-    R = np.eye(3)
-    p = np.zeros(3)
-    Rp = np.empty((3, 3))
     for i in range(n):
-        for a in range(3):
-            p[a] += R[a, 0] * pre_p[i, 0] + R[a, 1] * pre_p[i, 1] + R[a, 2] * pre_p[i, 2]
-        for a in range(3):
-            for b in range(3):
-                Rp[a, b] = R[a, 0] * pre_R[i, 0, b] + R[a, 1] * pre_R[i, 1, b] + R[a, 2] * pre_R[i, 2, b]
+        if i == 0:
+            for a in range(3):
+                p_out[0, a] = pre_p[0, a]
+                for b in range(3):
+                    R_out[0, a, b] = pre_R[0, a, b]
+        else:
+            for a in range(3):
+                p_out[i, a] = p_out[i - 1, a] + (
+                    R_out[i - 1, a, 0] * pre_p[i, 0]
+                    + R_out[i - 1, a, 1] * pre_p[i, 1]
+                    + R_out[i - 1, a, 2] * pre_p[i, 2]
+                )
+                for b in range(3):
+                    R_out[i, a, b] = (
+                        R_out[i - 1, a, 0] * pre_R[i, 0, b]
+                        + R_out[i - 1, a, 1] * pre_R[i, 1, b]
+                        + R_out[i - 1, a, 2] * pre_R[i, 2, b]
+                    )
         c, s = math.cos(q[i]), math.sin(q[i])
         for a in range(3):
-            R[a, 0] = Rp[a, 0] * c + Rp[a, 1] * s
-            R[a, 1] = -Rp[a, 0] * s + Rp[a, 1] * c
-            R[a, 2] = Rp[a, 2]
-        for a in range(3):
-            p_out[i, a] = p[a]
-            for b in range(3):
-                R_out[i, a, b] = R[a, b]
+            r0 = R_out[i, a, 0]
+            r1 = R_out[i, a, 1]
+            R_out[i, a, 0] = r0 * c + r1 * s
+            R_out[i, a, 1] = -r0 * s + r1 * c
 
 
 @njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)

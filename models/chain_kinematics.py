@@ -21,7 +21,13 @@ def tool_frames(pre_R, pre_p, R_last, tool_local, q, R_all, p_all, p, R):
     """Joint frames (R_all, p_all) and the tool pose (p, R), as `chain_dynamics.pose_rows` row n
     computes them."""
     chain_frames(pre_R, pre_p, q, R_all, p_all)
-    k = q.shape[0] - 1
+    tool_pose_at(R_all, p_all, R_last, tool_local, p, R)
+
+
+@njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
+def tool_pose_at(R_all, p_all, R_last, tool_local, p, R):
+    """The tool pose (p, R) from the joint frames of `chain_frames` (computed once per step)."""
+    k = R_all.shape[0] - 1
     for a in range(3):
         p[a] = p_all[k, a] + (
             R_all[k, a, 0] * tool_local[0] + R_all[k, a, 1] * tool_local[1] + R_all[k, a, 2] * tool_local[2]
@@ -47,6 +53,55 @@ def tool_jacobian(R_all, p_all, p, J):
         J[3, i] = z0
         J[4, i] = z1
         J[5, i] = z2
+
+
+@njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
+def tool_jdot_qd(R_all, p_all, p, qd, out):
+    """out = Jdot qd (6): the tool's acceleration (linear, angular; world) when qdd = 0, in closed form
+    from the frames: column i of J is (z_i x (p - o_i), z_i), with z_i' = w_i x z_i, o_i' the speed of
+    joint i's origin and p' = J_v qd the tool's."""
+    n = qd.shape[0]
+    v0 = v1 = v2 = 0.0  # the tool point's speed
+    for i in range(n):
+        z0, z1, z2 = R_all[i, 0, 2], R_all[i, 1, 2], R_all[i, 2, 2]
+        r0 = p[0] - p_all[i, 0]
+        r1 = p[1] - p_all[i, 1]
+        r2 = p[2] - p_all[i, 2]
+        v0 += (z1 * r2 - z2 * r1) * qd[i]
+        v1 += (z2 * r0 - z0 * r2) * qd[i]
+        v2 += (z0 * r1 - z1 * r0) * qd[i]
+    for a in range(6):
+        out[a] = 0.0
+    w0 = w1 = w2 = 0.0  # the angular speed of the link before joint i
+    o0 = o1 = o2 = 0.0  # the speed of joint i's origin
+    for i in range(n):
+        if i > 0:  # joint i's origin rides on link i - 1
+            d0 = p_all[i, 0] - p_all[i - 1, 0]
+            d1 = p_all[i, 1] - p_all[i - 1, 1]
+            d2 = p_all[i, 2] - p_all[i - 1, 2]
+            o0 += w1 * d2 - w2 * d1
+            o1 += w2 * d0 - w0 * d2
+            o2 += w0 * d1 - w1 * d0
+        z0, z1, z2 = R_all[i, 0, 2], R_all[i, 1, 2], R_all[i, 2, 2]
+        zd0 = w1 * z2 - w2 * z1  # z_i' = w x z_i
+        zd1 = w2 * z0 - w0 * z2
+        zd2 = w0 * z1 - w1 * z0
+        r0 = p[0] - p_all[i, 0]
+        r1 = p[1] - p_all[i, 1]
+        r2 = p[2] - p_all[i, 2]
+        u0 = v0 - o0
+        u1 = v1 - o1
+        u2 = v2 - o2
+        qi = qd[i]
+        out[0] += qi * ((zd1 * r2 - zd2 * r1) + (z1 * u2 - z2 * u1))
+        out[1] += qi * ((zd2 * r0 - zd0 * r2) + (z2 * u0 - z0 * u2))
+        out[2] += qi * ((zd0 * r1 - zd1 * r0) + (z0 * u1 - z1 * u0))
+        out[3] += qi * zd0
+        out[4] += qi * zd1
+        out[5] += qi * zd2
+        w0 += z0 * qi
+        w1 += z1 * qi
+        w2 += z2 * qi
 
 
 @njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
@@ -93,7 +148,7 @@ def rotation_vector(R_now, R_t, e):
 
 @njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
 def cholesky(A, lam, L):
-    """Cholesky factor L of A + lam I; A (m, m) symmetric positive semi-definite, lam > 0."""
+    """Cholesky factor L of A + lam I; A (m, m) symmetric positive semi-definite (definite with lam = 0)."""
     m = A.shape[0]
     for i in range(m):
         for j in range(i + 1):
@@ -122,3 +177,22 @@ def cholesky_solve(L, b, x):
         for k in range(i + 1, m):
             s -= L[k, i] * x[k]
         x[i] = s / L[i, i]
+
+
+@njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
+def spd_inverse(A, L, Ainv):
+    """Ainv = A^-1 of a symmetric positive definite A through its Cholesky factor (into L): no LAPACK
+    call, no allocation (the drives invert the mass matrix every step)."""
+    m = A.shape[0]
+    cholesky(A, 0.0, L)
+    for c in range(m):  # column c: solve L y = e_c, then L^T x = y
+        for i in range(m):
+            s = 1.0 if i == c else 0.0
+            for k in range(c, i):
+                s -= L[i, k] * Ainv[k, c]
+            Ainv[i, c] = s / L[i, i] if i >= c else 0.0
+        for i in range(m - 1, -1, -1):
+            s = Ainv[i, c]
+            for k in range(i + 1, m):
+                s -= L[k, i] * Ainv[k, c]
+            Ainv[i, c] = s / L[i, i]

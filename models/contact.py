@@ -6,7 +6,7 @@ pulling) and rubs it with Coulomb friction, regularised to a viscous law below a
 (sticking, without a state).
 Forces act at the sphere centres; their joint torques are J^T F.
 
-The step is that of the drives (drive.drive_prestep): at the step start every sphere near an obstacle
+The step is that of the drives (drive.drive_step): at the step start every sphere near an obstacle
 becomes a *pair*, with its centre and its Jacobian; within the step the drive substeps move it with
 the predicted joint motion (c = c0 + J (q - q0)), so the contact is integrated at the substep, as stiff
 as the gear, and the chain receives the step's mean torque. The substeps follow the stiffest pair
@@ -25,6 +25,7 @@ from numba import njit
 from simecs.mesh import columns
 
 from .chain_dynamics import bias_forces_at, chain_frames, mass_matrix_at
+from .chain_kinematics import spd_inverse
 from .contact_geometry import (
     LB_END,
     LB_FIRST,
@@ -108,7 +109,8 @@ def find_pairs(spheres, bounds, obs, R_all, p_all, qd, Minv, h, pairs, scratch):
     """The sphere-obstacle pairs that may touch within the step from now: (count, the stiffest pair's
     rate in 1/s). Each row gets the sphere's centre and Jacobian; PR_CAP holds 1 / m_eff for now
     (m_eff: the lightest mass the sphere can show, from J M^-1 J^T). Links whose bound no obstacle
-    comes near are passed over whole. scratch: 4 x 3 work rows (it runs at every step)."""
+    comes near are passed over whole; the spheres of the others take their bound's margin (what any
+    point of the bound can move in two steps). scratch: 4 x 3 work rows (it runs at every step)."""
     n = qd.shape[0]
     count = 0
     rate = 0.0
@@ -123,10 +125,9 @@ def find_pairs(spheres, bounds, obs, R_all, p_all, qd, Minv, h, pairs, scratch):
         margin = PAIR_MARGIN + 2.0 * h * speed_bound(cb, bound[LB_R], link, p_all, qd)
         if not near_obstacles(bound, obs, R_all, p_all, margin, near, cb, nrm):
             continue
-        for s in range(int(bound[LB_FIRST]), int(bound[LB_END])):
+        for s in range(int(bound[LB_FIRST]), int(bound[LB_END])):  # the bound's margin holds for each
             sp = spheres[s]
             sphere_centre(sp, R_all, p_all, c)
-            margin = PAIR_MARGIN + 2.0 * h * speed_bound(c, 0.0, link, p_all, qd)
             jac_done = False
             first = 0
             inv_m = 0.0
@@ -216,13 +217,11 @@ def pair_torques(pairs, count, spheres, obs, q0, ql, qdl, tc, scratch):
 
 
 @njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
-def tool_force(spheres, bounds, obs, caps, pre_R, pre_p, q, qd, F):
+def tool_force_at(spheres, bounds, obs, caps, R_all, p_all, qd, F):
     """The contact force on the tool now (N, world) into F: what a force sensor at the tool reads.
-    Only the last link's spheres are looked at (the tool's are among them)."""
-    n = q.shape[0]
-    R_all = np.empty((n, 3, 3))
-    p_all = np.empty((n, 3))
-    chain_frames(pre_R, pre_p, q, R_all, p_all)
+    Only the last link's spheres are looked at (the tool's are among them). R_all, p_all: the joint
+    frames now."""
+    n = qd.shape[0]
     touch = np.empty(output_count(n))
     contact_outputs(spheres, bounds[bounds.shape[0] - 1 :], obs, caps, R_all, p_all, qd, touch)
     for a in range(3):
@@ -273,14 +272,13 @@ def contact_outputs(spheres, bounds, obs, caps, R_all, p_all, qd, out):
     n = qd.shape[0]
     for k in range(out.shape[0]):
         out[k] = 0.0
-    weight = np.zeros(n)
-    best = np.zeros(n)
+    sums = np.zeros((2, n))
+    weight, best = sums[0], sums[1]
     near = np.empty(obs.shape[0], dtype=np.bool_)
-    c = np.empty(3)
-    nrm = np.empty(3)
+    work = np.empty((4, 3))  # c, v, nrm, F (a row costs one allocation per call)
     for b in range(bounds.shape[0]):
-        if near_obstacles(bounds[b], obs, R_all, p_all, 0.0, near, c, nrm):
-            _link_outputs(spheres, bounds[b], obs, caps, R_all, p_all, qd, near, weight, best, out)
+        if near_obstacles(bounds[b], obs, R_all, p_all, 0.0, near, work[0], work[2]):
+            _link_outputs(spheres, bounds[b], obs, caps, R_all, p_all, qd, near, weight, best, work, out)
     for i in range(n):
         row = NPL * i
         out[row + PL_FORCE] = math.sqrt(
@@ -292,12 +290,10 @@ def contact_outputs(spheres, bounds, obs, caps, R_all, p_all, qd, out):
 
 
 @njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
-def _link_outputs(spheres, bound, obs, caps, R_all, p_all, qd, near, weight, best, out):
-    """contact_outputs' sums over one link's spheres (the points still multiplied by their weights)."""
-    c = np.empty(3)
-    v = np.empty(3)
-    nrm = np.empty(3)
-    F = np.empty(3)
+def _link_outputs(spheres, bound, obs, caps, R_all, p_all, qd, near, weight, best, work, out):
+    """contact_outputs' sums over one link's spheres (the points still multiplied by their weights);
+    work: 4 x 3 rows to work in."""
+    c, v, nrm, F = work[0], work[1], work[2], work[3]
     base = NPL * qd.shape[0]
     for s in range(int(bound[LB_FIRST]), int(bound[LB_END])):
         sp = spheres[s]
@@ -339,7 +335,7 @@ def _link_outputs(spheres, bound, obs, caps, R_all, p_all, qd, near, weight, bes
 @njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
 def contact_prestep(pre_R, pre_p, masses, coms, inertias, gravity, tables, q, qd, h, nsub, tau_out):
     """The step's mean contact torque into tau_out when the drives are off (nothing else acts on the
-    joints): the load side predicted over RK4 substeps as in drive.drive_prestep. `tables`: as there."""
+    joints): the load side predicted over RK4 substeps as in drive.drive_step. `tables`: as there."""
     spheres, bounds, obs, pairs, caps, _cw, scratch = tables
     n = q.shape[0]
     R_all = np.empty((n, 3, 3))
@@ -347,7 +343,8 @@ def contact_prestep(pre_R, pre_p, masses, coms, inertias, gravity, tables, q, qd
     chain_frames(pre_R, pre_p, q, R_all, p_all)
     M = np.empty((n, n))
     mass_matrix_at(R_all, p_all, masses, coms, inertias, M)
-    Minv = np.linalg.inv(M)
+    Minv = np.empty((n, n))
+    spd_inverse(M, np.zeros((n, n)), Minv)
     for j in range(n):
         tau_out[j] = 0.0
     npairs, rate = find_pairs(spheres, bounds, obs, R_all, p_all, qd, Minv, h, pairs, scratch)

@@ -17,7 +17,7 @@ import math
 import numpy as np
 from numba import njit
 
-from .chain_dynamics import bias_forces_at, chain_frames, mass_matrix_at, pose_rows_at
+from .chain_dynamics import pose_rows_at
 from .chain_kinematics import rotation_vector, tool_frames
 from .contact import CONTACT_RATE_STEP, contact_outputs, find_pairs, output_count, pair_torques, set_caps
 from .grasp import GRASP_OUTPUTS, grasp_outputs
@@ -313,7 +313,7 @@ def load_resolver(P, j, ql, qdl):
 
 
 @njit(cache=_CACHE, inline="always", error_model="numpy", fastmath=_FAST)
-def joint_signals(P, j, x, ql, qdl, qr, qdr, mode, out):
+def joint_signals(P, j, X, ql, qdl, qr, qdr, mode, out):
     """All algebraic signals of joint j; fills out[0..NO) in OUTPUTS order and returns nothing.
 
     `mode` (JM_*) says what qr, qdr are: position and speed set points (JM_POSITION, JM_HOLD), a
@@ -323,8 +323,8 @@ def joint_signals(P, j, x, ql, qdl, qr, qdr, mode, out):
     Extra slots: out[NO] = u_b, out[NO+1] = d x_v/dt, out[NO+2] = d x_a/dt, out[NO+3] = d x_b/dt,
     out[NO+4] = z_dot, out[NO+5] = tau_in (gear reaction at motor shaft), out[NO+6] = tau_detent.
     """
-    th = x[S_TH]
-    om = x[S_OM]
+    th = X[j, S_TH]
+    om = X[j, S_OM]
     n = P[j, P_N]
     p = P[j, P_POLES]
     te = p * th
@@ -351,7 +351,7 @@ def joint_signals(P, j, x, ql, qdl, qr, qdr, mode, out):
         ev = w_ref - om_meas
         kpv = P[j, P_KPV]
         kiv = P[j, P_KIV]
-        iu = kpv * ev + x[S_XV]
+        iu = kpv * ev + X[j, S_XV]
         iref = _sat(iu, P[j, P_IMAX])
         dxv = 0.0
         if kiv > 0.0:
@@ -376,15 +376,15 @@ def joint_signals(P, j, x, ql, qdl, qr, qdr, mode, out):
         dxa = 0.0
         dxb = 0.0
     else:
-        ia = x[S_IA]
-        ib = x[S_IB]
+        ia = X[j, S_IA]
+        ib = X[j, S_IB]
         kpi = P[j, P_KPI]
         kii = P[j, P_KII]
         umax = P[j, P_UMAX]
         ea = ia_s - (ia + P[j, P_OFFA])
         eb = ib_s - (ib + P[j, P_OFFB])
-        uau = kpi * ea + x[S_XA]
-        ubu = kpi * eb + x[S_XB]
+        uau = kpi * ea + X[j, S_XA]
+        ubu = kpi * eb + X[j, S_XB]
         ua = _sat(uau, umax)
         ub = _sat(ubu, umax)
         dxa = kii * ea + (kii / kpi) * (ua - uau)
@@ -394,7 +394,7 @@ def joint_signals(P, j, x, ql, qdl, qr, qdr, mode, out):
     # LuGre friction at the gear input
     fc = P[j, P_FC]
     fs = P[j, P_FS]
-    z = x[S_Z]
+    z = X[j, S_Z]
     if fc > 0.0 or fs > 0.0:
         vs = P[j, P_VS]
         g = fc + (fs - fc) * math.exp(-((om / vs) ** 2))
@@ -435,60 +435,59 @@ def joint_signals(P, j, x, ql, qdl, qr, qdr, mode, out):
 
 
 @njit(cache=_CACHE, inline="always", error_model="numpy", fastmath=_FAST)
-def controlled_signals(P, j, x, ql, qdl, qr, qdr, jmode, live, out):
+def controlled_signals(P, j, X, ql, qdl, qr, qdr, jmode, live, out):
     """`joint_signals` of joint j under whichever controller has it: the built-in cascade in the
     command's mode, or an external controller's current set point (live[j, LV_IREF]), in which
     case out[2], out[3] keep the command's set points (what the controller was sent)."""
     if live[j, LV_EXTERNAL] > 0.5:
-        joint_signals(P, j, x, ql, qdl, live[j, LV_IREF], 0.0, JM_CURRENT, out)
+        joint_signals(P, j, X, ql, qdl, live[j, LV_IREF], 0.0, JM_CURRENT, out)
         out[2] = qr
         out[3] = qdr
     else:
-        joint_signals(P, j, x, ql, qdl, qr, qdr, jmode[j], out)
+        joint_signals(P, j, X, ql, qdl, qr, qdr, jmode[j], out)
 
 
 @njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
-def drive_rhs(P, seg, hold, tab, jmode, live, Minv, bias, t, X, dX, sig, qr, qdr, tau, new_t=True):
-    """dX = f(t, X); the set points qr, qdr are evaluated at t unless `new_t` is False (same t as the
-    previous call: RK4 stages 2 and 3). The contacts' part of the load acceleration: `contact_rhs`."""
+def drive_rhs(P, seg, hold, tab, jmode, live, Minv, bias, tc, t, X, dX, sig, qr, qdr, tau, new_t=True):
+    """dX = f(t, X), the load accelerating with M^-1 (tau_gear + tc - bias), tc the contacts' torques
+    at X (`contact_stage`); the set points qr, qdr are evaluated at t unless `new_t` is False (same t
+    as the previous call: RK4 stages 2 and 3)."""
     n = X.shape[0]
     if new_t:
         ref_eval(seg, hold, tab, jmode, live, t, qr, qdr)
-    for j in range(n):
-        x = X[j]
-        controlled_signals(P, j, x, x[S_QL], x[S_QDL], qr[j], qdr[j], jmode, live, sig)
-        d = dX[j]
-        om = x[S_OM]
-        d[S_TH] = om
+    for j in range(n):  # X[j, k], not a row view X[j]: a view costs reference counting in a hot loop
+        controlled_signals(P, j, X, X[j, S_QL], X[j, S_QDL], qr[j], qdr[j], jmode, live, sig)
+        om = X[j, S_OM]
+        dX[j, S_TH] = om
         jm = P[j, P_JR] + P[j, P_JG]
-        d[S_OM] = (sig[10] - P[j, P_BM] * om - sig[11] - sig[NO + 5]) / jm
+        dX[j, S_OM] = (sig[10] - P[j, P_BM] * om - sig[11] - sig[NO + 5]) / jm
         if P[j, P_IDEAL] > 0.5:
-            d[S_IA] = 0.0
-            d[S_IB] = 0.0
+            dX[j, S_IA] = 0.0
+            dX[j, S_IB] = 0.0
         else:
             L = P[j, P_L]
             R = P[j, P_R]
-            d[S_IA] = (sig[9] - R * x[S_IA] - sig[NO + 7]) / L
-            d[S_IB] = (sig[NO] - R * x[S_IB] - sig[NO + 8]) / L
-        d[S_XA] = sig[NO + 2]
-        d[S_XB] = sig[NO + 3]
-        d[S_XV] = sig[NO + 1]
-        d[S_Z] = sig[NO + 4]
-        d[S_QL] = x[S_QDL]
-        d[S_IMP] = sig[12]
+            dX[j, S_IA] = (sig[9] - R * X[j, S_IA] - sig[NO + 7]) / L
+            dX[j, S_IB] = (sig[NO] - R * X[j, S_IB] - sig[NO + 8]) / L
+        dX[j, S_XA] = sig[NO + 2]
+        dX[j, S_XB] = sig[NO + 3]
+        dX[j, S_XV] = sig[NO + 1]
+        dX[j, S_Z] = sig[NO + 4]
+        dX[j, S_QL] = X[j, S_QDL]
+        dX[j, S_IMP] = sig[12]
         tau[j] = sig[12]
     for j in range(n):
         acc = 0.0
         for k in range(n):
-            acc += Minv[j, k] * (tau[k] - bias[k])
+            acc += Minv[j, k] * (tau[k] + tc[k] - bias[k])
         dX[j, S_QDL] = acc
 
 
 @njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
-def contact_rhs(contact, Minv, X, dX, cw, cimp, weight):
-    """Add the contacts' load acceleration M^-1 J^T F at the stage X to dX, and weight x their torque
-    to cimp (the step's contact impulse). `contact` = (spheres, obstacles, pairs of the step, count, q
-    at the step start, a 4 x 3 scratch) of contact.py; cw: work rows (q, qd, torque)."""
+def contact_stage(contact, X, cw, cimp, weight):
+    """The contacts' joint torques J^T F at the stage X into cw[2], and weight x them added to cimp
+    (the step's contact impulse). `contact` = (spheres, obstacles, pairs of the step, count, q at the
+    step start, a 4 x 3 scratch) of contact.py; cw: work rows (q, qd, torque)."""
     spheres, obs, pairs, npairs, q0, scratch = contact
     n = X.shape[0]
     for j in range(n):
@@ -496,10 +495,6 @@ def contact_rhs(contact, Minv, X, dX, cw, cimp, weight):
         cw[1, j] = X[j, S_QDL]
     pair_torques(pairs, npairs, spheres, obs, q0, cw[0], cw[1], cw[2], scratch)
     for j in range(n):
-        acc = 0.0
-        for k in range(n):
-            acc += Minv[j, k] * cw[2, k]
-        dX[j, S_QDL] += acc
         cimp[j] += weight * cw[2, j]
 
 
@@ -535,19 +530,17 @@ def substeps_for(P, X, h, nsub):
 
 
 @njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
-def drive_prestep(
+def drive_step(
     P,
     seg,
     hold,
     tab,
     jmode,
     live,
-    pre_R,
-    pre_p,
-    masses,
-    coms,
-    inertias,
-    gravity,
+    R_all,
+    p_all,
+    Minv,
+    bias,
     X,
     Xbak,
     repeat,
@@ -562,8 +555,10 @@ def drive_prestep(
 ):
     """Integrate all drives over [t, t+h] with RK4 substeps (nsub, more where friction or a contact is
     stiff); tau_out = mean gear + contact torque. STEP_OK, or STEP_NOT_FINITE / STEP_FRICTION when the
-    states broke down. `tables` = contact.py's (spheres, link bounds, obstacles) and its work arrays
-    (pairs, caps, cw: 4 x n, scratch: 4 x 3).
+    states broke down. R_all, p_all, Minv, bias: the chain's joint frames, inverse mass matrix and bias
+    forces at the step start (step.py computes them once for every kernel of the step). `tables` =
+    contact.py's (spheres, link bounds, obstacles) and its work arrays (pairs, caps, cw: 4 x n,
+    scratch: 4 x 3).
     The drive state is kept for a repeated step: `repeat` (the solver takes the same step again)
     restores X from Xbak, else Xbak saves X before the step."""
     if repeat:
@@ -571,12 +566,6 @@ def drive_prestep(
     else:
         Xbak[:, :] = X
     n = q.shape[0]
-    R_all = np.empty((n, 3, 3))
-    p_all = np.empty((n, 3))
-    chain_frames(pre_R, pre_p, q, R_all, p_all)  # once, for the mass matrix, the bias and the contacts
-    M = np.empty((n, n))
-    mass_matrix_at(R_all, p_all, masses, coms, inertias, M)
-    Minv = np.linalg.inv(M)
     spheres, bounds, obs, pairs, caps, cw, scratch = tables
     npairs, rate = find_pairs(spheres, bounds, obs, R_all, p_all, qd, Minv, h, pairs, scratch)
     nsub = max(
@@ -586,13 +575,13 @@ def drive_prestep(
     hs = h / nsub
     set_caps(pairs, npairs, hs, caps)
     contact = (spheres, obs, pairs, npairs, q, scratch)
+    tc = cw[2]  # the contacts' torques at the stage (none without pairs)
     cimp = cw[3]
     for j in range(n):
+        tc[j] = 0.0
         cimp[j] = 0.0
     # The load side within the step: M qdd = tau_gear - bias, the bias (velocity terms, gravity) held
     # at the step start; without it the gear torques lag the chain's other forces by up to 8 %.
-    bias = np.empty(n)
-    bias_forces_at(R_all, p_all, masses, coms, inertias, gravity, qd, bias)
     for j in range(n):
         X[j, S_QL] = q[j]
         X[j, S_QDL] = qd[j]
@@ -603,33 +592,41 @@ def drive_prestep(
     k4 = work[3]
     Xt = work[4]
     sig = np.empty(NO + 10)
-    qr = np.empty(n)
-    qdr = np.empty(n)
-    tau = np.empty(n)
+    rows = np.zeros((3, n))
+    qr, qdr, tau = rows[0], rows[1], rows[2]
+    # Joints all under an external controller read no set point: the reference is not evaluated.
+    refs = False
+    for j in range(n):
+        if live[j, LV_EXTERNAL] <= 0.5:
+            refs = True
     w = hs / 6.0
     for s in range(nsub):
         ts = t + s * hs
-        drive_rhs(P, seg, hold, tab, jmode, live, Minv, bias, ts, X, k1, sig, qr, qdr, tau)
         if npairs > 0:
-            contact_rhs(contact, Minv, X, k1, cw, cimp, w)
+            contact_stage(contact, X, cw, cimp, w)
+        drive_rhs(P, seg, hold, tab, jmode, live, Minv, bias, tc, ts, X, k1, sig, qr, qdr, tau, refs)
         for j in range(n):
             for k in range(NL):
                 Xt[j, k] = X[j, k] + 0.5 * hs * k1[j, k]
-        drive_rhs(P, seg, hold, tab, jmode, live, Minv, bias, ts + 0.5 * hs, Xt, k2, sig, qr, qdr, tau)
         if npairs > 0:
-            contact_rhs(contact, Minv, Xt, k2, cw, cimp, 2.0 * w)
+            contact_stage(contact, Xt, cw, cimp, 2.0 * w)
+        drive_rhs(
+            P, seg, hold, tab, jmode, live, Minv, bias, tc, ts + 0.5 * hs, Xt, k2, sig, qr, qdr, tau, refs
+        )
         for j in range(n):
             for k in range(NL):
                 Xt[j, k] = X[j, k] + 0.5 * hs * k2[j, k]
-        drive_rhs(P, seg, hold, tab, jmode, live, Minv, bias, ts + 0.5 * hs, Xt, k3, sig, qr, qdr, tau, False)
         if npairs > 0:
-            contact_rhs(contact, Minv, Xt, k3, cw, cimp, 2.0 * w)
+            contact_stage(contact, Xt, cw, cimp, 2.0 * w)
+        drive_rhs(
+            P, seg, hold, tab, jmode, live, Minv, bias, tc, ts + 0.5 * hs, Xt, k3, sig, qr, qdr, tau, False
+        )
         for j in range(n):
             for k in range(NL):
                 Xt[j, k] = X[j, k] + hs * k3[j, k]
-        drive_rhs(P, seg, hold, tab, jmode, live, Minv, bias, ts + hs, Xt, k4, sig, qr, qdr, tau)
         if npairs > 0:
-            contact_rhs(contact, Minv, Xt, k4, cw, cimp, w)
+            contact_stage(contact, Xt, cw, cimp, w)
+        drive_rhs(P, seg, hold, tab, jmode, live, Minv, bias, tc, ts + hs, Xt, k4, sig, qr, qdr, tau, refs)
         for j in range(n):
             for k in range(NL):
                 X[j, k] += hs / 6.0 * (k1[j, k] + 2.0 * k2[j, k] + 2.0 * k3[j, k] + k4[j, k])
@@ -654,7 +651,7 @@ def drive_outputs(P, seg, hold, tab, jmode, live, X, q, qd, t, out):
     ref_eval(seg, hold, tab, jmode, live, t, qr, qdr)
     sig = np.empty(NO + 10)
     for j in range(n):
-        controlled_signals(P, j, X[j], q[j], qd[j], qr[j], qdr[j], jmode, live, sig)
+        controlled_signals(P, j, X, q[j], qd[j], qr[j], qdr[j], jmode, live, sig)
         for k in range(NO):
             out[j, k] = sig[k]
         if (
@@ -687,17 +684,15 @@ def output_row(
         for c in range(NO):
             row[1 + j * NO + c] = out[j, c]
     # the tool against the tool pose of the set points; the chain's frames serve the pose rows too
-    R_all = np.empty((n, 3, 3))
-    p_all = np.empty((n, 3))
-    p = np.empty(3)
-    R = np.empty((3, 3))
+    frames = np.empty((2, n, 3, 3))  # at q and at the set points (one allocation per shape)
+    origins = np.empty((2, n, 3))
+    R_all, Rr_all, p_all, pr_all = frames[0], frames[1], origins[0], origins[1]
+    threes = np.empty((3, 3))
+    p, p_r, erot = threes[0], threes[1], threes[2]
+    mats = np.empty((2, 3, 3))
+    R, R_r = mats[0], mats[1]
     tool_frames(pre_R, pre_p, Rrpy[n - 1], tool_local, q, R_all, p_all, p, R)
-    Rr_all = np.empty((n, 3, 3))
-    pr_all = np.empty((n, 3))
-    p_r = np.empty(3)
-    R_r = np.empty((3, 3))
     tool_frames(pre_R, pre_p, Rrpy[n - 1], tool_local, out[:, 2].copy(), Rr_all, pr_all, p_r, R_r)
-    erot = np.empty(3)
     k0 = 1 + n * NO
     row[k0] = p_r[0]
     row[k0 + 1] = p_r[1]

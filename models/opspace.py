@@ -44,9 +44,17 @@ import numpy as np
 from numba import njit
 
 from . import drive as dr
-from .chain_dynamics import bias_forces_at, mass_matrix_at
-from .chain_kinematics import cholesky, cholesky_solve, rotation_vector, tool_frames, tool_jacobian
-from .contact import tool_force
+from .chain_dynamics import bias_forces_at, chain_frames, mass_matrix_at
+from .chain_kinematics import (
+    cholesky,
+    cholesky_solve,
+    rotation_vector,
+    tool_frames,
+    tool_jacobian,
+    tool_jdot_qd,
+    tool_pose_at,
+)
+from .contact import tool_force_at
 from .jit import CACHE as _CACHE
 from .jit import FAST as _FAST
 
@@ -111,7 +119,6 @@ F_AXIS, F_WANT, F_MEAS = 0, 3, 4
 NFORCE = 5
 #: Rows of a force profile (`Plan.forces`): from time t (s), push along (x, y, z) with f N.
 FP_T, FP_AXIS, FP_F = 0, 1, 4
-JDOT_STEP = 1e-6  # s: Jdot qd as (J(q + h qd) - J(q)) qd / h
 FRICTION_BAND = 0.5  # rad/s of motor speed over which the Coulomb feed-forward changes sign (tanh)
 
 
@@ -128,20 +135,66 @@ def _tool_velocity(pre_R, pre_p, R_last, tool_local, q, qd, R_all, p_all, p, R, 
         v[a] = s
 
 
+#: The controller's memo (`OpspaceController.memo`): whether it holds anything, then the joint set
+#: points of the next period and their tool pose and twist, which that period needs again.
+MEMO_SET, MEMO_Q = 0, 1
+
+
+def memo_size(n: int) -> int:
+    return MEMO_Q + 2 * n + 3 + 9 + 6
+
+
+@njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
+def _remember(memo, qr, qdr, p, R, v):
+    n = qr.shape[0]
+    memo[MEMO_SET] = 1.0
+    k = MEMO_Q
+    for j in range(n):
+        memo[k + j] = qr[j]
+        memo[k + n + j] = qdr[j]
+    k += 2 * n
+    for a in range(3):
+        memo[k + a] = p[a]
+        for b in range(3):
+            memo[k + 3 + 3 * a + b] = R[a, b]
+    for a in range(6):
+        memo[k + 12 + a] = v[a]
+
+
+@njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
+def _recall(memo, qr, qdr, p, R, v):
+    """The remembered tool pose and twist when they are those of exactly these set points."""
+    n = qr.shape[0]
+    if memo[MEMO_SET] == 0.0:
+        return False
+    k = MEMO_Q
+    for j in range(n):
+        if memo[k + j] != qr[j] or memo[k + n + j] != qdr[j]:
+            return False
+    k += 2 * n
+    for a in range(3):
+        p[a] = memo[k + a]
+        for b in range(3):
+            R[a, b] = memo[k + 3 + 3 * a + b]
+    for a in range(6):
+        v[a] = memo[k + 12 + a]
+    return True
+
+
 @njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
 def opspace_currents(
     P,
     pre_R,
     pre_p,
-    masses,
-    coms,
-    inertias,
-    gravity,
+    R_all,
+    p_all,
+    M_chain,
+    b,
     R_last,
     tool_local,
     gains,
-    q_true,
-    qd_true,
+    q,
+    qd,
     qr,
     qdr,
     qr_next,
@@ -149,59 +202,57 @@ def opspace_currents(
     period,
     force,
     integ,
+    memo,
     i_ref,
 ):
     """The current set point of every joint (i_ref, A) for this control period; integ (7: the tool's
     position and orientation errors, the force error) is the controller's integral state, advanced
-    here. Returns True when a set point saturated. `force` (F_*): the hybrid controller's force input;
-    with force[F_WANT] = 0 the law is pure motion control.
+    here; memo (MEMO_*) carries the next period's reference pose over to it. Returns True when a set
+    point saturated. `force` (F_*): the hybrid controller's force input; with force[F_WANT] = 0 the
+    law is pure motion control. q, qd: what the load resolvers read; R_all,
+    p_all, M_chain, b: the joint frames, the chain's mass matrix and its bias forces there.
 
     With y the posture acceleration, the law of the module docstring is
     tau = J^T Lambda (a - Jdot qd - J y) + M y + b: one Cholesky factor of M, one of J M^-1 J^T."""
-    n = q_true.shape[0]
-    q = np.empty(n)
-    qd = np.empty(n)
-    for j in range(n):
-        q[j], qd[j] = dr.load_resolver(P, j, q_true[j], qd_true[j])  # what the controller reads
-    R_all = np.empty((n, 3, 3))
-    p_all = np.empty((n, 3))
-    p = np.empty(3)
-    R = np.empty((3, 3))
-    J = np.empty((6, n))
-    v = np.empty(6)
-    _tool_velocity(pre_R, pre_p, R_last, tool_local, q, qd, R_all, p_all, p, R, J, v)
+    n = q.shape[0]
+    # the period's small arrays, one allocation per shape (each costs about 80 ns, at every period)
+    threes = np.empty((4, 3))
+    p, pw, p_r, erot = threes[0], threes[1], threes[2], threes[3]
+    mats = np.empty((3, 3, 3))
+    R, Rw, R_r = mats[0], mats[1], mats[2]
+    sixes = np.empty((7, 6))
+    v, v_r2, v_r, jdqd, e, rhs, F = sixes[0], sixes[1], sixes[2], sixes[3], sixes[4], sixes[5], sixes[6]
+    jacobians = np.empty((2, 6, n))
+    J, Jw = jacobians[0], jacobians[1]
+    ns = np.zeros((3, n))
+    y, col, x = ns[0], ns[1], ns[2]
+    squares = np.zeros((2, n, n))
+    M, L = squares[0], squares[1]
+    tool_pose_at(R_all, p_all, R_last, tool_local, p, R)
+    tool_jacobian(R_all, p_all, p, J)
+    for a in range(6):
+        s = 0.0
+        for i in range(n):
+            s += J[a, i] * qd[i]
+        v[a] = s
     # the reference: the tool pose and twist of the joint set points, now and one period on
     Rw_all = np.empty((n, 3, 3))
     pw_all = np.empty((n, 3))
-    pw = np.empty(3)
-    Rw = np.empty((3, 3))
-    Jw = np.empty((6, n))
-    v_r2 = np.empty(6)
     _tool_velocity(pre_R, pre_p, R_last, tool_local, qr_next, qdr_next, Rw_all, pw_all, pw, Rw, Jw, v_r2)
-    p_r = np.empty(3)
-    R_r = np.empty((3, 3))
-    v_r = np.empty(6)
-    _tool_velocity(pre_R, pre_p, R_last, tool_local, qr, qdr, Rw_all, pw_all, p_r, R_r, Jw, v_r)
-    # Jdot qd, from the twist one small step along qd
-    qh = np.empty(n)
-    for j in range(n):
-        qh[j] = q[j] + JDOT_STEP * qd[j]
-    vh = np.empty(6)
-    _tool_velocity(pre_R, pre_p, R_last, tool_local, qh, qd, Rw_all, pw_all, pw, Rw, Jw, vh)
+    if not _recall(memo, qr, qdr, p_r, R_r, v_r):  # the last period computed these, as a rule
+        _tool_velocity(pre_R, pre_p, R_last, tool_local, qr, qdr, Rw_all, pw_all, p_r, R_r, Jw, v_r)
+    _remember(memo, qr_next, qdr_next, pw, Rw, v_r2)
+    tool_jdot_qd(R_all, p_all, p, qd, jdqd)
     # the posture task (null space of the tool task; none for n <= 6)
-    y = np.zeros(n)
     if n > 6:
         for j in range(n):
             y[j] = gains[G_KPN] * (qr[j] - q[j]) + gains[G_KDN] * (qdr[j] - qd[j])
     # the task acceleration wanted, less Jdot qd and the posture's share J y
-    e = np.empty(6)
     for a in range(3):
         e[a] = p_r[a] - p[a]
-    erot = np.empty(3)
     rotation_vector(R, R_r, erot)
     for a in range(3):
         e[3 + a] = erot[a]
-    rhs = np.empty(6)
     for a in range(6):
         rot = a >= 3
         kp = gains[G_KPR] if rot else gains[G_KP]
@@ -225,27 +276,24 @@ def opspace_currents(
         e[1] -= ny * e_n
         e[2] -= nz * e_n
     for a in range(6):
-        rhs[a] -= (vh[a] - v[a]) / JDOT_STEP  # Jdot qd
+        rhs[a] -= jdqd[a]
         for j in range(n):
             rhs[a] -= J[a, j] * y[j]
     # the controller's model: the chain's mass matrix and the reflected rotor and gear inertia
-    M = np.empty((n, n))
-    mass_matrix_at(R_all, p_all, masses, coms, inertias, M)
+    M[:, :] = M_chain
     for j in range(n):
         nj = P[j, dr.P_N]
         M[j, j] += nj * nj * (P[j, dr.P_JR] + P[j, dr.P_JG])
-    L = np.zeros((n, n))
     cholesky(M, 0.0, L)
     X = np.empty((n, 6))  # M^-1 J^T
-    col = np.empty(n)
-    x = np.empty(n)
     for a in range(6):
         for j in range(n):
             col[j] = J[a, j]
         cholesky_solve(L, col, x)
         for j in range(n):
             X[j, a] = x[j]
-    A = np.empty((6, 6))  # J M^-1 J^T
+    sixbysix = np.zeros((2, 6, 6))
+    A, L6 = sixbysix[0], sixbysix[1]  # J M^-1 J^T and its factor
     for a in range(6):
         for c in range(a, 6):
             s = 0.0
@@ -253,16 +301,12 @@ def opspace_currents(
                 s += J[a, j] * X[j, c]
             A[a, c] = s
             A[c, a] = s
-    L6 = np.zeros((6, 6))
     cholesky(A, gains[G_DAMP], L6)
-    F = np.empty(6)
     cholesky_solve(L6, rhs, F)
     if f_want > 0.0:  # the force wanted, fed forward
         F[0] += nx * f_want
         F[1] += ny * f_want
         F[2] += nz * f_want
-    b = np.empty(n)
-    bias_forces_at(R_all, p_all, masses, coms, inertias, gravity, qd, b)
     saturated = False
     for j in range(n):
         tau = b[j]
@@ -300,28 +344,37 @@ def control_update(
     coms,
     inertias,
     gravity,
+    R_all,
+    p_all,
+    M,
+    bias,
     R_last,
     tool_local,
     gains,
     q,
     qd,
     t,
+    t_next,
     period,
     forces,
     contact,
     f_tool,
     integ,
+    memo,
     i_ref,
 ):
-    """One control period from t: the set points now and one period on (drive.ref_eval), the current
-    set points into i_ref and live[:, LV_IREF] (held until the next period). True when one saturated.
+    """One control period from t: the set points now and at the next period's start t_next (on the
+    step grid: its t then, to the bit) (drive.ref_eval), the current set points into i_ref and
+    live[:, LV_IREF] (held until the next period). True when one saturated.
+    R_all, p_all, M, bias: the chain's joint frames, mass matrix and bias forces at the true q, qd
+    (step.py); the controller sees them through its load resolvers.
     `forces`: the force profile (rows FP_*; none: motion control); with one, f_tool gets the contact
     force on the tool now (N, world: what a force sensor at the tool reads) from `contact` = (spheres,
     link bounds, obstacles, caps) of contact.py."""
     n = q.shape[0]
     if forces.shape[0]:
         spheres, bounds, obs, caps = contact
-        tool_force(spheres, bounds, obs, caps, pre_R, pre_p, q, qd, f_tool)
+        tool_force_at(spheres, bounds, obs, caps, R_all, p_all, qd, f_tool)
     force = np.zeros(NFORCE)
     for k in range(forces.shape[0]):  # the profile's row in force at t (a few rows: one per node)
         if forces[k, FP_T] <= t + 1e-12:
@@ -332,25 +385,44 @@ def control_update(
     force[F_MEAS] = -(
         force[F_AXIS] * f_tool[0] + force[F_AXIS + 1] * f_tool[1] + force[F_AXIS + 2] * f_tool[2]
     )
-    qr = np.empty(n)
-    qdr = np.empty(n)
-    qr2 = np.empty(n)
-    qdr2 = np.empty(n)
+    refs = np.empty((4, n))
+    qr, qdr, qr2, qdr2 = refs[0], refs[1], refs[2], refs[3]
     dr.ref_eval(seg, hold, tab, jmode, live, t, qr, qdr)
-    dr.ref_eval(seg, hold, tab, jmode, live, t + period, qr2, qdr2)
+    dr.ref_eval(seg, hold, tab, jmode, live, t_next, qr2, qdr2)
+    # what the load resolvers read; with an error the chain's quantities are those of that reading
+    q_m = q
+    qd_m = qd
+    Rm_all = R_all
+    pm_all = p_all
+    M_m = M
+    b_m = bias
+    for j in range(n):
+        if P[j, dr.P_EL] != 0.0:
+            q_m = np.empty(n)
+            qd_m = np.empty(n)
+            for i in range(n):
+                q_m[i], qd_m[i] = dr.load_resolver(P, i, q[i], qd[i])
+            Rm_all = np.empty((n, 3, 3))
+            pm_all = np.empty((n, 3))
+            chain_frames(pre_R, pre_p, q_m, Rm_all, pm_all)
+            M_m = np.empty((n, n))
+            mass_matrix_at(Rm_all, pm_all, masses, coms, inertias, M_m)
+            b_m = np.empty(n)
+            bias_forces_at(Rm_all, pm_all, masses, coms, inertias, gravity, qd_m, b_m)
+            break
     saturated = opspace_currents(
         P,
         pre_R,
         pre_p,
-        masses,
-        coms,
-        inertias,
-        gravity,
+        Rm_all,
+        pm_all,
+        M_m,
+        b_m,
         R_last,
         tool_local,
         gains,
-        q,
-        qd,
+        q_m,
+        qd_m,
         qr,
         qdr,
         qr2,
@@ -358,6 +430,7 @@ def control_update(
         period,
         force,
         integ,
+        memo,
         i_ref,
     )
     for j in range(n):
@@ -376,4 +449,14 @@ class OpspaceController:
         self.steps = steps  # solver steps per control period
         self.period = steps * step
         self.integ = np.zeros(7)
+        self.memo = np.zeros(memo_size(n))
         self.i_ref = np.zeros(n)
+
+    def forget(self) -> None:
+        """Drop the remembered reference pose: the chain it was computed on changed."""
+        self.memo[MEMO_SET] = 0.0
+
+    @classmethod
+    def idle(cls, n: int) -> OpspaceController:
+        """The arrays the step kernel is handed under joint-independent control (it never runs)."""
+        return cls({f"control.{g}": 0.0 for g in GAINS}, n, 1, 0.0, np.zeros((0, 5)))

@@ -27,7 +27,7 @@ def sensor_row(P, seg, hold, tab, jmode, live, X, q, qd, t, out):
     sig = np.empty(dr.NO + 10)
     out[0] = t
     for j in range(n):
-        dr.controlled_signals(P, j, X[j], q[j], qd[j], qr[j], qdr[j], jmode, live, sig)
+        dr.controlled_signals(P, j, X, q[j], qd[j], qr[j], qdr[j], jmode, live, sig)
         ql, qdl = dr.load_resolver(P, j, q[j], qd[j])
         th, om = dr.motor_resolver(P, j, X[j, dr.S_TH], X[j, dr.S_OM])
         k = 1 + PER_JOINT * j

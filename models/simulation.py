@@ -10,7 +10,7 @@ from __future__ import annotations
 import math
 import numbers
 import time as _time
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -27,8 +27,13 @@ from .description import ArmDescription
 from .errors import SimulationError
 from .exudyn_chain import GRAVITY, ExudynChain, exudyn
 from .mechanics import MECH_PREFIXES, chain_arrays, drive_array, init_states, tool_point, vec
-from .opspace import OpspaceController, control_update
+from .opspace import OpspaceController
 from .sensors import sensor_row
+from .step import chain_step
+
+#: The step kernel, called with its arguments spread from tuples cached per solver call (the stub's
+#: exact signature cannot follow the star arguments).
+_chain_step: Callable[..., int] = chain_step
 
 
 class Simulation:
@@ -107,7 +112,7 @@ class Simulation:
         self._caps = np.zeros((ns, no))
         pairs = np.zeros((ns * no, pair_width(self.n)))
         bounds = link_bounds(spheres)
-        #: what the kernels read: the tables, then their work arrays (drive.drive_prestep)
+        #: what the kernels read: the tables, then their work arrays (step.chain_step)
         work = (pairs, self._caps, np.zeros((4, self.n)), np.zeros((4, 3)))
         self._contact = (spheres, bounds, self._obs, *work)
         self._contact_rows = (spheres, bounds, self._obs, self._caps)
@@ -364,6 +369,7 @@ class Simulation:
         self._pending_events = list(self._events)
         self.live[:, [dr.LV_OFFSET, dr.LV_RATE, dr.LV_T0, dr.LV_IREF]] = 0.0  # set_external stays
         self._opspace = self._make_opspace(h)
+        self._no_control = OpspaceController.idle(self.n)
         self.live[:, dr.LV_EXTERNAL] = True if self._opspace is not None else self._external
         self.h = h
         self.k_out = max(1, int(round(output_interval / h)))
@@ -438,28 +444,6 @@ class Simulation:
         segments, held positions, sampled reference, joint modes, live inputs."""
         return self.P, self.seg, self.hold, self.tab, self.jmode, self.live
 
-    def _control_update(self, k: int, q: np.ndarray, qd: np.ndarray) -> None:
-        """The operational-space controller's current set points for the period that starts at step k."""
-        ctl = self._opspace
-        assert ctl is not None
-        control_update(
-            *self._command_state(),
-            *self._mech_arrays,
-            self._gravity,
-            self._Rrpy[-1],
-            self._tool_loc,
-            ctl.gains,
-            q,
-            qd,
-            k * self.h,
-            ctl.period,
-            ctl.forces,
-            self._contact_rows,
-            self._f_tool,
-            ctl.integ,
-            ctl.i_ref,
-        )
-
     def _prestep(self, mbs: Any, t: float) -> bool:
         """Once per mechanics step, before it: the output row at the step start when one is due, then
         the drives over the step. Exudyn passes the time at the END of the coming step."""
@@ -497,14 +481,9 @@ class Simulation:
         k = round(ts / self.h)  # the step index: the drive time comes from the grid, not from a sum
         repeat = k <= self._last_k  # the same step again (a step reduction): restore the drive states
         self._last_k = k
-        if self._opspace is not None and not repeat and k % self._opspace.steps == 0:
-            self._control_update(k, q, qd)
-        status = dr.drive_prestep(
-            *self._command_state(),
-            *m,  # the chain arrays (mechanics.ChainArrays)
-            self._gravity,
-            self.X,
-            self._Xbak,
+        head, tail, control_steps = self._step_args
+        status = _chain_step(
+            *head,
             repeat,
             q,
             qd,
@@ -514,6 +493,8 @@ class Simulation:
             self._tau,
             self._work,
             self._contact,
+            control_steps > 0 and not repeat and k % control_steps == 0,  # a control period starts
+            *tail,
         )
         if status == dr.STEP_NOT_FINITE:
             bad = [j + 1 for j in range(self.n) if not np.all(np.isfinite(self.X[j, : dr.NS]))]
@@ -528,6 +509,25 @@ class Simulation:
         mbs.SetObjectParameter(self._kt, "jointForceVector", self._tau)
         self.timing["drive"] += _time.perf_counter() - t0 - (self.timing["output"] - out0)
         return True
+
+    def _step_arguments(self) -> tuple[tuple[Any, ...], tuple[Any, ...], int]:
+        """What `step.chain_step` reads besides the step's own values: the arrays before them and after
+        them, and the solver steps per control period (0: no controller). Taken once per solver call:
+        nothing replaces these arrays while the solver runs, and each step saves the lookups."""
+        ctl = self._opspace or self._no_control
+        head = (*self._command_state(), *self._mech_arrays, self._gravity, self.X, self._Xbak)
+        tail = (
+            self._Rrpy[-1],
+            self._tool_loc,
+            ctl.gains,
+            ctl.period,
+            ctl.forces,
+            self._f_tool,
+            ctl.integ,
+            ctl.memo,
+            ctl.i_ref,
+        )
+        return head, tail, ctl.steps if self._opspace is not None else 0
 
     def _friction_failure(self, ts: float) -> str:
         """Why a step left the friction model's accuracy: wrong numbers are not returned as results."""
@@ -604,6 +604,8 @@ class Simulation:
                 self._grasp(name)
             self._update_mechanics()
             self._mech_arrays = self._mech
+            if self._opspace is not None:
+                self._opspace.forget()
         parts.append(self._advance_chunk(until))
         return parts[0] if len(parts) == 1 else np.concatenate(parts)
 
@@ -655,6 +657,7 @@ class Simulation:
         if t_stop > self._time + 0.5 * h:
             self._it.startTime = self._time
             self._it.endTime = t_stop
+            self._step_args = self._step_arguments()
             try:
                 self._solver.SolveSteps(self._mbs, self._ss)
             except Exception as e:  # the solver's own errors

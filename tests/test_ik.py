@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from scipy.optimize import minimize
 from simecs.mesh.kinematics import link_frames, quat_from_matrix, rot_rpy, rpy_of
-from simecs.models import ModelPackage, chain_dynamics, get_model
+from simecs.models import ModelPackage, chain_dynamics, chain_kinematics, get_model
 from simecs.models.ik import ArmKinematics, IKResult, orientation_error
 from simecs.models.mechanics import chain_arrays, tool_point
 
@@ -111,6 +111,42 @@ def test_jacobian_is_the_derivative_of_the_tool_pose(arm: Arm) -> None:
             assert np.max(np.abs((pp - pm) / (2 * h) - J[:3, i])) < 1e-6
             assert np.max(np.abs(orientation_error(Rm, Rp) / (2 * h) - J[3:, i])) < 1e-6
         assert k.sigma_min(q) == pytest.approx(np.linalg.svd(J, compute_uv=False)[-1])
+
+
+def test_jdot_qd_is_the_derivative_of_the_jacobian_along_qd(arm: Arm) -> None:
+    """The operational-space controller's Jdot qd (closed form) against a central difference of J."""
+    pkg, values, k = arm
+    ch = chain_arrays(pkg.spec, values)
+    tool = tool_point(pkg.spec, values)
+    R_last = rot_rpy(pkg.spec.links[-1].rpy)
+    rng = np.random.default_rng(3)
+    h = 1e-6
+    R_all, p_all, p, R, out = (
+        np.empty((k.n, 3, 3)),
+        np.empty((k.n, 3)),
+        np.empty(3),
+        np.empty((3, 3)),
+        np.empty(6),
+    )
+    for _ in range(10):
+        q = random_q(k, rng)
+        qd = rng.uniform(-2.0, 2.0, k.n)
+        chain_kinematics.tool_frames(ch.pre_R, ch.pre_p, R_last, tool, q, R_all, p_all, p, R)
+        chain_kinematics.tool_jdot_qd(R_all, p_all, p, qd, out)
+        expected = (k.jacobian(q + h * qd) - k.jacobian(q - h * qd)) @ qd / (2 * h)
+        assert np.max(np.abs(out - expected)) < 1e-6 * max(1.0, float(np.max(np.abs(expected))))
+
+
+def test_spd_inverse_is_the_inverse_of_the_mass_matrix(arm: Arm) -> None:
+    pkg, values, k = arm
+    ch = chain_arrays(pkg.spec, values)
+    rng = np.random.default_rng(4)
+    M, L, Minv = np.empty((k.n, k.n)), np.empty((k.n, k.n)), np.empty((k.n, k.n))
+    for _ in range(10):
+        chain_dynamics.mass_matrix(ch.pre_R, ch.pre_p, ch.masses, ch.coms, ch.inertias, random_q(k, rng), M)
+        chain_kinematics.spd_inverse(M, L, Minv)
+        assert np.max(np.abs(Minv - np.linalg.inv(M))) < 1e-9 * np.max(np.abs(Minv))
+        assert np.max(np.abs(M @ Minv - np.eye(k.n))) < 1e-10
 
 
 # ---- inverse kinematics ------------------------------------------------------------------------------

@@ -501,9 +501,9 @@ def test_each_ripple_source_at_its_own_harmonic(spider, source, harmonic):
     out = np.zeros(dr.NO + 10)
     torque = []
     for te in np.arange(turns) * 2 * math.pi / turns:
-        x = np.zeros(dr.NL)
-        x[dr.S_TH] = te / p
-        dr.joint_signals(P, j, x, 0.0, 0.0, amps, 0.0, dr.JM_CURRENT, out)
+        X = np.zeros((P.shape[0], dr.NL))
+        X[j, dr.S_TH] = te / p
+        dr.joint_signals(P, j, X, 0.0, 0.0, amps, 0.0, dr.JM_CURRENT, out)
         torque.append(out[10])
     spectrum = np.abs(np.fft.rfft(torque)) / turns * 2
     mean = np.mean(torque)
