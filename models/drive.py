@@ -143,6 +143,8 @@ SPEED_MARGIN = 1.25  # the motor speed may grow within a step: size the substeps
 MAX_SUBSTEP_FACTOR = 64  # at most this many times the model's substeps; beyond, the bound check tells
 FRICTION_BOUND_MARGIN = 1.05
 STEP_OK, STEP_NOT_FINITE, STEP_FRICTION = 0, 1, 2
+RK4_AT = (0.0, 0.5, 0.5, 1.0)  # the stages' times within a substep, in substeps
+RK4_WEIGHT = (1.0, 2.0, 2.0, 1.0)
 
 
 # ---- trajectory: trapezoidal speed profiles, one segment per via point -------------------------------
@@ -447,7 +449,7 @@ def controlled_signals(P, j, X, ql, qdl, qr, qdr, jmode, live, out):
         joint_signals(P, j, X, ql, qdl, qr, qdr, jmode[j], out)
 
 
-@njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
+@njit(cache=_CACHE, inline="always", error_model="numpy", fastmath=_FAST)
 def drive_rhs(P, seg, hold, tab, jmode, live, Minv, bias, tc, t, X, dX, sig, qr, qdr, tau, new_t=True):
     """dX = f(t, X), the load accelerating with M^-1 (tau_gear + tc - bias), tc the contacts' torques
     at X (`contact_stage`); the set points qr, qdr are evaluated at t unless `new_t` is False (same t
@@ -483,7 +485,7 @@ def drive_rhs(P, seg, hold, tab, jmode, live, Minv, bias, tc, t, X, dX, sig, qr,
         dX[j, S_QDL] = acc
 
 
-@njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
+@njit(cache=_CACHE, inline="always", error_model="numpy", fastmath=_FAST)
 def contact_stage(contact, X, cw, cimp, weight):
     """The contacts' joint torques J^T F at the stage X into cw[2], and weight x them added to cimp
     (the step's contact impulse). `contact` = (spheres, obstacles, pairs of the step, count, q at the
@@ -586,10 +588,6 @@ def drive_step(
         X[j, S_QL] = q[j]
         X[j, S_QDL] = qd[j]
         X[j, S_IMP] = 0.0
-    k1 = work[0]
-    k2 = work[1]
-    k3 = work[2]
-    k4 = work[3]
     Xt = work[4]
     sig = np.empty(NO + 10)
     rows = np.zeros((3, n))
@@ -602,31 +600,36 @@ def drive_step(
     w = hs / 6.0
     for s in range(nsub):
         ts = t + s * hs
-        if npairs > 0:
-            contact_stage(contact, X, cw, cimp, w)
-        drive_rhs(P, seg, hold, tab, jmode, live, Minv, bias, tc, ts, X, k1, sig, qr, qdr, tau, refs)
-        for j in range(n):
-            for k in range(NL):
-                Xt[j, k] = X[j, k] + 0.5 * hs * k1[j, k]
-        if npairs > 0:
-            contact_stage(contact, Xt, cw, cimp, 2.0 * w)
-        drive_rhs(
-            P, seg, hold, tab, jmode, live, Minv, bias, tc, ts + 0.5 * hs, Xt, k2, sig, qr, qdr, tau, refs
-        )
-        for j in range(n):
-            for k in range(NL):
-                Xt[j, k] = X[j, k] + 0.5 * hs * k2[j, k]
-        if npairs > 0:
-            contact_stage(contact, Xt, cw, cimp, 2.0 * w)
-        drive_rhs(
-            P, seg, hold, tab, jmode, live, Minv, bias, tc, ts + 0.5 * hs, Xt, k3, sig, qr, qdr, tau, False
-        )
-        for j in range(n):
-            for k in range(NL):
-                Xt[j, k] = X[j, k] + hs * k3[j, k]
-        if npairs > 0:
-            contact_stage(contact, Xt, cw, cimp, w)
-        drive_rhs(P, seg, hold, tab, jmode, live, Minv, bias, tc, ts + hs, Xt, k4, sig, qr, qdr, tau, refs)
+        for stage in range(4):  # classical RK4: stage k at X + RK4_AT[k] hs k_(k-1), into work[k]
+            Xs = X
+            if stage > 0:
+                for j in range(n):
+                    for k in range(NL):
+                        Xt[j, k] = X[j, k] + RK4_AT[stage] * hs * work[stage - 1, j, k]
+                Xs = Xt
+            if npairs > 0:
+                contact_stage(contact, Xs, cw, cimp, RK4_WEIGHT[stage] * w)
+            ref_due = refs and stage != 2  # stage 2 has stage 1's time
+            drive_rhs(
+                P,
+                seg,
+                hold,
+                tab,
+                jmode,
+                live,
+                Minv,
+                bias,
+                tc,
+                ts + RK4_AT[stage] * hs,
+                Xs,
+                work[stage],
+                sig,
+                qr,
+                qdr,
+                tau,
+                ref_due,
+            )
+        k1, k2, k3, k4 = work[0], work[1], work[2], work[3]
         for j in range(n):
             for k in range(NL):
                 X[j, k] += hs / 6.0 * (k1[j, k] + 2.0 * k2[j, k] + 2.0 * k3[j, k] + k4[j, k])
