@@ -7,6 +7,7 @@ is bounded; every process is stopped (SIGTERM, then SIGKILL) when the test ends.
 
 from __future__ import annotations
 
+import shutil
 import socket
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -23,6 +24,28 @@ ARTIFACTS = Path(__file__).resolve().parent.parent / "artifacts"
 
 Mesh = LocalMesh
 mesh_env = clean_env
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_makereport(item: pytest.Item, call: pytest.CallInfo[None]) -> Iterator[None]:
+    """A failing test on a mesh shows its nodes' logs in its report and keeps its mesh folder (node
+    logs, data, recordings) under artifacts/failed/: a flaky failure can be read after the fact."""
+    outcome = yield
+    report = outcome.get_result()  # type: ignore[attr-defined]
+    if not report.failed:
+        return
+    funcargs = getattr(item, "funcargs", {})
+    meshes = [v.mesh if isinstance(v, Secured) else v for v in funcargs.values()]
+    for mesh in [m for m in meshes if isinstance(m, LocalMesh)][:1]:
+        kept = ARTIFACTS / "failed" / "".join(c if c.isalnum() or c in "-_." else "_" for c in item.nodeid)
+        try:
+            shutil.rmtree(kept, ignore_errors=True)
+            shutil.copytree(mesh.folder, kept, ignore=shutil.ignore_patterns("*.sock"), dirs_exist_ok=True)
+            where = f"mesh folder kept in {kept}"
+        except OSError as e:
+            where = f"mesh folder not kept: {e}"
+        logs = [f"--- {name}.log (last 4000 characters)\n{mesh.log(name)}" for name in mesh.procs]
+        report.sections.append((f"node logs ({report.when})", "\n".join([where, *logs])))
 
 
 def free_port() -> int:
