@@ -50,6 +50,15 @@ def chain_frames(pre_R, pre_p, q, R_out, p_out):
 
 
 @njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
+def chain_state(pre_R, pre_p, masses, coms, inertias, gravity, q, qd, R_all, p_all, M, bias):
+    """What a step's kernels start from at the chain state (q, qd): the joint frames, the mass matrix
+    and the bias forces, into R_all, p_all, M, bias."""
+    chain_frames(pre_R, pre_p, q, R_all, p_all)
+    mass_matrix_at(R_all, p_all, masses, coms, inertias, M)
+    bias_forces_at(R_all, p_all, masses, coms, inertias, gravity, qd, bias)
+
+
+@njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
 def mass_matrix(pre_R, pre_p, masses, coms, inertias, q, M):
     """M(q) = sum_k m_k Jv_k^T Jv_k + Jw_k^T I_k Jw_k, for a serial chain of revolute z joints."""
     n = q.shape[0]

@@ -24,7 +24,7 @@ import numpy as np
 from numba import njit
 from simecs.mesh import columns
 
-from .chain_dynamics import bias_forces_at, chain_frames, mass_matrix_at
+from .chain_dynamics import chain_frames, chain_state
 from .chain_kinematics import spd_inverse
 from .contact_geometry import (
     LB_END,
@@ -53,6 +53,9 @@ PAIR_MARGIN = 0.002
 #: contact rate x substep that the substeps keep (RK4 is stable to about 2.8, on a decay as on an
 #: oscillation: 0.5 keeps it accurate too); the friction's viscous rate is capped to it as well.
 CONTACT_RATE_STEP = 0.5
+#: A step takes at most this many times the model's substeps (contact or friction); beyond, the drives'
+#: bound check tells the user (drive.substeps_for).
+MAX_SUBSTEP_FACTOR = 64
 # pair row columns: sphere, obstacle, the friction's viscous cap (N*s/m), c0, then J (3 x n) row-major
 PR_SPHERE, PR_OBST, PR_CAP, PR_C = 0, 1, 2, 3
 PR_J = 6
@@ -104,6 +107,13 @@ def contact_force(ob, depth, nrm, v, cap, F):
 
 
 # ---- the step: pairs at its start, torques at every substep -----------------------------------------
+@njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
+def contact_substeps(rate, h, nsub):
+    """RK4 substeps over a step of h: at least nsub, more while the stiffest pair's rate (1/s) needs
+    them (rate x substep <= CONTACT_RATE_STEP), at most MAX_SUBSTEP_FACTOR x nsub."""
+    return max(nsub, min(int(math.ceil(rate * h / CONTACT_RATE_STEP)), nsub * MAX_SUBSTEP_FACTOR))
+
+
 @njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
 def find_pairs(spheres, bounds, obs, R_all, p_all, qd, Minv, h, pairs, scratch):
     """The sphere-obstacle pairs that may touch within the step from now: (count, the stiffest pair's
@@ -340,19 +350,17 @@ def contact_prestep(pre_R, pre_p, masses, coms, inertias, gravity, tables, q, qd
     n = q.shape[0]
     R_all = np.empty((n, 3, 3))
     p_all = np.empty((n, 3))
-    chain_frames(pre_R, pre_p, q, R_all, p_all)
-    M = np.empty((n, n))
-    mass_matrix_at(R_all, p_all, masses, coms, inertias, M)
-    Minv = np.empty((n, n))
-    spd_inverse(M, np.zeros((n, n)), Minv)
+    squares = np.empty((3, n, n))
+    M, L, Minv = squares[0], squares[1], squares[2]
+    bias = np.empty(n)
+    chain_state(pre_R, pre_p, masses, coms, inertias, gravity, q, qd, R_all, p_all, M, bias)
+    spd_inverse(M, L, Minv)
     for j in range(n):
         tau_out[j] = 0.0
     npairs, rate = find_pairs(spheres, bounds, obs, R_all, p_all, qd, Minv, h, pairs, scratch)
     if npairs == 0:
         return
-    bias = np.empty(n)
-    bias_forces_at(R_all, p_all, masses, coms, inertias, gravity, qd, bias)
-    nsub = max(nsub, min(int(math.ceil(rate * h / CONTACT_RATE_STEP)), 64 * nsub))
+    nsub = contact_substeps(rate, h, nsub)
     hs = h / nsub
     set_caps(pairs, npairs, hs, caps)
     x = np.empty((2, n))  # q, qd

@@ -19,7 +19,15 @@ from numba import njit
 
 from .chain_dynamics import pose_rows_at
 from .chain_kinematics import rotation_vector, tool_frames
-from .contact import CONTACT_RATE_STEP, contact_outputs, find_pairs, output_count, pair_torques, set_caps
+from .contact import (
+    MAX_SUBSTEP_FACTOR,
+    contact_outputs,
+    contact_substeps,
+    find_pairs,
+    output_count,
+    pair_torques,
+    set_caps,
+)
 from .grasp import GRASP_OUTPUTS, grasp_outputs
 from .jit import CACHE as _CACHE
 from .jit import FAST as _FAST
@@ -140,7 +148,6 @@ EFF_POWER_EPS = 1e-2  # W: width of the smooth switch between driving and driven
 # ---- substeps: the LuGre bristle state stiffens with speed ------------------------------------------
 FRICTION_RATE_STEP = 2.0  # its relaxation rate x substep: RK4 is stable to 2.8, damped 3x per substep here
 SPEED_MARGIN = 1.25  # the motor speed may grow within a step: size the substeps for this much more
-MAX_SUBSTEP_FACTOR = 64  # at most this many times the model's substeps; beyond, the bound check tells
 FRICTION_BOUND_MARGIN = 1.05
 STEP_OK, STEP_NOT_FINITE, STEP_FRICTION = 0, 1, 2
 RK4_AT = (0.0, 0.5, 0.5, 1.0)  # the stages' times within a substep, in substeps
@@ -570,10 +577,7 @@ def drive_step(
     n = q.shape[0]
     spheres, bounds, obs, pairs, caps, cw, scratch = tables
     npairs, rate = find_pairs(spheres, bounds, obs, R_all, p_all, qd, Minv, h, pairs, scratch)
-    nsub = max(
-        substeps_for(P, X, h, nsub),
-        min(int(math.ceil(rate * h / CONTACT_RATE_STEP)), nsub * MAX_SUBSTEP_FACTOR),
-    )
+    nsub = max(substeps_for(P, X, h, nsub), contact_substeps(rate, h, nsub))
     hs = h / nsub
     set_caps(pairs, npairs, hs, caps)
     contact = (spheres, obs, pairs, npairs, q, scratch)

@@ -44,12 +44,11 @@ import numpy as np
 from numba import njit
 
 from . import drive as dr
-from .chain_dynamics import bias_forces_at, chain_frames, mass_matrix_at
+from .chain_dynamics import chain_frames, chain_state
 from .chain_kinematics import (
     cholesky,
     cholesky_solve,
     rotation_vector,
-    tool_frames,
     tool_jacobian,
     tool_jdot_qd,
     tool_pose_at,
@@ -125,12 +124,18 @@ FRICTION_BAND = 0.5  # rad/s of motor speed over which the Coulomb feed-forward 
 @njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
 def _tool_velocity(pre_R, pre_p, R_last, tool_local, q, qd, R_all, p_all, p, R, J, v):
     """Tool pose (p, R) at q and its twist v = J(q) qd (linear, angular; world)."""
-    tool_frames(pre_R, pre_p, R_last, tool_local, q, R_all, p_all, p, R)
+    chain_frames(pre_R, pre_p, q, R_all, p_all)
+    _tool_twist_at(R_all, p_all, R_last, tool_local, qd, p, R, J, v)
+
+
+@njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
+def _tool_twist_at(R_all, p_all, R_last, tool_local, qd, p, R, J, v):
+    """Tool pose (p, R), Jacobian J and twist v = J qd from the joint frames."""
+    tool_pose_at(R_all, p_all, R_last, tool_local, p, R)
     tool_jacobian(R_all, p_all, p, J)
-    n = q.shape[0]
     for a in range(6):
         s = 0.0
-        for i in range(n):
+        for i in range(qd.shape[0]):
             s += J[a, i] * qd[i]
         v[a] = s
 
@@ -228,13 +233,7 @@ def opspace_currents(
     y, col, x = ns[0], ns[1], ns[2]
     squares = np.zeros((2, n, n))
     M, L = squares[0], squares[1]
-    tool_pose_at(R_all, p_all, R_last, tool_local, p, R)
-    tool_jacobian(R_all, p_all, p, J)
-    for a in range(6):
-        s = 0.0
-        for i in range(n):
-            s += J[a, i] * qd[i]
-        v[a] = s
+    _tool_twist_at(R_all, p_all, R_last, tool_local, qd, p, R, J, v)
     # the reference: the tool pose and twist of the joint set points, now and one period on
     Rw_all = np.empty((n, 3, 3))
     pw_all = np.empty((n, 3))
@@ -404,11 +403,9 @@ def control_update(
                 q_m[i], qd_m[i] = dr.load_resolver(P, i, q[i], qd[i])
             Rm_all = np.empty((n, 3, 3))
             pm_all = np.empty((n, 3))
-            chain_frames(pre_R, pre_p, q_m, Rm_all, pm_all)
             M_m = np.empty((n, n))
-            mass_matrix_at(Rm_all, pm_all, masses, coms, inertias, M_m)
             b_m = np.empty(n)
-            bias_forces_at(Rm_all, pm_all, masses, coms, inertias, gravity, qd_m, b_m)
+            chain_state(pre_R, pre_p, masses, coms, inertias, gravity, q_m, qd_m, Rm_all, pm_all, M_m, b_m)
             break
     saturated = opspace_currents(
         P,

@@ -63,6 +63,7 @@ class Simulation:
         self._external = np.zeros(self.n, dtype=bool)  # the joints an external controller drives
         self._control = ("joint_independent", 0.001)  # the built-in control system and its period
         self._opspace: OpspaceController | None = None
+        self._no_control = OpspaceController.idle(self.n)  # what the step kernel is handed without one
         #: what happens during a run: (t, parameter changes, grasp: an object's name, '' a release, None
         #: neither), in time order
         self._events: list[tuple[float, dict[str, float], str | None]] = []
@@ -369,7 +370,6 @@ class Simulation:
         self._pending_events = list(self._events)
         self.live[:, [dr.LV_OFFSET, dr.LV_RATE, dr.LV_T0, dr.LV_IREF]] = 0.0  # set_external stays
         self._opspace = self._make_opspace(h)
-        self._no_control = OpspaceController.idle(self.n)
         self.live[:, dr.LV_EXTERNAL] = True if self._opspace is not None else self._external
         self.h = h
         self.k_out = max(1, int(round(output_interval / h)))

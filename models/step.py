@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from .chain_dynamics import bias_forces_at, chain_frames, mass_matrix_at
+from .chain_dynamics import chain_state
 from .chain_kinematics import spd_inverse
 from .drive import drive_step
 from .jit import CACHE as _CACHE
@@ -62,13 +62,11 @@ def chain_step(
     n = q.shape[0]
     R_all = np.empty((n, 3, 3))
     p_all = np.empty((n, 3))
-    chain_frames(pre_R, pre_p, q, R_all, p_all)
     squares = np.empty((3, n, n))
     M, L, Minv = squares[0], squares[1], squares[2]
-    mass_matrix_at(R_all, p_all, masses, coms, inertias, M)
-    spd_inverse(M, L, Minv)
     bias = np.empty(n)
-    bias_forces_at(R_all, p_all, masses, coms, inertias, gravity, qd, bias)
+    chain_state(pre_R, pre_p, masses, coms, inertias, gravity, q, qd, R_all, p_all, M, bias)
+    spd_inverse(M, L, Minv)
     spheres, bounds, obs, _pairs, caps, _cw, _scratch = tables
     if control_due:
         control_update(
