@@ -50,12 +50,18 @@ def chain_frames(pre_R, pre_p, q, R_out, p_out):
 
 
 @njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
-def chain_state(pre_R, pre_p, masses, coms, inertias, gravity, q, qd, R_all, p_all, M, bias):
-    """What a step's kernels start from at the chain state (q, qd): the joint frames, the mass matrix
-    and the bias forces, into R_all, p_all, M, bias."""
+def chain_state(pre_R, pre_p, masses, coms, inertias, gravity, q, qd):
+    """What a step's kernels start from at the chain state (q, qd): (R_all, p_all, M, bias), the joint
+    frames, the mass matrix and the bias forces."""
+    n = q.shape[0]
+    R_all = np.empty((n, 3, 3))
+    p_all = np.empty((n, 3))
+    M = np.empty((n, n))
+    bias = np.empty(n)
     chain_frames(pre_R, pre_p, q, R_all, p_all)
     mass_matrix_at(R_all, p_all, masses, coms, inertias, M)
     bias_forces_at(R_all, p_all, masses, coms, inertias, gravity, qd, bias)
+    return R_all, p_all, M, bias
 
 
 @njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)

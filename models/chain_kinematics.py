@@ -180,10 +180,12 @@ def cholesky_solve(L, b, x):
 
 
 @njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
-def spd_inverse(A, L, Ainv):
-    """Ainv = A^-1 of a symmetric positive definite A through its Cholesky factor (into L): no LAPACK
-    call, no allocation (the drives invert the mass matrix every step)."""
+def spd_inverse(A):
+    """A^-1 of a symmetric positive definite A through its Cholesky factor: no LAPACK call (the drives
+    invert the mass matrix every step)."""
     m = A.shape[0]
+    factors = np.empty((2, m, m))
+    L, Ainv = factors[0], factors[1]
     cholesky(A, 0.0, L)
     for c in range(m):  # column c: solve L y = e_c, then L^T x = y
         for i in range(m):
@@ -196,3 +198,4 @@ def spd_inverse(A, L, Ainv):
             for k in range(i + 1, m):
                 s -= L[k, i] * Ainv[k, c]
             Ainv[i, c] = s / L[i, i]
+    return Ainv

@@ -348,13 +348,8 @@ def contact_prestep(pre_R, pre_p, masses, coms, inertias, gravity, tables, q, qd
     joints): the load side predicted over RK4 substeps as in drive.drive_step. `tables`: as there."""
     spheres, bounds, obs, pairs, caps, _cw, scratch = tables
     n = q.shape[0]
-    R_all = np.empty((n, 3, 3))
-    p_all = np.empty((n, 3))
-    squares = np.empty((3, n, n))
-    M, L, Minv = squares[0], squares[1], squares[2]
-    bias = np.empty(n)
-    chain_state(pre_R, pre_p, masses, coms, inertias, gravity, q, qd, R_all, p_all, M, bias)
-    spd_inverse(M, L, Minv)
+    R_all, p_all, M, bias = chain_state(pre_R, pre_p, masses, coms, inertias, gravity, q, qd)
+    Minv = spd_inverse(M)
     for j in range(n):
         tau_out[j] = 0.0
     npairs, rate = find_pairs(spheres, bounds, obs, R_all, p_all, qd, Minv, h, pairs, scratch)

@@ -401,11 +401,7 @@ def control_update(
             qd_m = np.empty(n)
             for i in range(n):
                 q_m[i], qd_m[i] = dr.load_resolver(P, i, q[i], qd[i])
-            Rm_all = np.empty((n, 3, 3))
-            pm_all = np.empty((n, 3))
-            M_m = np.empty((n, n))
-            b_m = np.empty(n)
-            chain_state(pre_R, pre_p, masses, coms, inertias, gravity, q_m, qd_m, Rm_all, pm_all, M_m, b_m)
+            Rm_all, pm_all, M_m, b_m = chain_state(pre_R, pre_p, masses, coms, inertias, gravity, q_m, qd_m)
             break
     saturated = opspace_currents(
         P,

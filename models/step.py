@@ -8,7 +8,6 @@ and the controller and the drives each used to compute the same frames, mass mat
 
 from __future__ import annotations
 
-import numpy as np
 from numba import njit
 
 from .chain_dynamics import chain_state
@@ -59,14 +58,8 @@ def chain_step(
     controller's period first (opspace.control_update: gains, period, forces, f_tool, integ, memo,
     i_ref are its own), then the drives over the step (drive.drive_step, whose status this returns:
     STEP_*)."""
-    n = q.shape[0]
-    R_all = np.empty((n, 3, 3))
-    p_all = np.empty((n, 3))
-    squares = np.empty((3, n, n))
-    M, L, Minv = squares[0], squares[1], squares[2]
-    bias = np.empty(n)
-    chain_state(pre_R, pre_p, masses, coms, inertias, gravity, q, qd, R_all, p_all, M, bias)
-    spd_inverse(M, L, Minv)
+    R_all, p_all, M, bias = chain_state(pre_R, pre_p, masses, coms, inertias, gravity, q, qd)
+    Minv = spd_inverse(M)
     spheres, bounds, obs, _pairs, caps, _cw, _scratch = tables
     if control_due:
         control_update(
