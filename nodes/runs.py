@@ -26,6 +26,7 @@ from .sessions import SessionRecord, SessionStore
 MAX_WARNINGS = 20
 #: How long a lost run token waits for the worker's own last report (it travels another way).
 LAST_REPORT_GRACE_S = 0.3
+ALIVE_AFTER_S = 0.15  # a report this long after a run's token went proves its worker alive
 TOKEN_QUERY_S = 1.0  # asking whether a run's token is still up
 TOKEN_QUERY_TRIES = 3  # queries that time out before one counts as an answer
 #: How long runs whose tokens went with the hub wait for it to come back before they are settled.
@@ -264,7 +265,7 @@ class RunTracker:
                     # An attempt on a host taken for lost (cut off, not dead): it runs for no one.
                     self.send_control(user, sid, st.run_id, "abort", attempt=st.attempt)
                 return
-            rec.reported = st.run_id
+            rec.reported, rec.reported_at = st.run_id, time.monotonic()
             progress = min(1.0, st.sim_time / st.stop_time) if st.stop_time > 0 else 0.0
             self.run_info(rec, st.run_id, sim_time=st.sim_time, samples=st.samples)
             if st.stop_time > 0:
@@ -348,6 +349,14 @@ class RunTracker:
                 return
             if rec.state.attempt != attempt:
                 return  # restarted meanwhile (its host's token went first)
+            if rec.reported_at > gone_at + ALIVE_AFTER_S:
+                # A running worker reports every 0.1 s: one that reported well after its token went is
+                # alive (another peer's copy of the token went, and a busy mesh answered the queries
+                # without the worker's own); a crashed one sends nothing after its token is gone.
+                self.log.warning(
+                    "session %s run %s: a token vanished but its worker reported since: ignored", sid, run_id
+                )
+                return
             if host_gone:
                 self.host_lost(host)
                 return

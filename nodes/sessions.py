@@ -44,6 +44,9 @@ class SessionRecord:
     abort_run: str = ""
     #: The run whose worker has reported (a sealed status): only then may the loss of its token fail it.
     reported: str = ""
+    #: When (monotonic) that worker's last status report came: a worker that reports after its token
+    #: vanished is alive, whatever the mesh's token tables say under load.
+    reported_at: float = 0.0
     #: Wall time of the user's last command or the last run's end: idle sessions expire from it.
     active_at: float = field(default_factory=time.time)
 
