@@ -276,6 +276,14 @@ class PlanStep(Record):
     end: Annotated[float, Meta(ge=0.0, description="s")]
     task: Annotated[str, Meta(max_length=64, description="the task's name ('' outside a task)")] = ""
     action: Annotated[str, Meta(max_length=64, description="the action's label, else its primitive")] = ""
+    q_end: Annotated[
+        list[float],
+        Meta(
+            max_length=64,
+            description="rad, the joint set points when the step ends (a pendant draws the arm there); "
+            "[] when not known before the run (direct input)",
+        ),
+    ] = []
 
 
 class CommandPlan(Record):

@@ -58,6 +58,7 @@ class PlanStep:
     end: float
     task: str = ""
     action: str = ""
+    q_end: list[float] = field(default_factory=list)  # the joint set points when it ends ([]: not known)
 
 
 @dataclass
@@ -137,11 +138,15 @@ class Plan:
             end_pose=self.end_pose,
             kind=self.kind,
             duration=self.duration,
-            steps=[m.PlanStep(s.path, s.what, s.start, s.end, s.task, s.action) for s in self.steps],
+            steps=[m.PlanStep(s.path, s.what, s.start, s.end, s.task, s.action, s.q_end) for s in self.steps],
             final_q=[float(x) for x in self.final_q],
             tool_path=[[float(x) for x in p] for p in self.tool_path],
             stop_time_cuts=self.duration > stop_time + 1e-9,
         )
+
+
+def _floats(q: np.ndarray) -> list[float]:
+    return [float(x) for x in q]
 
 
 def _trapezoid(T: float, ta: float, tau: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -338,7 +343,7 @@ class Planner:
                     self._ptp(
                         ref, path, np.asarray(node.position, float), target, node.speed_pct, node.acc_pct
                     )
-                steps.append(PlanStep(path, node.move, t0, ref.t))
+                steps.append(PlanStep(path, node.move, t0, ref.t, q_end=_floats(ref.q)))
         else:
             steps.extend(self._action(ref, act, path, task) for path, task, act in _actions_of(command))
         tab = ref.table()
@@ -377,7 +382,7 @@ class Planner:
             row = dr.plan_segment(
                 q, dest, self.vmax * node.speed_pct / 100, self.amax * node.acc_pct / 100, t
             )
-            steps.append(PlanStep(f"nodes[{i}]", "joint", t, t + float(row[1])))
+            steps.append(PlanStep(f"nodes[{i}]", "joint", t, t + float(row[1]), q_end=_floats(dest)))
             rows.append(row)
             nodes.append((dest, node.speed_pct, node.acc_pct))
             samples.extend(q + s * (dest - q) for s in np.linspace(0.0, 1.0, 21)[1:])
@@ -539,7 +544,9 @@ class Planner:
             self._grasp(ref, str(args["object"]), _where(path, "args.object"))
         elif act.primitive == "release":
             self._release(ref, _where(path, "primitive"))
-        return PlanStep(path or "action", act.primitive, t0, ref.t, task, act.name or act.primitive)
+        return PlanStep(
+            path or "action", act.primitive, t0, ref.t, task, act.name or act.primitive, _floats(ref.q)
+        )
 
     def _last_frame(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The last joint's frame (R, p) at q: what a grasped object hangs on."""

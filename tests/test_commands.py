@@ -60,6 +60,8 @@ def test_a_lin_move_ends_on_its_target_and_stays_near_its_line(service: Service)
     assert plan.kind == "cartesian_path" and plan.duration > 0.5 and not plan.stop_time_cuts
     assert [st.step for st in plan.steps] == ["nodes[0]"]
     assert np.linalg.norm(np.array(plan.tool_path[-1]) - p1) < 1e-6
+    p_end, _R = kin.tool_pose(np.array(plan.steps[0].q_end))  # where a pendant draws the arm
+    assert np.linalg.norm(p_end - p1) < 1e-6 and plan.steps[0].q_end == plan.final_q
     cols, rows = run_to_end(s, plan)
     tool = rows[:, tool_columns(cols)]
     end = tool[-1]
@@ -83,6 +85,8 @@ def test_a_ptp_move_to_a_pose_reaches_it_on_the_puma(service: Service) -> None:
     target_q = np.array(PUMA_Q0) + np.array([0.5, 0.3, -0.3, 0.4, -0.3, 0.5])
     p1, R1 = kin.tool_pose(target_q)
     plan = s.set_command(m.CartesianPath([m.CartesianNode(list(p1), list(rpy_of(R1)), "ptp")]))
+    p_end, R_end = kin.tool_pose(np.array(plan.steps[0].q_end))
+    assert np.linalg.norm(p_end - p1) < 1e-6 and np.allclose(R_end, R1, atol=1e-6)
     cols, rows = run_to_end(s, plan, after=1.5)
     end = rows[-1, tool_columns(cols)]
     assert np.linalg.norm(end[:3] - p1) < 2e-3
