@@ -4,7 +4,8 @@ tests and `simecs bench viewer`.
 viser's websocket lives in a Web Worker, out of Playwright's sight (STACK-NOTES), so `PROBE_JS`
 wraps the page's `Worker` before viser creates it and timestamps every message batch that moves a
 link of the 3D arm: those are the pose updates the tab actually received. It also notes every
-binary glTF mesh (an imported model's links) the tab received.
+binary glTF mesh (an imported model's links) the tab received, and keeps the worker and each
+transform gizmo's owner so `drag_gizmo` can send what a drag of that gizmo sends.
 """
 
 from __future__ import annotations
@@ -27,12 +28,14 @@ VIEWPORT = {"width": 1600, "height": 1000}
 
 PROBE_JS = """
 (() => {
-  const rec = window.__simecs = {batches: [], clicks: [], plots: [], glbs: []};
+  const rec = window.__simecs = {batches: [], clicks: [], plots: [], glbs: [],
+                                 gizmos: {}, gizmoTurns: {}, worker: null};
   const Base = window.Worker;
   if (!Base) return;
   class Probed extends Base {
     constructor(...args) {
       super(...args);
+      rec.worker = this;  // what sends the page's messages: a drag is replayed through it
       this.addEventListener('message', (e) => {
         const d = e.data;
         if (!d || d.type !== 'message_batch' || !d.messages) return;
@@ -40,6 +43,13 @@ PROBE_JS = """
         for (const m of d.messages) {
           if ((m.type === 'SetPositionMessage' || m.type === 'SetOrientationMessage')
               && typeof m.name === 'string' && m.name.startsWith('/arm/')) poses++;
+          else if (m.type === 'TransformControlsMessage') {
+            rec.gizmos[m.name] = m.owner || '';
+            if (m.wxyz) rec.gizmoTurns[m.name] = Array.from(m.wxyz);
+          }
+          else if (m.type === 'SetOrientationMessage' && m.name in rec.gizmos) {
+            rec.gizmoTurns[m.name] = Array.from(m.wxyz);
+          }
           else if (m.type === 'GlbMessage' && m.props && m.props.glb_data) {
             rec.glbs.push([m.name, m.props.glb_data.byteLength || m.props.glb_data.length || 0]);
           }
@@ -89,6 +99,37 @@ def set_field(page: Any, locator: Any, value: str) -> None:
     """Type a value into a viser input and commit it as a user would (Enter)."""
     locator.fill(value)
     locator.press("Enter")
+
+
+def vector_input(page: Any, label: str, index: int) -> Any:
+    """Box `index` (0: x) of the viser vector input labelled `label`."""
+    return page.locator(
+        f"xpath=//label[normalize-space(text())='{label}']/ancestor::div[contains(@class,'mantine-Flex-root')][1]"
+        "//input"
+    ).nth(index)
+
+
+def drag_gizmo(page: Any, name: str, position: Any, wxyz: Any = None) -> float:
+    """Move the transform gizmo `name` as a user's drag does: the page sends the messages its gizmo
+    sends while dragged (start, a pose, end), turned to `wxyz` or, by default, as it is (a drag along
+    its arrows). Returns the page's time (ms) of the pose message."""
+    return float(
+        page.evaluate(
+            """([name, position, wxyz]) => {
+  const rec = window.__simecs;
+  const owner = rec.gizmos[name];
+  if (owner === undefined || !rec.worker) throw new Error('no gizmo ' + name + ' on the page');
+  wxyz = wxyz || rec.gizmoTurns[name] || [1, 0, 0, 0];
+  const send = (message) => rec.worker.postMessage({type: 'send', message});
+  send({type: 'TransformControlsDragStartMessage', name, owner});
+  const t = performance.now();
+  send({type: 'TransformControlsUpdateMessage', name, wxyz, position, owner});
+  send({type: 'TransformControlsDragEndMessage', name, owner});
+  return t;
+}""",
+            [name, list(position), list(wxyz) if wxyz is not None else None],
+        )
+    )
 
 
 def pose_batches(page: Any) -> list[tuple[float, int]]:

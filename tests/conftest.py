@@ -12,11 +12,13 @@ import socket
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import pytest
 from simecs.mesh.client import MeshClient
 from simecs.mesh.config import load
 from simecs.nodes.secure import SecureFolder
+from simecs.testing import browser as chromium
 from simecs.testing.launch import LocalMesh, clean_env
 from simecs.testing.launch import wait_until as wait_until  # the tests import it from here
 
@@ -132,3 +134,33 @@ def restart_every_node(mesh: LocalMesh) -> Service:
 def service(mesh: LocalMesh) -> Service:
     """Hub, proxy, simulator and hot-feedback on an isolated mesh."""
     return start_service(mesh)
+
+
+@pytest.fixture
+def browser() -> Iterator[Any]:
+    """A headless chromium. Missing, it fails the test with what to install (`make test` installs it):
+    a browser test that skips hides a missing install step."""
+    missing = chromium.browser_missing()
+    if missing:
+        pytest.fail(f"the browser tests need chromium: {missing}", pytrace=False)
+    from playwright.sync_api import sync_playwright
+
+    with sync_playwright() as pw:
+        b = chromium.launch(pw)
+        try:
+            yield b
+        finally:
+            b.close()
+
+
+@pytest.fixture(scope="module")
+def server() -> Iterator[Any]:
+    """A viser server on a free loopback port, without a browser: the viewer's panels are built on it
+    and driven by injected events (test_viewer_logic.py, test_viewer_cartesian.py)."""
+    import viser
+
+    srv = viser.ViserServer(host="127.0.0.1", port=free_port(), verbose=False)
+    try:
+        yield srv
+    finally:
+        srv.stop()

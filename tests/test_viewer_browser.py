@@ -15,21 +15,20 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from typing import Any
 
-import pytest
 from simecs.mesh import keys
 from simecs.mesh.client import MeshClient
 from simecs.testing import browser as chromium
 
 from .conftest import ARTIFACTS, Mesh, Secured, free_port, start_service, wait_until
 
-MISSING = chromium.browser_missing()
-
 SPIDER = "Load Spider arm (joint-independent control)"
 USER = "tester"
+SHOTS = ARTIFACTS / "viewer"  # screenshots of what the browser tests saw
 
 
-def start_viewer(mesh: Mesh, *flags: str) -> str:
-    port = free_port()
+def start_viewer(mesh: Mesh, *flags: str, port: int = 0) -> str:
+    """The viewer node on `port` (a free one if 0), its URL once it is ready."""
+    port = port or free_port()
     mesh.spawn(
         "viewer",
         "simecs.viewer.app",
@@ -46,22 +45,6 @@ def start_viewer(mesh: Mesh, *flags: str) -> str:
     return f"http://127.0.0.1:{port}"
 
 
-@pytest.fixture
-def browser() -> Iterator[Any]:
-    """A headless chromium. Missing, it fails the test with what to install (`make test` installs it):
-    a browser test that skips hides a missing install step."""
-    if MISSING:
-        pytest.fail(f"the browser tests need chromium: {MISSING}", pytrace=False)
-    from playwright.sync_api import sync_playwright
-
-    with sync_playwright() as pw:
-        b = chromium.launch(pw)
-        try:
-            yield b
-        finally:
-            b.close()
-
-
 def new_page(context: Any, url: str) -> Any:
     page = context.new_page()
     page.set_default_timeout(30_000)
@@ -75,7 +58,35 @@ def sessions_of(client: MeshClient) -> set[str]:
 
 
 def text_appears(page: Any, text: str, timeout: float = 30.0) -> None:
-    page.get_by_text(text, exact=False).first.wait_for(timeout=timeout * 1000)
+    """Wait for `text`; when it does not come, say what the page showed instead (its notices and a
+    screenshot in artifacts/viewer/), so a failure on a CI machine can be read."""
+    try:
+        page.get_by_text(text, exact=False).first.wait_for(timeout=timeout * 1000)
+    except Exception as exc:
+        SHOTS.mkdir(parents=True, exist_ok=True)
+        shot = SHOTS / f"missing_{abs(hash(text)) % 10**8}.png"
+        notices: list[str] = []
+        try:
+            page.screenshot(path=str(shot))
+            notices = [n.inner_text(timeout=2000) for n in page.locator(".mantine-Notification-root").all()]
+        except Exception:
+            pass
+        raise AssertionError(f"{text!r} did not appear; notices shown: {notices}; screenshot {shot}") from exc
+
+
+def chart_spans(page: Any) -> list[float]:
+    """For each chart on the page, the part of its data's time range its x axis shows (1: all)."""
+    return page.evaluate("""() => Object.values((window.__viserTestpoints || {}).uplots || {}).map((tp) => {
+  const u = tp.chart, xs = u.data[0];
+  const range = xs[xs.length - 1] - xs[0];
+  return range > 0 ? (u.scales.x.max - u.scales.x.min) / range : 0;
+})""") or [0.0]
+
+
+def model_shown(page: Any, timeout: float = 30.0) -> None:
+    """The model's page is up: its header names the session (the models window's buttons carry the
+    model's name too, so a name alone does not say the page changed)."""
+    text_appears(page, "· session", timeout)
 
 
 def poses_since(page: Any, t_ms: float, link: str | None = None) -> int:
@@ -89,6 +100,11 @@ def dismiss_notifications(page: Any) -> None:
             button.click(timeout=2000)
         except Exception:
             pass
+
+
+def open_components(page: Any) -> None:
+    """Unfold the component tree of the visible tab (a pick folds it under the picked name)."""
+    page.get_by_text(re.compile(r"^Components · ")).locator("visible=true").first.click()
 
 
 def now_ms(page: Any) -> float:
@@ -125,13 +141,14 @@ def use_case(mesh: Mesh, browser: Any) -> None:
     # 1. the models window: the library with summaries; load the Spider
     text_appears(page, "7 joints")
     page.get_by_role("button", name=SPIDER).click()
-    text_appears(page, "Spider arm (joint-independent control)")
+    model_shown(page)
     sid = wait_until(lambda: next(iter(sessions_of(client)), None), timeout=20, what="a session")
     session = client.session(USER, sid)
     assert session.snapshot().model_id == "spider"
 
     # 2. parameters in place: a valid length, applied, reshapes the arm; an invalid mass is refused
     #    beside the field before anything is sent, and discarded
+    open_components(page)
     page.get_by_role("button", name="link2 (3)").click()
     t = now_ms(page)
     chromium.set_field(page, page.get_by_label("length [m]"), "0.5")
@@ -155,6 +172,7 @@ def use_case(mesh: Mesh, browser: Any) -> None:
 
     # 3. variables: choose what to stream and open a plot
     page.get_by_role("tab", name="Variables").click()
+    open_components(page)
     page.get_by_text("joint1 (14)", exact=True).click()
     page.get_by_role("button", name="joint1 (2 own)").click()
     page.get_by_role("button", name="Plot q", exact=True).click()
@@ -203,6 +221,18 @@ def use_case(mesh: Mesh, browser: Any) -> None:
     wait_until(
         lambda: max(n for _t, n in chromium.plot_points(page)) >= 1000, timeout=20, what="full-res data"
     )
+    # a drag across the chart zooms in the browser; Reset zoom shows the whole transient again
+    over = page.locator(".uplot-container .u-over").first
+    box = over.bounding_box()
+    assert box is not None
+    y = box["y"] + box["height"] / 2
+    page.mouse.move(box["x"] + 0.3 * box["width"], y)
+    page.mouse.down()
+    page.mouse.move(box["x"] + 0.6 * box["width"], y, steps=8)
+    page.mouse.up()
+    zoomed = wait_until(lambda: chart_spans(page)[0] < 0.5, what="a drag-zoom")
+    page.get_by_role("button", name="Reset zoom").first.click()
+    wait_until(lambda: chart_spans(page)[0] > 0.99, what=f"the zoom reset (was {zoomed})")
 
     # 11. save the results: CSV of the chosen variables, and the MCAP recording when a recorder runs
     with page.expect_download(timeout=30_000) as dl:
@@ -242,6 +272,7 @@ def use_case(mesh: Mesh, browser: Any) -> None:
     # the session and its values come back after a reload
     page.reload()
     text_appears(page, f"session {sid[:8]}")
+    open_components(page)
     page.get_by_role("button", name="link2 (3)").click()
     assert page.get_by_label("length [m] •").input_value() == "0.5"
     text_appears(page, "▶1")
@@ -259,7 +290,7 @@ def test_a_value_typed_key_by_key_is_stored_exactly_when_applied(mesh: Mesh, bro
         context = browser.new_context(viewport=chromium.VIEWPORT)
         page = new_page(context, url)
         page.get_by_role("button", name=SPIDER).click()
-        text_appears(page, "Spider arm (joint-independent control)")
+        model_shown(page)
         sid = wait_until(lambda: next(iter(sessions_of(client)), None), timeout=20, what="a session")
         session = client.session(USER, sid)
         search = text_field(page, "Find parameter")
@@ -330,13 +361,14 @@ def two_tabs(mesh: Mesh, browser: Any) -> None:
     context = browser.new_context(viewport=chromium.VIEWPORT)  # one browser, one user, two tabs
     a = new_page(context, url)
     a.get_by_role("button", name=SPIDER).click()
-    text_appears(a, "Spider arm (joint-independent control)")
+    model_shown(a)
     sid_a = wait_until(lambda: next(iter(sessions_of(client)), None), timeout=20, what="session A")
     b = new_page(context, url)
     b.get_by_role("button", name=SPIDER).click()
     sid_b = wait_until(lambda: next(iter(sessions_of(client) - {sid_a}), None), timeout=20, what="session B")
     assert sid_a != sid_b
 
+    open_components(a)
     a.get_by_role("button", name="link3 (3)").click()
     chromium.set_field(a, a.get_by_label("length [m]"), "0.9")
     a.get_by_role("button", name="Apply edits").click()
@@ -347,6 +379,7 @@ def two_tabs(mesh: Mesh, browser: Any) -> None:
     # each tab keeps its own session over a reload (the other tab is still open)
     b.reload()
     text_appears(b, f"session {sid_b[:8]}")
+    open_components(b)
     b.get_by_role("button", name="link3 (3)").click()
     assert b.get_by_label("length [m]", exact=True).input_value() == "0.7"
     a.reload()
@@ -382,7 +415,7 @@ def test_a_secured_viewer_asks_for_the_password_and_acts_as_that_user(secured: S
         page.get_by_role("button", name="Log in").click()
         text_appears(page, "Logged in")
         page.get_by_role("button", name=SPIDER).click()
-        text_appears(page, "Spider arm (joint-independent control)")
+        model_shown(page)
         ann = secured.login("ann")
         sessions = wait_until(lambda: ann.list_sessions("ann"), timeout=20, what="ann's session")
         assert len(sessions) == 1 and secured.login("bob").list_sessions("bob") == []

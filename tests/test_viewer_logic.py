@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import ast
 import math
-import socket
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -19,7 +18,6 @@ from typing import Any
 import msgspec
 import numpy as np
 import pytest
-import viser
 from simecs.benchmarks.viewer import viewer_latency
 from simecs.mesh import codec, columns, frames, keys, phases, shapes
 from simecs.mesh import messages as m
@@ -68,6 +66,7 @@ HEADLESS = (
     "stream",
     "series",
     "path",
+    "cartesian",
     "export",
     "tree",
     "jog",
@@ -141,18 +140,6 @@ class Event:
     client_id: int | None = 1
 
 
-@pytest.fixture(scope="module")
-def server():
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        port = s.getsockname()[1]
-    srv = viser.ViserServer(host="127.0.0.1", port=port, verbose=False)
-    try:
-        yield srv
-    finally:
-        srv.stop()
-
-
 # -- a fake mesh client: what the controller asks, answered from memory -------------------------------
 class FakeWatch:
     def close(self) -> None:
@@ -175,6 +162,7 @@ class FakeSession:
         self.counter = 0
         self.plan_duration = 1.0  # what the server's plan of a command says it takes
         self.jogs: list[m.JogInput] = []
+        self.unanswered = 0  # snapshot queries that get no reply (a server not reachable yet)
 
     def command(self, cmd: Any) -> Any:
         self.sent.append(cmd)
@@ -197,15 +185,37 @@ class FakeSession:
             return ["light"]
         if isinstance(cmd, m.GetSession):
             return snap
+        if isinstance(cmd, m.SetCommand) and isinstance(cmd.command, m.CartesianPath):
+            return self.plan_cartesian(cmd.command)
         if isinstance(cmd, m.SetCommand):
             snap.command = cmd.command
             return m.CommandPlan("joint_path", self.plan_duration, [], [0.0])
         return ""
 
+    def plan_cartesian(self, path: m.CartesianPath) -> m.CommandPlan:
+        """The server's answer to a Cartesian path, as far as the pendant sees it: a node below the
+        floor is refused naming it; each node's joint targets are its height, a second per node."""
+        for i, node in enumerate(path.nodes):
+            if node.position[2] < 0.0:
+                raise RemoteError(
+                    m.Error("bad_request", "out of reach: 12 mm too far", f"command.nodes[{i}].position")
+                )
+        assert self.snap is not None
+        self.snap.command = path
+        steps = [
+            m.PlanStep(f"nodes[{i}]", n.move, i, i + 1.0, q_end=[n.position[2], 0.0, 0.0])
+            for i, n in enumerate(path.nodes)
+        ]
+        tool = [list(n.position) for n in path.nodes]
+        return m.CommandPlan("cartesian_path", len(steps), steps, steps[-1].q_end, [[0, 0, 0.5], *tool])
+
     def jog(self, jog: m.JogInput) -> None:
         self.jogs.append(jog)
 
     def snapshot(self) -> m.SessionSnapshot:
+        if self.unanswered > 0:
+            self.unanswered -= 1
+            raise NoReply(f"no node answered simecs/{self.id}/cmd within 10.0 s")
         if self.snap is None:
             raise RemoteError(m.Error("not_found", f"no session {self.id}"))
         return self.snap
@@ -744,8 +754,10 @@ def test_param_panel_shows_a_component_and_sends_only_applied_edits(server: Any)
         lambda op, name: ops.append((op, name)),
     )
     assert list(panel.fields) == ["link1.length"]  # the first component with items
+    assert panel.tree.folder.label == "Components · link1"  # folded under what it shows
     panel.tree.buttons["joint1.motor"]._impl.update_cb[0](Event(panel.tree.buttons["joint1.motor"]))
     assert list(panel.fields) == ["joint1.motor.R", "joint1.motor.kt"]
+    assert panel.tree.folder.label == "Components · joint1.motor" and panel.tree.picked == "joint1.motor"
     field = panel.fields["joint1.motor.R"]
     assert field.label == "R [ohm]" and "winding resistance" in field.hint
     R = model.parameter("joint1.motor.R")
@@ -776,6 +788,15 @@ def test_param_panel_shows_a_component_and_sends_only_applied_edits(server: Any)
     assert list(panel.fields) == ["joint1.motor.kt"]
     panel.set_names(["a", "b"])
     assert panel.sets.options == ("a", "b")
+    # "Reset all" asks first: keeping the values sends nothing, agreeing resets every parameter
+    click = lambda button: button._impl.update_cb[0](Event(button))  # noqa: E731
+    click(panel.reset_all)
+    assert panel.confirm is not None and resets == []
+    click(panel.confirm[1])
+    assert resets == []
+    click(panel.reset_all)
+    click(panel.confirm[0])
+    assert resets == [[]]
 
 
 def test_variable_panel_streams_and_plots(server: Any) -> None:
@@ -822,7 +843,12 @@ def test_overlay_puts_two_runs_on_one_time_axis() -> None:
     x, cur, prev = series.overlay(t, [t * 2], t_prev, [t_prev * 3])
     assert x[0] == 0 and x[-1] == 2 and np.all(np.diff(x) > 0)
     assert np.allclose(np.interp(0.5, x, cur[0]), 1.0) and np.allclose(np.interp(1.5, x, prev[0]), 4.5)
-    assert cur[0][-1] == pytest.approx(2.0)  # holds its last value beyond its end
+    # a shorter run is drawn to its own end, never held flat beyond it (uPlot draws no NaN)
+    beyond = x > 1.0
+    assert beyond.any() and np.isnan(cur[0][beyond]).all() and not np.isnan(cur[0][~beyond]).any()
+    assert not np.isnan(prev[0]).any()
+    x, cur, prev = series.overlay(np.empty(0), [np.empty(0)], t_prev, [t_prev])
+    assert np.array_equal(x, t_prev) and np.isnan(cur[0]).all()
 
 
 def test_plot_redraws_live_then_full_resolution(server: Any) -> None:
@@ -851,6 +877,14 @@ def test_plot_redraws_live_then_full_resolution(server: Any) -> None:
     plot.add_var.value = "joint2.q"
     plot._add_variable(Event(plot.add_var))
     assert plot.variables == ["joint1.q", "joint2.q"] and plot.add_var.value == "—"
+    # Reset zoom: a drag-zoom lives in the browser's chart, so a new chart takes its place
+    old, order = plot.chart, plot.chart.order
+    plot.reset_zoom()
+    assert plot.chart is not old and plot.chart.order == order and plot.dirty
+    plot.redraw(buf)
+    assert len(plot.chart.data) == 5 and plot.chart.series[2]["label"] == "joint2.q"  # 2 + 2 overlaid
+    plot._transient(Event(SimpleNamespace(value="Live")))  # back to live: no drag-zoom left over
+    assert plot.full is None and plot.chart is not old
     plot.remove()
 
 
@@ -865,10 +899,12 @@ def test_plot_dock_opens_and_closes_with_its_plots(server: Any) -> None:
         variable_names=lambda: ["joint1.q"],
         batch=server.atomic,
     )
-    dock = plots.PlotDock(server.gui, {}, actions)
+    placed: list[Any] = []
+    dock = plots.PlotDock(server.gui, {}, actions, placed.append)
     a = dock.open("joint1.q", ["joint1.q", "joint2.q"])
     b = dock.open("joint2.q", ["joint1.q", "joint2.q"])
     assert (a.number, b.number) == (1, 2) and dock.get(2) is b and dock.plotted() == {"joint1.q", "joint2.q"}
+    assert placed == [dock.panel]  # the panel is placed once, by the layout
     a.full = series.Transient("r1", np.zeros(2))
     dock.new_run()
     assert a.full is None and a.dirty
@@ -884,7 +920,12 @@ def test_doc_links_become_buttons_and_history_goes_back(server: Any) -> None:
     titles = {p.id: p.title for p in model.docs}
     r = docs.render(model.docs[1], titles)
     assert r.links == [("arm", "the arm")]  # doc:arm.motor does not exist: plain text, no button
-    assert "**the arm** ↗" in r.markdown and "doc:" not in r.markdown.replace("arm.motor", "")
+    # an in-text link names the button that follows it (the tab's script clicks that button)
+    assert f"[the arm]({docs.LINK_PREFIX}%E2%86%92%20Arm)" in r.markdown
+    assert docs.button_label("Arm") == "→ Arm" and "doc:" not in r.markdown.replace("arm.motor", "")
+    # a page's raw HTML is shown as text, its code as typed
+    shown = docs.render(DocPage("x", "X", "a <script>alert(1)</script> `<link>`"), titles).markdown
+    assert "<script>" not in shown and "&lt;script>" in shown and "`<link>`" in shown
     r0 = docs.render(model.docs[0], titles)
     assert r0.links == [("arm.joint", "joint drive"), ("arm.chain", "Chain")]
     h = docs.DocHistory("arm")
@@ -893,7 +934,7 @@ def test_doc_links_become_buttons_and_history_goes_back(server: Any) -> None:
     assert h.back() and h.current == "arm.joint" and h.back() and h.current == "arm" and not h.back()
 
     asked: list[str] = []
-    window = docs.DocsWindow(server.gui, model.docs, "arm", asked.append)
+    window = docs.DocsWindow(server.gui, model.docs, "arm", asked.append, lambda panel: None)
     window.open()
     window.follow("arm.joint")
     assert window.history.current == "arm.joint"
@@ -941,6 +982,18 @@ def test_results_panel_lists_runs_and_replays(server: Any) -> None:
     assert panel.selected() == "r2"
     panel.runs.value = panel.runs.options[1]
     assert panel.selected() == "r1"
+
+
+def test_text_from_a_model_or_the_server_is_shown_never_run() -> None:
+    """viser renders raw HTML in markdown, scripts included: a model's names, summaries and equations
+    and a server's reasons are escaped wherever they reach markdown (markup.py)."""
+    evil = "<img src=x onerror=alert(1)>"
+    model = arm()
+    summary = library.model_markdown(msgspec.structs.replace(model.summary_entry(), name=evil, summary=evil))
+    eqs = joints.init_equations_markdown([InitEquation("x", "q", evil)])
+    failed = m.SessionState("s" * 22, "failed", run_id="r2", reason=evil, warnings=[evil])
+    for shown in (summary, eqs, run.status_text(failed)):
+        assert "<img" not in shown and "&lt;img" in shown, shown
 
 
 def test_status_line_and_run_buttons() -> None:
@@ -1109,6 +1162,30 @@ def test_controller_reopens_the_remembered_session_and_forgets_a_vanished_one() 
     other.drain()
     assert got2.of(events.SessionRemembered)[-1].session == ""
     assert got2.of(events.Notice)[-1].title == "Previous session ended" and got2.of(events.LibraryListed)
+
+
+def test_a_remembered_session_is_asked_again_when_the_server_does_not_answer(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    monkeypatch.setattr(session, "REOPEN_PAUSE_S", 0.0)
+    ctl, mesh, got = controller()
+    sc = mesh.create_session("ada", "arm3")
+    sc.unanswered = session.REOPEN_TRIES - 1  # a viewer restarted before the mesh had its routes
+    ctl.start(remembered_session=sc.id, remembered_user="ada")
+    ctl.drain()
+    assert ctl.session is not None and ctl.session.id == sc.id and not got.of(events.Notice)
+
+    other, mesh2, got2 = controller()
+    gone = mesh2.create_session("ada", "arm3")
+    gone.unanswered = session.REOPEN_TRIES  # the server stays silent: the user is told, and
+    other.start(remembered_session=gone.id, remembered_user="ada")
+    other.drain()
+    assert other.session is None and got2.of(events.Notice)[-1].title == "Cannot open the session"
+    assert got2.of(events.LibraryListed)  # they can pick a model or a session,
+    assert not got2.of(events.SessionRemembered)  # and the tab still remembers its session
+    other.opening.open_session(gone.id)  # which opens once the server answers
+    other.drain()
+    assert other.session is not None and other.session.id == gone.id
 
 
 def test_one_tab_per_session() -> None:
@@ -1441,7 +1518,7 @@ def test_the_tab_applies_controller_events_to_its_panels(server: Any) -> None:
         sc.watched["on_state"](state(sc, "running", progress=0.5, sim_time=0.5, rtf=1.0))
         assert tab.toolbar.status.content.startswith("**running** run r1")
         enabled = [label for label, b in tab.toolbar.run_buttons.items() if not b.disabled]
-        assert enabled == ["Pause", "Abort"] and page.pendant.locked
+        assert enabled == ["Pause", "Abort"] and page.commands.pendant.locked
         assert "not now" in tab.toolbar.run_buttons["Run"].hint
         # a replay run: the status names the recording, the arm takes the recorded link length
         sc.watched["on_state"](state(sc, "queued", "r2", seq=11))
@@ -1454,7 +1531,7 @@ def test_the_tab_applies_controller_events_to_its_panels(server: Any) -> None:
         expected = link_poses(model, lay.context.values, [0.4, 0.1, -0.2])
         assert np.allclose(page.scene.frames[2].position, expected[2, :3])
         sc.watched["on_state"](state(sc, "finished", "r2", seq=13, sim_time=1.0))
-        assert not page.pendant.locked
+        assert not page.commands.pendant.locked
         # the user's own pose: the session's shapes come back
         ctl.preview([0.0, 0.0, 0.0])
         assert page.scene.solids[2][0].scale[2] == pytest.approx(0.5)
@@ -1681,7 +1758,7 @@ def test_the_page_draws_the_sessions_obstacles_and_a_runs_grasps_and_contacts(se
         box = m.Obstacle("box1", "box", [0.5, 0.0, 0.1], size=[0.1, 0.1, 0.1], mass=1.0)
         sc.watched["on_obstacles"](m.ObstacleValues(sc.id, [box]))
         assert ctl.obstacles == [box] and len(page.scene._obstacles) == 1
-        assert tuple(page.obstacles.pick.options) == ("box1", NEW)
+        assert tuple(page.commands.obstacles.pick.options) == ("box1", NEW)
         assert tuple(page.scene._obstacles[0].position) == pytest.approx((0.5, 0.0, 0.1))
         # a run grasps box1 and pushes link2 onto something: the box moves with the rows, the force
         # shows as an arrow; the live columns carry what the scene draws even when few are chosen
@@ -1713,7 +1790,7 @@ def test_the_page_draws_the_sessions_obstacles_and_a_runs_grasps_and_contacts(se
         assert tuple(page.scene._obstacles[0].position) == pytest.approx((0.5, 0.0, 0.1))
         assert page.scene._contacts is None
         # the panel: a new sphere, applied, goes to the server with the list it joins
-        panel = page.obstacles
+        panel = page.commands.obstacles
         panel.pick.value = NEW
         panel.name.value = "ball"
         panel.kind.value = "sphere"

@@ -1,5 +1,5 @@
 """What the viewer needs from the browser tab itself: which session it had before a reload, the user
-name kept on this browser, notifications, and the page title.
+name kept on this browser, the size of its viewport, notifications, and the page title.
 
 viser keeps no per-tab state across a reload (a reloaded page is a new client), so the tab keeps it:
 the session id goes into the tab's `sessionStorage` (one value per tab, kept by a reload, not shared
@@ -15,7 +15,7 @@ import logging
 import re
 import secrets
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 from viser import _messages as viser_messages
@@ -23,6 +23,7 @@ from viser import _messages as viser_messages
 log = logging.getLogger("simecs.viewer")
 
 SESSION_KEY = "simecs.session"  # sessionStorage: this tab's session id
+VIEW_KEY = "simecs.view"  # sessionStorage: what the tab showed of it (camera, plots; `remember_view`)
 USER_KEY = "simecs.user"  # localStorage (via viser): the user name on this browser
 
 
@@ -33,6 +34,9 @@ class TabMemory:
     session: str = ""
     user: str = ""
     answered: bool = False  # False: the browser did not answer (script blocked, storage disabled)
+    width: int = 0  # the page's viewport in CSS pixels (0: not told)
+    height: int = 0
+    view: dict[str, Any] = field(default_factory=dict)  # what remember_view kept (checked by its reader)
 
 
 def run_js(client: Any, source: str) -> None:
@@ -40,43 +44,60 @@ def run_js(client: Any, source: str) -> None:
     client._websock_connection.queue_message(viser_messages.RunJavascriptMessage(source=source))
 
 
-def recall(client: Any, timeout: float = 5.0) -> TabMemory:
+ASK_AGAIN_S = 1.0
+
+
+def recall(client: Any, timeout: float = 8.0) -> TabMemory:
     """Read this tab's session id and this browser's user name (blocks up to `timeout`)."""
     key = f"simecs.tab.{client.client_id}"
     nonce = secrets.token_hex(8)
-    try:
-        client.local_storage.set_item(key, nonce)
-        # Find viser's key prefix from the probe just written, then put the tab's memory in its place.
-        run_js(
-            client,
-            f"""(() => {{
+    script = f"""(() => {{
   const key = {json.dumps(key)}, nonce = {json.dumps(nonce)};
   const probe = Object.keys(localStorage).find(k => k.endsWith(key) && localStorage.getItem(k) === nonce);
   if (!probe) return;
-  let session = "";
+  let session = "", view = null;
   try {{ session = sessionStorage.getItem({json.dumps(SESSION_KEY)}) || ""; }} catch (e) {{}}
-  localStorage.setItem(probe, JSON.stringify({{session: session}}));
-}})();""",
-        )
+  try {{ view = JSON.parse(sessionStorage.getItem({json.dumps(VIEW_KEY)}) || "null"); }} catch (e) {{}}
+  localStorage.setItem(probe, JSON.stringify({{session: session, view: view, width: window.innerWidth,
+                                               height: window.innerHeight}}));
+}})();"""
+    try:
         end = time.monotonic() + timeout
         raw = None
-        while time.monotonic() < end:
-            raw = client.local_storage.get_item(key, timeout=max(0.1, end - time.monotonic()))
-            if raw is not None and raw != nonce:
-                break
-            time.sleep(0.05)
-        user = client.local_storage.get_item(USER_KEY, timeout=max(0.5, end - time.monotonic())) or ""
+        # Asked again every ASK_AGAIN_S: a page that has just reconnected may drop the first script.
+        while time.monotonic() < end and (raw is None or raw == nonce):
+            client.local_storage.set_item(key, nonce)
+            # Find viser's key prefix from the probe just written, then put the tab's memory there.
+            run_js(client, script)
+            again = min(end, time.monotonic() + ASK_AGAIN_S)
+            while time.monotonic() < again:
+                try:
+                    raw = client.local_storage.get_item(key, timeout=max(0.1, again - time.monotonic()))
+                except TimeoutError:  # a busy page answers late: asked again until `timeout`
+                    continue
+                if raw is not None and raw != nonce:
+                    break
+                time.sleep(0.05)
+        try:
+            user = client.local_storage.get_item(USER_KEY, timeout=max(2.0, end - time.monotonic())) or ""
+        except TimeoutError:  # the session is still the tab's; the user name comes from the viewer
+            user = ""
         client.local_storage.remove_item(key)
     except (RuntimeError, TimeoutError) as exc:
         log.warning("tab %s did not tell its memory: %s", client.client_id, exc)
         return TabMemory()
     if raw is None or raw == nonce:
+        log.info("tab %s did not tell its memory within %.0f s", client.client_id, timeout)
         return TabMemory(user=user, answered=False)
     try:
-        session = str(json.loads(raw).get("session", ""))
-    except (ValueError, AttributeError):
-        session = ""
-    return TabMemory(session=session, user=user, answered=True)
+        told = json.loads(raw)
+        session = str(told.get("session", ""))
+        width, height = int(told.get("width", 0)), int(told.get("height", 0))
+        view = told.get("view")
+    except (ValueError, TypeError, AttributeError):
+        session, width, height, view = "", 0, 0, None
+    view = view if isinstance(view, dict) else {}
+    return TabMemory(session=session, user=user, answered=True, width=width, height=height, view=view)
 
 
 def remember_session(client: Any, session: str) -> None:
@@ -89,8 +110,78 @@ def remember_session(client: Any, session: str) -> None:
     run_js(client, js)
 
 
+def remember_view(client: Any, view: dict[str, Any]) -> None:
+    """Keep what the tab shows of its session (camera, open plots, shown component) across reloads."""
+    value = json.dumps(json.dumps(view))
+    run_js(client, f"try {{ sessionStorage.setItem({json.dumps(VIEW_KEY)}, {value}); }} catch (e) {{}}")
+
+
 def remember_user(client: Any, user: str) -> None:
     client.local_storage.set_item(USER_KEY, user)
+
+
+def install_doc_links(client: Any, prefix: str) -> None:
+    """Make the documentation's in-text links work: a click on a link to `prefix<label>` clicks the
+    button labelled `<label>` (docs.py); viser calls Python only from its widgets."""
+    run_js(
+        client,
+        f"""(() => {{
+  if (window.__simecsDocLinks) return;
+  window.__simecsDocLinks = true;
+  const prefix = {json.dumps(prefix)};
+  document.addEventListener('click', (e) => {{
+    const a = e.target && e.target.closest ? e.target.closest('a[href]') : null;
+    const href = a ? a.getAttribute('href') || '' : '';
+    if (!href.startsWith(prefix)) return;
+    e.preventDefault();
+    e.stopPropagation();
+    const label = decodeURIComponent(href.slice(prefix.length));
+    const found = Array.from(document.querySelectorAll('button')).filter(
+      (b) => b.textContent.trim() === label);
+    if (found.length) found[found.length - 1].click();
+  }}, true);
+}})();""",
+    )
+
+
+#: The banner a tab shows once the server has been silent this long (it beats every second).
+SILENT_S = 4.0
+LOST_TEXT = (
+    "The simecs server is not answering. Your session is kept on the server; this page reconnects "
+    "by itself when the server is back."
+)
+
+
+def install_watchdog(client: Any) -> None:
+    """Say, on the page itself, when the server is gone: the viewer beats every second (`beat`) and
+    the page shows a banner at its top edge after `SILENT_S` without a beat. viser only dims the
+    panels; the banner says what happened and that nothing is lost. It goes when beats come back
+    (viser reconnects by itself, and the new tab reopens the session)."""
+    run_js(
+        client,
+        f"""(() => {{
+  window.__simecsBeat = Date.now();
+  if (window.__simecsWatchdog) return;
+  window.__simecsWatchdog = true;
+  const banner = document.createElement('div');
+  banner.id = 'simecs-lost';
+  banner.setAttribute('role', 'alert');
+  banner.textContent = {json.dumps(LOST_TEXT)};
+  banner.style.cssText = 'position:fixed;top:0;left:50%;transform:translateX(-50%);z-index:100000;' +
+    'max-width:560px;padding:8px 14px;background:#c92a2a;color:#fff;font:14px sans-serif;' +
+    'border-radius:0 0 6px 6px;box-shadow:0 2px 8px rgba(0,0,0,.3);display:none';
+  document.body.appendChild(banner);
+  setInterval(() => {{
+    const silent = Date.now() - (window.__simecsBeat || 0) > {SILENT_S * 1000:.0f};
+    banner.style.display = silent ? 'block' : 'none';
+  }}, 500);
+}})();""",
+    )
+
+
+def beat(client: Any) -> None:
+    """The server is here (see `install_watchdog`)."""
+    run_js(client, "window.__simecsBeat = Date.now();")
 
 
 def set_title(client: Any, title: str) -> None:

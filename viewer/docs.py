@@ -1,8 +1,13 @@
 """The documentation window (paper §2.2): read-only hypertext over the model's components.
 
 Pages come with the model description; links between them are written `doc:<id>` (as markdown link
-targets or bare). A browser would try to open such a link as a URL, so each page is shown with its
-links turned into buttons; the window keeps a history so the user can go back.
+targets or bare). A browser cannot follow such a link, and viser calls Python only from its widgets,
+so each link becomes two things: a button under the page ("Links on this page"), and an in-text link
+(`#simecs-doc/…` naming that button) which the tab's script (`browser.install_doc_links`) turns into
+a click on the button. The window keeps a history so the user can go back, and shows each new page
+from its top.
+
+A page's raw HTML is escaped (markup.py): a model's text is shown, never run, in the user's browser.
 """
 
 from __future__ import annotations
@@ -11,8 +16,11 @@ import re
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
+from urllib.parse import quote
 
 from simecs.mesh.model import DocPage
+
+from .markup import escape_html
 
 LINK_RE = re.compile(r"\[([^\]]+)\]\(doc:([A-Za-z0-9][A-Za-z0-9_.-]*)\)")
 BARE_RE = re.compile(r"(?<![\w(/:])doc:([A-Za-z0-9](?:[A-Za-z0-9_.-]*[A-Za-z0-9])?)")
@@ -24,8 +32,22 @@ class Rendered:
     links: list[tuple[str, str]]  # (page id, label), in order of first appearance, no repeats
 
 
+LINK_PREFIX = "#simecs-doc/"  # an in-text link's target: this prefix and its button's label
+
+
+def button_label(title: str) -> str:
+    """The label of the button that follows a link to the page titled `title`."""
+    return f"→ {title}"
+
+
+def link_markdown(label: str, title: str) -> str:
+    """An in-text link that clicks the button of the page titled `title`."""
+    return f"[{label}]({LINK_PREFIX}{quote(button_label(title))})"
+
+
 def render(page: DocPage, titles: dict[str, str]) -> Rendered:
-    """Markdown of `page` with `doc:` links shown as bold names, and the list of pages they point to.
+    """Markdown of `page` with `doc:` links shown as in-text links, and the list of pages they point
+    to; raw HTML shown as text.
 
     A link to a page the model does not have stays as plain text (it is not offered as a button).
     """
@@ -40,15 +62,15 @@ def render(page: DocPage, titles: dict[str, str]) -> Rendered:
     def linked(match: re.Match[str]) -> str:
         label, target = match.group(1), match.group(2)
         add(target, label)
-        return f"**{label}**" + (" ↗" if target in titles else "")
+        return link_markdown(label, titles[target]) if target in titles else label
 
     def bare(match: re.Match[str]) -> str:
         target = match.group(1)
         label = titles.get(target, target)
         add(target, label)
-        return f"**{label}**" + (" ↗" if target in titles else "")
+        return link_markdown(label, titles[target]) if target in titles else label
 
-    text = LINK_RE.sub(linked, page.markdown)
+    text = LINK_RE.sub(linked, escape_html(page.markdown))
     text = BARE_RE.sub(bare, text)
     return Rendered(text, links)
 
@@ -77,10 +99,18 @@ class DocHistory:
 
 
 class DocsWindow:
-    """A floating panel with the current page, its links as buttons, Back / Contents / Up."""
+    """A docked panel with the current page, its links as buttons, Back / Contents / Up."""
 
-    def __init__(self, gui: Any, pages: Sequence[DocPage], root: str, fetch: Callable[[str], None]):
+    def __init__(
+        self,
+        gui: Any,
+        pages: Sequence[DocPage],
+        root: str,
+        fetch: Callable[[str], None],
+        place: Callable[[Any], None],
+    ):
         self.gui = gui
+        self.place = place  # docks the panel (layout.py)
         self.pages = {p.id: p for p in pages}
         self.titles = {p.id: p.title for p in pages}
         self.fetch = fetch  # asks the server for a page not carried in the description
@@ -88,6 +118,7 @@ class DocsWindow:
         self.panel: Any = None
         self.tab: Any = None
         self.widgets: list[Any] = []
+        self.shown = ""  # the page the panel shows
 
     @property
     def is_open(self) -> bool:
@@ -95,16 +126,21 @@ class DocsWindow:
 
     def open(self) -> None:
         if self.panel is None:
-            self.panel = self.gui.add_panel()
-            self.tab = self.panel.add_tab("Documentation")
-            self.panel.float(x=300, y=170, width=560, height=560)
+            self._new_panel()
         self.show()
+
+    def _new_panel(self) -> None:
+        self.close()
+        self.panel = self.gui.add_panel()
+        self.tab = self.panel.add_tab("Documentation")
+        self.place(self.panel)
 
     def close(self) -> None:
         if self.panel is not None:
             self.panel.remove()
         self.panel, self.tab = None, None
         self.widgets.clear()
+        self.shown = ""
 
     def follow(self, page: str) -> None:
         self.history.go(page)
@@ -122,6 +158,9 @@ class DocsWindow:
 
     def show(self) -> None:
         current = self.history.current
+        if self.panel is not None and self.shown not in ("", current):
+            self._new_panel()  # a new page starts at its top, with its title and Back in view
+        self.shown = current
         page = self.pages.get(current)
         if page is None:
             self.fetch(current)
@@ -151,7 +190,8 @@ class DocsWindow:
             if targets:
                 self.widgets.append(self.gui.add_markdown("**Links on this page**"))
             for target, label in targets:
-                b = self.gui.add_button(f"→ {label}", hint=self.titles.get(target, target))
+                title = self.titles.get(target, label)
+                b = self.gui.add_button(button_label(title), hint=f"page {target}")
                 b.on_click(lambda _e, t=target: self.follow(t))
                 self.widgets.append(b)
 

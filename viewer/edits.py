@@ -39,6 +39,9 @@ class Edits:
         self._due: dict[str, float] = {}
         self._lock = threading.Lock()
         self.plan: m.CommandPlan | None = None  # the server's plan of the command last sent
+        self.refused = ""  # why the server refused the path last sent ('' when it took it)
+        self._in_flight = False  # a dragged command is being sent
+        self._again = False  # and it moved since: send once more
 
     def command(self, cmd: Any) -> Any:
         """Send a session command after the local phase check (the server checks again)."""
@@ -181,9 +184,35 @@ class Edits:
         self.c.preview(q)
         self.later("initial")
 
-    def command_changed(self) -> None:
-        """The joint path (the controller's `path`) was edited in place."""
+    def command_changed(self, kind: str = "joint_path") -> None:
+        """A path (the controller's `path` or `cart`) was edited in place: it becomes the session's
+        command, sent once the edits pause."""
+        self.c.command_kind = kind
         self.later("command")
+
+    def command_dragged(self, kind: str) -> None:
+        """A path is being dragged in 3D: sent as soon as the worker is free, the latest pose each
+        time (no pause to wait for), so the arm follows the gizmo at the server's planning rate."""
+        self.c.command_kind = kind
+        with self._lock:
+            self._due.pop("command", None)
+            if self._in_flight:
+                self._again = True
+                return
+            self._in_flight = True
+        self.c.submit("Command not sent", self._send_latest_command)
+
+    def _send_latest_command(self) -> None:
+        try:
+            while True:
+                self.send("command")
+                with self._lock:
+                    if not self._again:
+                        return
+                    self._again = False
+        finally:
+            with self._lock:
+                self._in_flight = self._again = False
 
     def apply_settings(self, settings: m.RunSettings) -> None:
         """Settings from the settings window (the streamed variables go with them)."""
@@ -238,10 +267,26 @@ class Edits:
         if what == "initial":
             self.command(m.SetInitial(list(c.initial)))
         elif what == "command":
-            if c.path is not None and c.path.nodes:
-                self.plan = self.command(m.SetCommand(c.path.to_command()))
-                c.emit(ev.PlanChanged(self.plan))
+            self.send_command()
         elif what == "settings":
             settings = msgspec.structs.replace(c.settings, live_vars=self.live_vars())
             self.command(m.SetSettings(settings))
             c.settings = settings
+
+    def send_command(self) -> None:
+        """The path being edited as the session's command; the server's plan, or its refusal of the
+        path (shown beside the path, naming the node: `CommandRefused`)."""
+        c = self.c
+        editor = c.editor(c.command_kind)
+        if editor is None or not editor.nodes:
+            return
+        try:
+            plan = self.command(m.SetCommand(editor.to_command()))
+        except RemoteError as exc:
+            if not exc.field.startswith("command"):
+                raise
+            self.refused = exc.error.message
+            c.emit(ev.CommandRefused(c.command_kind, exc.field, exc.error.message))
+            return
+        self.plan, self.refused = plan, ""
+        c.emit(ev.PlanChanged(plan, c.command_kind))

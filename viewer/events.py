@@ -110,9 +110,20 @@ class SettingsChanged:
 
 @dataclass
 class PlanChanged:
-    """The server planned the session's command (its reply to set_command)."""
+    """The server planned the session's command (its reply to set_command); `kind` is the pendant's
+    path that was sent (joint_path, cartesian_path)."""
 
     plan: m.CommandPlan | None
+    kind: str = "joint_path"
+
+
+@dataclass
+class CommandRefused:
+    """The server refused the path of `kind`: `field` names the part (command.nodes[2].position)."""
+
+    kind: str
+    field: str
+    reason: str
 
 
 @dataclass
@@ -138,12 +149,14 @@ class LayoutChanged:
 @dataclass
 class LiveSamples:
     """Decimated samples of the shown run; `poses` (links, 7) of the newest row, when streamed; where
-    the run's grasps left its obstacles (index -> pose) and the newest row's contact arrows."""
+    the run's grasps left its obstacles (index -> pose), the newest row's contact arrows, and the
+    tool's position at every row (k, 3) for its trace."""
 
     rows: np.ndarray
     poses: np.ndarray | None
     moved: dict[int, np.ndarray] = field(default_factory=dict)
     arrows: np.ndarray = field(default_factory=lambda: np.zeros((0, 2, 3)))
+    tool: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
 
 
 @dataclass
@@ -207,6 +220,7 @@ Event = (
     | StreamedChanged
     | SettingsChanged
     | PlanChanged
+    | CommandRefused
     | RunsChanged
     | ParamSetsChanged
     | LayoutChanged

@@ -11,6 +11,7 @@ from typing import Any
 
 from simecs.mesh.model import InitEquation, Link
 
+from .markup import escape_html
 from .path import DEG, clamp_to_limits
 
 
@@ -76,7 +77,7 @@ def init_equations_markdown(eqs: Sequence[InitEquation]) -> str:
     rows = ["| state | = | meaning |", "|---|---|---|"]
     for e in eqs:
         expr = e.expression.replace("|", "\\|")
-        rows.append(f"| `{e.state}` | `{expr}` | {e.description.replace('|', '/')} |")
+        rows.append(f"| `{e.state}` | `{expr}` | {escape_html(e.description).replace('|', '/')} |")
     return "\n".join(rows)
 
 

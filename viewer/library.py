@@ -10,6 +10,8 @@ from typing import Any
 from simecs.mesh import messages as m
 from simecs.mesh.model import CONTROL_SYSTEM_TITLES, ModelSummary
 
+from .markup import escape_html
+
 LEVEL_NAMES = {
     "direct_input": "direct input",
     "joint_path": "joint path",
@@ -25,7 +27,8 @@ def model_markdown(s: ModelSummary) -> str:
     levels = ", ".join(LEVEL_NAMES.get(c, c) for c in s.command_levels) or "none"
     systems = ", ".join(CONTROL_SYSTEM_TITLES.get(c, c) for c in s.control_systems)
     return (
-        f"**{s.name}**  \n{s.summary}\n\n{s.joints} joints · commands: {levels} · id `{s.id}`  \n"
+        f"**{escape_html(s.name)}**  \n{escape_html(s.summary)}\n\n"
+        f"{s.joints} joints · commands: {levels} · id `{s.id}`  \n"
         f"control systems (Settings): {systems}"
     )
 

@@ -14,41 +14,46 @@ from typing import Any
 
 from simecs.mesh.codec import DecodeError
 
+from . import camera
 from . import events as ev
+from .command_panel import CommandPanel
 from .docs import DocsWindow
-from .jog_panel import JogPanel
 from .joints import InitPanel
-from .obstacles import ObstaclePanel
+from .layout import Layout
+from .markup import escape_html
 from .params import ParamPanel, VariablePanel
 from .path import clamp_to_limits
-from .pendant import PendantPanel
 from .plots import Plot, PlotActions, PlotDock
 from .results import ResultsPanel
 from .run import SettingsWindow, settings_from_form
 from .scene import ArmScene
 from .session import SessionController
+from .trace import ToolTrace
+
+MAX_RESTORED_PLOTS = 8  # plots a reloaded tab opens again at most
 
 
 class ModelPage:
     """Everything drawn for the controller's model."""
 
-    def __init__(self, client: Any, controller: SessionController) -> None:
+    def __init__(self, client: Any, controller: SessionController, layout: Layout, toolbar: Any) -> None:
         c = controller
         model = c.model
         assert model is not None and c.stream is not None and c.path is not None and c.session is not None
         self.client = client
         self.gui = gui = client.gui
         self.c = c
+        self.layout = layout
+        self.toolbar = toolbar  # the toolbar's panel: the pendant and the pose sliders dock below it
         self.handles: list[Any] = []
         self.init_panel: Any = None
         self.init_widget: InitPanel | None = None
         self.docs: DocsWindow | None = None
         self.settings: SettingsWindow | None = None
-        self.pendant: PendantPanel | None = None
 
         self.header = gui.add_markdown(
-            f"**{model.name}**  \nuser `{c.user}` · session `{c.session.id[:8]}…`  \n"
-            f"<small>{model.summary}</small>"
+            f"**{escape_html(model.name)}**  \nuser `{c.user}` · session `{c.session.id[:8]}…`  \n"
+            f"<small>{escape_html(model.summary)}</small>"
         )
         tabs = gui.add_tab_group()
         self.handles += [self.header, tabs]
@@ -67,32 +72,12 @@ class ModelPage:
         self.scene.q = list(c.initial)
         self.scene.build()
         self.scene.show_obstacles(c.obstacles)
-        reach = self.scene.extent()
-        client.camera.position = (1.3 * reach, -1.4 * reach, 1.0 * reach)
-        client.camera.look_at = (0.0, 0.0, 0.25 * reach)
+        self.reach = self.scene.extent()
+        self.trace = ToolTrace(client.scene)
+        self.look("Fit arm")
 
-        command = gui.add_panel()
-        self.handles.append(command)
-        with command.add_tab("Joint path"):
-            if "joint_path" in model.command_levels:
-                self.pendant = PendantPanel(
-                    gui,
-                    c.path,
-                    current_q=lambda: list(c.shown_q),
-                    on_changed=c.edits.command_changed,
-                    on_preview=c.preview,
-                    on_error=self._warn("Joint path"),
-                )
-            else:
-                levels = ", ".join(model.command_levels) or "none"
-                gui.add_markdown(f"_This model accepts {levels} commands; this viewer edits joint paths._")
-        with command.add_tab("Jog"):
-            self.jog = JogPanel(gui, c.jog, self._warn("Jog"))
-        with command.add_tab("Obstacles"):
-            self.obstacles = ObstaclePanel(
-                gui, c.obstacles, model.obstacles, c.edits.set_obstacles, self._warn("Obstacles")
-            )
-        command.float(x=12, y=-12, width=620, height=360)
+        self.commands = CommandPanel(client, c, self.scene, layout, toolbar, self._warn)
+        self.handles.append(self.commands)
 
         actions = PlotActions(
             load_full=self._load_full,
@@ -103,7 +88,7 @@ class ModelPage:
             variable_names=lambda: sorted(c.streamed),
             batch=client.atomic,
         )
-        self.plots = PlotDock(gui, c.stream.units, actions)
+        self.plots = PlotDock(gui, c.stream.units, actions, lambda panel: layout.place_plots(panel, gui))
         self._apply: dict[type, Callable[[Any], None]] = {
             ev.ValuesChanged: lambda e: self.params.show_values(e.values),
             ev.ParamsRefused: lambda e: self.params.refused(e.field, e.reason),
@@ -119,10 +104,15 @@ class ModelPage:
             ev.PreviousLoaded: self._show_previous,
             ev.DocFetched: self._show_doc,
             ev.SettingsChanged: self._settings_applied,
-            ev.PlanChanged: lambda e: self._show_plan(),
-            ev.StateShown: lambda _e: self.show_editable(),
+            ev.PlanChanged: self.commands.show_plan,
+            ev.CommandRefused: self.commands.show_refusal,
+            ev.StateShown: self._state_shown,
         }
         self.show_editable()
+
+    def look(self, view: str) -> None:
+        """A camera preset of the toolbar's View buttons."""
+        camera.apply(self.client.camera, camera.preset(view, self.reach))
 
     def _warn(self, title: str) -> Callable[[str], None]:
         return lambda message: self.c.notify(title, message, "warning")
@@ -135,10 +125,13 @@ class ModelPage:
 
     def show_editable(self) -> None:
         """The command and the initial pose cannot change while a run is under way."""
-        if self.pendant is not None:
-            self.pendant.set_disabled(bool(self.c.refusal("set_command")))
+        self.commands.show_editable()
         if self.init_widget is not None:
             self.init_widget.sliders.set_disabled(bool(self.c.refusal("set_initial")))
+
+    def _state_shown(self, _event: ev.StateShown) -> None:
+        self.show_editable()
+        self.trace.draw()  # a run that ended: its trace to its last sample
 
     def _show_shapes(self, event: ev.ShapesChanged) -> None:
         self.scene.set_values(event.values)
@@ -148,24 +141,55 @@ class ModelPage:
             self.scene.apply_poses(event.poses)
         self.scene.move_obstacles(event.moved)
         self.scene.show_contacts(event.arrows)
+        self.trace.add(event.tool)
         self.plots.mark_all()
 
     def _show_preview(self, event: ev.PosePreview) -> None:
         self.scene.settle_world()
         self.scene.show_q(event.q)
 
-    def _new_run(self, _event: ev.LayoutChanged) -> None:
-        self.plots.new_run()
+    def _new_run(self, event: ev.LayoutChanged) -> None:
+        layout = event.layout
+        self.plots.new_run(f"{'replay' if layout.source == 'replay' else 'run'} {layout.run_id}")
+        self.trace.clear()
         self._draw_obstacles()
 
     def _show_obstacles(self, event: ev.ObstaclesChanged) -> None:
-        self.obstacles.show(event.obstacles)
+        self.commands.obstacles.show(event.obstacles)
         self._draw_obstacles()
 
     def _draw_obstacles(self) -> None:
         """The session's obstacles where they are listed; a replay's run's while it plays."""
         replay = self.c.replaying
         self.scene.show_obstacles(replay.context.obstacles if replay is not None else self.c.obstacles)
+
+    # -- what a reload gets back -------------------------------------------------------------------
+    def view_state(self) -> dict[str, Any]:
+        """What this page shows of its session, kept in the tab for a reload (tab.py)."""
+        pose = camera.current(self.client.camera)
+        return {
+            "session": self.c.session.id if self.c.session is not None else "",
+            "camera": pose.to_obj() if pose is not None else None,
+            "plots": [list(p.variables) for p in self.plots.plots.values()],
+            "component": self.params.tree.picked,
+        }
+
+    def restore(self, view: dict[str, Any]) -> None:
+        """Show what a reloaded tab showed: its camera, plots and component. The memory is the
+        browser's, so only names the model has are taken."""
+        pose = camera.CameraPose.from_obj(view.get("camera"))
+        if pose is not None:
+            camera.apply(self.client.camera, pose)
+        known = {v.name for v in self.c.model.variables} if self.c.model is not None else set()
+        plots = view.get("plots")
+        for names in plots[:MAX_RESTORED_PLOTS] if isinstance(plots, list) else []:
+            names = [n for n in names if isinstance(n, str) and n in known] if isinstance(names, list) else []
+            if names:
+                plot = self.open_plot(names[0])
+                for name in names[1:]:
+                    plot.add(name)
+        if isinstance(view.get("component"), str):
+            self.params.show_path(view["component"])
 
     # -- variables and plots ------------------------------------------------------------------------
     def _set_streamed(self, wanted: set[str]) -> None:
@@ -175,12 +199,13 @@ class ModelPage:
         self.variables.show_streamed(event.streamed)
         self.plots.set_choices(sorted(event.streamed))
 
-    def open_plot(self, name: str) -> None:
+    def open_plot(self, name: str) -> Plot:
         """A new plot of `name` (paper §5.2: plots open from the variable tree)."""
         plot = self.plots.open(name, sorted(self.c.streamed | {name}))
         self.c.edits.ensure_streamed(name)
         if self.c.results.wants_full(name):
             self.c.results.load_full(plot.number, [name], run_id=self.results.selected())
+        return plot
 
     def _load_full(self, plot: Plot, t0: float | None, t1: float | None) -> None:
         run_id = self.results.selected()
@@ -204,7 +229,7 @@ class ModelPage:
         if event.with_prev:
             plot.prev = event.prev
         plot.folder.label = plot.title()
-        plot.mark()
+        plot.reset_zoom()  # the window asked for, not a drag-zoom of the data shown before
 
     def _show_previous(self, event: ev.PreviousLoaded) -> None:
         plot = self.plots.get(event.plot)
@@ -242,11 +267,7 @@ class ModelPage:
     def _settings_applied(self, _event: ev.SettingsChanged) -> None:
         if self.settings is not None:
             self.settings.close()
-        self._show_plan()
-
-    def _show_plan(self) -> None:
-        if self.pendant is not None:
-            self.pendant.show_plan(self.c.edits.plan, self.c.settings.stop_time)
+        self.commands.show_plan()
 
     # -- windows -----------------------------------------------------------------------------------
     def toggle_init(self) -> None:
@@ -268,7 +289,7 @@ class ModelPage:
             )
             close = self.gui.add_button("Close initialisation", color="gray")
             close.on_click(lambda _e: self.toggle_init())
-        self.init_panel.float(x=-12, y=190, width=380)
+        self.layout.place_init(self.init_panel, self.toolbar)
         self.show_editable()
         c.preview(list(c.initial))
 
@@ -301,7 +322,13 @@ class ModelPage:
         model = self.c.model
         assert model is not None
         if self.docs is None:
-            self.docs = DocsWindow(self.gui, model.docs, model.doc_root, self.c.fetch_doc)
+            self.docs = DocsWindow(
+                self.gui,
+                model.docs,
+                model.doc_root,
+                self.c.fetch_doc,
+                lambda p: self.layout.place_docs(p, self.gui),
+            )
         if self.docs.is_open:
             self.docs.close()
         else:
@@ -320,4 +347,5 @@ class ModelPage:
                 h.remove()
             except Exception:
                 pass
+        self.trace.remove()
         self.scene.remove()

@@ -24,6 +24,7 @@ from simecs.mesh.codec import DecodeError
 from simecs.mesh.model import ModelDescription, Parameter, Variable, check_values
 
 from . import tree as tr
+from .component_tree import ComponentTree
 
 CHANGED_MARK = " •"  # appended to the label of a value that differs from its default
 DRAFT_MARK = " ✎"  # appended to the label of a typed value not applied yet
@@ -49,32 +50,6 @@ def is_switch(p: Parameter) -> bool:
     return p.integer and p.min == 0.0 and p.max == 1.0
 
 
-class ComponentTree:
-    """Folders and buttons for a component tree; `on_pick(component)` when one is clicked."""
-
-    def __init__(self, gui: Any, roots: Sequence[tr.Component], on_pick: Callable[[tr.Component], None]):
-        self.gui = gui
-        self.on_pick = on_pick
-        self.buttons: dict[str, Any] = {}
-        for root in roots:
-            self._add(root)
-
-    def _add(self, comp: tr.Component) -> None:
-        if not comp.children:
-            self._button(comp, f"{comp.label} ({comp.count()})")
-            return
-        with self.gui.add_folder(f"{comp.label} ({comp.count()})", expand_by_default=False):
-            if comp.items:
-                self._button(comp, f"{comp.label} ({len(comp.items)} own)")
-            for child in comp.children:
-                self._add(child)
-
-    def _button(self, comp: tr.Component, label: str) -> None:
-        button = self.gui.add_button(label, hint=comp.path)
-        button.on_click(lambda _e, c=comp: self.on_pick(c))
-        self.buttons[comp.path] = button
-
-
 class ParamPanel:
     """Edit parameter values in place, reset them, keep named sets.
 
@@ -98,6 +73,7 @@ class ParamPanel:
         self.on_apply = on_apply
         self.drafts: dict[str, float] = {}  # typed, not applied yet
         self.refusal = ""  # the server's reason for the last refused apply
+        self.confirm: tuple[Any, Any] | None = None  # the last "Reset every parameter?": its yes, no
         self.on_reset = on_reset
         self.on_set_op = on_set_op  # (op, name): save / load / delete / refresh a parameter set
         self.fields: dict[str, Any] = {}
@@ -106,11 +82,10 @@ class ParamPanel:
         self.title: str = ""
 
         gui.add_markdown(
-            "Pick a component; its parameters appear below. Hover a field for its description, "
-            f"range and default; `{CHANGED_MARK.strip()}` marks a changed value."
+            "Open **Components** and pick one; its parameters appear below it. Hover a field for its "
+            f"description, range and default; `{CHANGED_MARK.strip()}` marks a changed value."
         )
-        with gui.add_folder("Components"):
-            self.tree = ComponentTree(gui, self.roots, self.show_component)
+        self.tree = ComponentTree(gui, self.roots, self.show_component)
         self.search = gui.add_text("Find parameter", "", hint="words of a parameter name or description")
         self.search.on_update(self._on_search)
         self.table = gui.add_folder("Values")
@@ -126,7 +101,7 @@ class ParamPanel:
         self.reset_shown = gui.add_button("Reset shown to defaults", hint="only the parameters listed above")
         self.reset_shown.on_click(lambda _e: self.on_reset([p.name for p in self.shown]))
         self.reset_all = gui.add_button("Reset all to defaults", color="orange", hint="every parameter")
-        self.reset_all.on_click(lambda _e: self.on_reset([]))
+        self.reset_all.on_click(lambda _e: self.confirm_reset_all())
         with gui.add_folder("Parameter sets", expand_by_default=False):
             self.set_name = gui.add_text("Set name", "", hint="letters, digits, '_', '-', '.'")
             save = gui.add_button("Save set", hint="save every current value under this name")
@@ -136,13 +111,18 @@ class ParamPanel:
             load.on_click(lambda _e: self.on_set_op("load", self.sets.value))
             delete = gui.add_button("Delete set", color="red")
             delete.on_click(lambda _e: self.on_set_op("delete", self.sets.value))
-        first = next((c for root in self.roots for c in root.walk() if c.items), None)
-        if first is not None:
-            self.show_component(first)
+        if self.tree.first is not None:
+            self.show_component(self.tree.first)
 
     # -- the table -------------------------------------------------------------------------------
     def show_component(self, comp: tr.Component) -> None:
         self._show(comp.items, f"**{comp.path}**: {len(comp.items)} parameters")
+
+    def show_path(self, path: str) -> None:
+        """Show the component at `path` (a reloaded tab's); an unknown path changes nothing."""
+        comp = self.tree.find(path)
+        if comp is not None:
+            self.tree.pick(comp)
 
     def _on_search(self, event: Any) -> None:
         if event.client is None:
@@ -233,6 +213,28 @@ class ParamPanel:
             return
         self.on_apply(dict(self.drafts))
 
+    def confirm_reset_all(self) -> None:
+        """Every parameter back to its default, once the user says so: it cannot be undone here
+        (a saved parameter set can bring the values back)."""
+        changed = sum(1 for k, v in self.values.items() if v != self.defaults.get(k, v))
+        modal = self.gui.add_modal("Reset every parameter?")
+        with modal:
+            self.gui.add_markdown(
+                f"**{changed}** parameters differ from their defaults; all go back to the defaults. "
+                "Save a parameter set first to keep the current values."
+            )
+            yes = self.gui.add_button("Reset all", color="orange")
+            no = self.gui.add_button("Keep the values", color="gray")
+
+        def answer(reset: bool) -> None:
+            modal.close()
+            if reset:
+                self.on_reset([])
+
+        yes.on_click(lambda _e: answer(True))
+        no.on_click(lambda _e: answer(False))
+        self.confirm = (yes, no)
+
     def _discard(self) -> None:
         self.drafts.clear()
         self.refusal = ""
@@ -277,7 +279,7 @@ class VariablePanel:
         model: ModelDescription,
         streamed: set[str],
         on_stream: Callable[[set[str]], None],
-        on_plot: Callable[[str], None],
+        on_plot: Callable[[str], object],
     ) -> None:
         self.gui = gui
         self.model = model
@@ -292,8 +294,7 @@ class VariablePanel:
             "(several plots can be open at once)."
         )
         self.summary = gui.add_markdown("")
-        with gui.add_folder("Components"):
-            self.tree = ComponentTree(gui, self.roots, self.show_component)
+        self.tree = ComponentTree(gui, self.roots, self.show_component)
         self.search = gui.add_text("Find variable", "", hint="words of a variable name or description")
         self.search.on_update(self._on_search)
         self.table = gui.add_folder("Variables")
@@ -301,9 +302,8 @@ class VariablePanel:
             self.caption = gui.add_markdown("_No component chosen._")
         none = gui.add_button("Stream only the plotted ones", hint="untick every variable not in a plot")
         none.on_click(lambda _e: self.on_stream(set()))
-        first = next((c for root in self.roots for c in root.walk() if c.items), None)
-        if first is not None:
-            self.show_component(first)
+        if self.tree.first is not None:
+            self.show_component(self.tree.first)
         self._summary()
 
     def show_component(self, comp: tr.Component) -> None:

@@ -8,8 +8,9 @@ No GUI here: `pendant.py` draws it, the session controller owns it, tests use it
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import Any, Generic, Protocol, TypeVar
 
 from simecs.mesh import messages as m
 from simecs.mesh.model import Link
@@ -24,7 +25,8 @@ def clamp_to_limits(q: Sequence[float], links: Sequence[Link]) -> list[float]:
     return [min(max(float(x), link.joint_min), link.joint_max) for x, link in zip(q, links, strict=True)]
 
 
-MAX_NODES = 1000  # the protocol's limit (messages.JointPath)
+MAX_NODES = 1000  # the protocol's limit (messages.JointPath, CartesianPath)
+N = TypeVar("N")
 
 
 class PathError(ValueError):
@@ -38,48 +40,28 @@ class Node:
     acc_pct: float = 100.0
 
 
-class JointPathEditor:
-    """A joint path being edited: nodes and the selected one. Every method keeps it valid."""
+class NodeList(Generic[N]):
+    """Nodes and the selected one, edited as a teach pendant edits them (insert after the selected
+    one, remove, reorder, select); every method keeps the list valid. The joint path and the
+    Cartesian path (cartesian.py) are both this, with their own node type."""
 
-    def __init__(self, links: Sequence[Link]) -> None:
-        self.links = list(links)
-        self.nodes: list[Node] = []
+    def __init__(self) -> None:
+        self.nodes: list[N] = []
         self.selected = -1
-
-    @property
-    def n_joints(self) -> int:
-        return len(self.links)
 
     def _check_index(self, i: int) -> int:
         if not 0 <= i < len(self.nodes):
             raise PathError(f"there is no node {i + 1} (the path has {len(self.nodes)})")
         return i
 
-    def insert(self, q: Sequence[float], speed_pct: float = 100.0, acc_pct: float = 100.0) -> int:
-        """Insert a node after the selected one (at the end if none) and select it."""
+    def _insert(self, node: N) -> int:
+        """Insert `node` after the selected one (at the end if none) and select it."""
         if len(self.nodes) >= MAX_NODES:
             raise PathError(f"a path holds at most {MAX_NODES} nodes")
-        if len(q) != self.n_joints:
-            raise PathError(f"a node needs {self.n_joints} joint positions, got {len(q)}")
-        node = Node(clamp_to_limits(q, self.links), *self._pct(speed_pct, acc_pct))
         at = self.selected + 1 if self.selected >= 0 else len(self.nodes)
         self.nodes.insert(at, node)
         self.selected = at
         return at
-
-    def teach(self, current_q: Sequence[float]) -> int:
-        """Record the arm's current pose as a new node (after the selected one)."""
-        if not self.nodes:
-            return self.insert(current_q)
-        node = self.nodes[self.selected]
-        return self.insert(current_q, node.speed_pct, node.acc_pct)
-
-    def duplicate(self, fallback_q: Sequence[float]) -> int:
-        """A copy of the selected node after it (or a node at `fallback_q` on an empty path)."""
-        if self.selected < 0:
-            return self.insert(fallback_q)
-        src = self.nodes[self.selected]
-        return self.insert(src.q, src.speed_pct, src.acc_pct)
 
     def remove(self, i: int | None = None) -> None:
         i = self._check_index(self.selected if i is None else i)
@@ -98,11 +80,9 @@ class JointPathEditor:
     def select(self, i: int) -> None:
         self.selected = self._check_index(i)
 
-    def set_q(self, q: Sequence[float], i: int | None = None) -> None:
-        i = self._check_index(self.selected if i is None else i)
-        if len(q) != self.n_joints:
-            raise PathError(f"a node needs {self.n_joints} joint positions, got {len(q)}")
-        self.nodes[i].q = clamp_to_limits(q, self.links)
+    def clear(self) -> None:
+        self.nodes.clear()
+        self.selected = -1
 
     @staticmethod
     def _pct(speed: float, acc: float) -> tuple[float, float]:
@@ -111,13 +91,75 @@ class JointPathEditor:
                 raise PathError(f"{name} {fmt(float(v))} % is not in (0, 100] %")
         return float(speed), float(acc)
 
+
+#: The path buttons of every pendant: Teach records where the arm is, Add copies the selected node.
+PATH_BUTTONS = ("Teach", "Add", "Remove", "Up", "Down")
+
+
+class PendantPath(Protocol):
+    """What the path buttons do to a path (joint or Cartesian)."""
+
+    def teach(self, here: Any, /) -> int: ...
+    def duplicate(self, here: Any, /) -> int: ...
+    def remove(self, i: int | None = None) -> None: ...
+    def move(self, delta: int, i: int | None = None) -> None: ...
+
+
+def press(path: PendantPath, button: str, here: Callable[[], Any]) -> None:
+    """One of PATH_BUTTONS on `path`; `here()` is what Teach records (and Add on an empty path).
+    PathError says why the path cannot take it."""
+    if button == "Teach":
+        path.teach(here())
+    elif button == "Add":
+        path.duplicate(here())
+    elif button == "Remove":
+        path.remove()
+    elif button in ("Up", "Down"):
+        path.move(-1 if button == "Up" else +1)
+    else:
+        raise PathError(f"no path button {button!r}")
+
+
+class JointPathEditor(NodeList[Node]):
+    """A joint path being edited: nodes (a destination per joint) and the selected one."""
+
+    def __init__(self, links: Sequence[Link]) -> None:
+        super().__init__()
+        self.links = list(links)
+
+    @property
+    def n_joints(self) -> int:
+        return len(self.links)
+
+    def insert(self, q: Sequence[float], speed_pct: float = 100.0, acc_pct: float = 100.0) -> int:
+        """Insert a node after the selected one (at the end if none) and select it."""
+        if len(q) != self.n_joints:
+            raise PathError(f"a node needs {self.n_joints} joint positions, got {len(q)}")
+        return self._insert(Node(clamp_to_limits(q, self.links), *self._pct(speed_pct, acc_pct)))
+
+    def teach(self, current_q: Sequence[float]) -> int:
+        """Record the arm's current pose as a new node (after the selected one)."""
+        if not self.nodes:
+            return self.insert(current_q)
+        node = self.nodes[self.selected]
+        return self.insert(current_q, node.speed_pct, node.acc_pct)
+
+    def duplicate(self, fallback_q: Sequence[float]) -> int:
+        """A copy of the selected node after it (or a node at `fallback_q` on an empty path)."""
+        if self.selected < 0:
+            return self.insert(fallback_q)
+        src = self.nodes[self.selected]
+        return self.insert(src.q, src.speed_pct, src.acc_pct)
+
+    def set_q(self, q: Sequence[float], i: int | None = None) -> None:
+        i = self._check_index(self.selected if i is None else i)
+        if len(q) != self.n_joints:
+            raise PathError(f"a node needs {self.n_joints} joint positions, got {len(q)}")
+        self.nodes[i].q = clamp_to_limits(q, self.links)
+
     def set_pct(self, speed: float, acc: float, i: int | None = None) -> None:
         i = self._check_index(self.selected if i is None else i)
         self.nodes[i].speed_pct, self.nodes[i].acc_pct = self._pct(speed, acc)
-
-    def clear(self) -> None:
-        self.nodes.clear()
-        self.selected = -1
 
     # -- protocol --------------------------------------------------------------------------------
     def to_command(self) -> m.JointPath:

@@ -10,8 +10,9 @@ from typing import Any
 
 from simecs.mesh import messages as m
 
+from .cartesian import NODE_FIELD
 from .joints import JointSliders
-from .path import JointPathEditor, PathError, plan_text
+from .path import PATH_BUTTONS, JointPathEditor, PathError, plan_text, press
 
 
 class PendantPanel:
@@ -35,10 +36,11 @@ class PendantPanel:
         self.on_error = on_error
         self.locked = False
         self.table = gui.add_markdown(editor.table_markdown())
+        self.refusal = gui.add_markdown("")
         self.duration = gui.add_markdown(plan_text(None, 0.0))
         self.buttons = gui.add_button_group(
             "Path",
-            ("Teach", "Add", "Remove", "Up", "Down"),
+            PATH_BUTTONS,
             hint="Teach: record the arm's current pose as a node",
         )
         self.buttons.on_click(self._clicked)
@@ -64,16 +66,7 @@ class PendantPanel:
             self.on_error("the command cannot change while the run goes on: abort it or wait for its end")
             return
         try:
-            if action == "Teach":
-                ed.teach(self.current_q())
-            elif action == "Add":
-                ed.duplicate(self.current_q())
-            elif action == "Remove":
-                ed.remove()
-            elif action == "Up":
-                ed.move(-1)
-            elif action == "Down":
-                ed.move(+1)
+            press(ed, action, self.current_q)
         except PathError as exc:
             self.on_error(str(exc))
             return
@@ -133,9 +126,21 @@ class PendantPanel:
             if self.acc.value != node.acc_pct:
                 self.acc.value = node.acc_pct
 
-    def show_plan(self, plan: m.CommandPlan | None, stop_time: float) -> None:
-        """The path's duration as the server planned it, and whether the stop time cuts it."""
-        self.duration.content = plan_text(plan, stop_time)
+    def show_plan(self, plan: m.CommandPlan | None, stop_time: float, current: bool = True) -> None:
+        """The path's duration as the server planned it, and whether the stop time cuts it
+        (`current`: the path is the session's command)."""
+        self.refusal.content = ""
+        if current or not self.editor.nodes:
+            self.duration.content = plan_text(plan, stop_time)
+        else:
+            self.duration.content = "_Not the session's command: edit the path to make it so._"
+
+    def show_refusal(self, field: str, reason: str) -> None:
+        """The server refused the path: its reason beside the table, naming the node."""
+        found = NODE_FIELD.match(field or "")
+        where = f"node {int(found.group(1)) + 1}" if found else "the path"
+        self.refusal.content = f"**✗ The server refused {where}:** {reason}"
+        self.duration.content = "_Not planned: the session keeps the last path the server took._"
 
     def set_disabled(self, disabled: bool) -> None:
         """While a run goes on the command cannot change (the server refuses it anyway)."""

@@ -17,6 +17,8 @@ from .series import LiveBuffer, Transient, overlay
 
 log = logging.getLogger("simecs.viewer")
 COLORS = ["#1f77b4", "#d62728", "#2ca02c", "#ff7f0e", "#9467bd", "#8c564b", "#e377c2", "#17becf"]
+#: The previous run's lines: each a lighter shade of its variable's colour, and dashed.
+PREV_COLORS = ["#9ecae1", "#fc9272", "#a1d99b", "#fdae6b", "#bcbddc", "#c49c94", "#f7b6d2", "#9edae5"]
 
 
 class Plot:
@@ -29,6 +31,7 @@ class Plot:
         variables: list[str],
         units: dict[str, str],
         actions: PlotActions,
+        live_label: str = "",
     ) -> None:
         self.gui = gui
         self.number = number
@@ -38,21 +41,19 @@ class Plot:
         self.full: Transient | None = None  # set when the full resolution is loaded
         self.prev: Transient | None = None  # set when "overlay previous run" is on and loaded
         self.dirty = True
+        self.live_label = live_label  # the run the live window shows ("run r3", "replay r4")
         self.folder = gui.add_folder(self.title())
         with self.folder:
-            self.chart = gui.add_uplot(
-                (np.zeros(2), np.zeros(2)),
-                ({"label": "t [s]"}, {"label": "…"}),
-                scales={"x": {"time": False}},
-                cursor={"drag": {"x": True, "y": False}},
-                legend={"show": True},
-                height=220,
-            )
+            self.chart = self._new_chart()
             self.window = gui.add_number("Live window [s]", 10.0, min=0.5, max=3600.0, step=0.5)
             self.window.on_update(lambda _e: self.mark())
             self.span = gui.add_vector2("Zoom t0, t1 [s]", (0.0, 0.0), step=0.001, hint="0, 0: the whole run")
             zoom = gui.add_button_group("Transient", ("Full resolution", "Zoom", "Live"))
             zoom.on_click(self._transient)
+            reset = gui.add_button(
+                "Reset zoom", color="gray", hint="undo a drag-zoom: the whole window, axes fitted to the data"
+            )
+            reset.on_click(lambda _e: self.reset_zoom())
             self.compare = gui.add_checkbox("Overlay previous run", False)
             self.compare.on_update(self._compare)
             self.add_var = gui.add_dropdown(
@@ -62,8 +63,29 @@ class Plot:
             close = gui.add_button("Close plot", color="gray")
             close.on_click(lambda _e: self.actions.close(self))
 
+    def _new_chart(self, order: float | None = None) -> Any:
+        return self.gui.add_uplot(
+            (np.zeros(2), np.zeros(2)),
+            ({"label": "t [s]"}, {"label": "…"}),
+            scales={"x": {"time": False}},
+            cursor={"drag": {"x": True, "y": False}},
+            legend={"show": True},
+            height=220,
+            order=order,
+        )
+
+    def reset_zoom(self) -> None:
+        """Back to the whole window with fitted axes. A drag-zoom lives in the browser's chart (kept
+        across data pushes), so the chart is drawn anew in its place."""
+        with self.actions.batch():
+            order = self.chart.order
+            self.chart.remove()
+            with self.folder:
+                self.chart = self._new_chart(order)
+        self.mark()
+
     def title(self) -> str:
-        where = " · live"
+        where = f" · {self.live_label} live" if self.live_label else " · live"
         if self.full is not None:
             window = f" {self.full.t0:g}–{self.full.t1:g} s" if self.full.t0 is not None else ""
             where = f" · {self.full.run_id} full res{window}"
@@ -77,7 +99,7 @@ class Plot:
         if choice == "Live":
             self.full = None
             self.folder.label = self.title()
-            self.mark()
+            self.reset_zoom()  # live follows the newest samples: no drag-zoom left over
             return
         t0, t1 = (float(v) for v in self.span.value)
         window = (t0, t1) if t1 > t0 else (None, None)
@@ -95,7 +117,11 @@ class Plot:
     def _add_variable(self, event: Any) -> None:
         if event.client is None:
             return
-        name = event.target.value
+        self.add(event.target.value)
+        self.add_var.value = "—"
+
+    def add(self, name: str) -> None:
+        """Another variable on this chart (one the run streams or can stream)."""
         if name in self.actions.variable_names() and name not in self.variables:
             self.variables.append(name)
             self.folder.label = self.title()
@@ -103,7 +129,6 @@ class Plot:
                 self.actions.load_full(self, None, None)
             self.actions.added(self, name)
             self.mark()
-        self.add_var.value = "—"
 
     def set_choices(self, names: Sequence[str]) -> None:
         options = ("—", *[n for n in names if n not in self.variables])
@@ -121,7 +146,7 @@ class Plot:
                 out.append(
                     {
                         "label": f"{name} ({self.prev.run_id})",
-                        "stroke": COLORS[k % len(COLORS)],
+                        "stroke": PREV_COLORS[k % len(PREV_COLORS)],
                         "width": 1.0,
                         "dash": [6, 4],
                     }
@@ -172,14 +197,19 @@ class PlotActions:
 
 
 class PlotDock:
-    """The open plots of a tab, docked right: the dock appears with the first plot and goes with the
-    last; plots are known by their number (what the session controller's events name)."""
+    """The open plots of a tab, docked where the layout says: the dock appears with the first plot
+    and goes with the last; plots are known by their number (what the session controller's events
+    name)."""
 
-    def __init__(self, gui: Any, units: dict[str, str], actions: PlotActions) -> None:
+    def __init__(
+        self, gui: Any, units: dict[str, str], actions: PlotActions, place: Callable[[Any], None]
+    ) -> None:
         self.gui = gui
+        self.place = place  # docks the plots' panel (layout.py)
         self.units = units
         self.actions = actions
         self.plots: dict[int, Plot] = {}
+        self.live_label = ""  # the run shown live, named in each plot's title
         self.counter = 0
         self.panel: Any = None
         self.tab: Any = None
@@ -188,11 +218,10 @@ class PlotDock:
         if self.panel is None:
             self.panel = self.gui.add_panel()
             self.tab = self.panel.add_tab("Plots")
-            self.panel.dock_right()
-            self.panel.set_width(440)
+            self.place(self.panel)
         self.counter += 1
         with self.tab:
-            plot = Plot(self.gui, self.counter, [name], self.units, self.actions)
+            plot = Plot(self.gui, self.counter, [name], self.units, self.actions, self.live_label)
         self.plots[plot.number] = plot
         self.set_choices(choices)
         return plot
@@ -214,12 +243,14 @@ class PlotDock:
         for plot in self.plots.values():
             plot.set_choices(names)
 
-    def new_run(self) -> None:
-        """A new run is shown: every plot back to its live window."""
+    def new_run(self, label: str = "") -> None:
+        """A new run is shown (`label`: "run r3", "replay r4"): every plot back to its live window."""
+        self.live_label = label
         for plot in self.plots.values():
+            plot.live_label = label
             plot.full = None
             plot.folder.label = plot.title()
-            plot.mark()
+            plot.reset_zoom()
 
     def mark_all(self) -> None:
         for plot in self.plots.values():

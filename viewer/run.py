@@ -13,6 +13,9 @@ from simecs.mesh import messages as m
 from simecs.mesh.codec import DecodeError
 from simecs.mesh.model import CONTROL_SYSTEM_TITLES
 
+from .camera import VIEWS
+from .markup import escape_html
+
 PACING = {"real time": "realtime", "N x real time": "scaled", "as fast as possible": "fast"}
 PACING_LABEL = {v: k for k, v in PACING.items()}
 CONTROL_LABEL = dict(CONTROL_SYSTEM_TITLES)
@@ -43,9 +46,9 @@ def status_text(st: m.SessionState | None, replay: str = "") -> str:
             f"**{st.phase}** {what} · t = {st.sim_time:.3f} s · {st.progress * 100:.0f} % · RTF {st.rtf:.2f}"
         )
         if st.reason and st.phase in ("aborted", "failed"):
-            line += f"\n\n{st.reason}"
+            line += f"\n\n{escape_html(st.reason)}"
         for warning in st.warnings:
-            line += f"\n\n⚠ {warning}"
+            line += f"\n\n⚠ {escape_html(warning)}"
         return line
     return f"**{st.phase}**: ready to run"
 
@@ -56,24 +59,33 @@ def applicable(phase: str) -> list[str]:
 
 
 class Toolbar:
-    """Top of the window: the toolbar, the progress bar and the run buttons; `on_run(op)` gets the
-    session command of the clicked button."""
+    """The session's toolbar, docked above the command pendant: what the run is doing (status and
+    progress first, so a short region still shows them), the run buttons, the windows to open and
+    the camera presets. `on_run(op)` gets the session command of the clicked button, `on_window` and
+    `on_view` the clicked label."""
 
-    def __init__(self, gui: Any, on_window: Callable[[str], None], on_run: Callable[[str], None]) -> None:
+    def __init__(
+        self,
+        gui: Any,
+        on_window: Callable[[str], None],
+        on_run: Callable[[str], None],
+        on_view: Callable[[str], None],
+    ) -> None:
         self.panel = gui.add_panel()
-        tab = self.panel.add_tab("simecs")
+        tab = self.panel.add_tab("Session")
         with tab:
-            self.windows = gui.add_button_group("Windows", TOOLBAR)
-            self.windows.on_click(lambda e: on_window(e.target.value))
+            self.status = gui.add_markdown("_Choose a model to start._")
+            self.progress = gui.add_progress_bar(0.0, animated=False)
             # one button each, so each can be disabled, with the reason, when it does not apply
             self.run_buttons: dict[str, Any] = {}
             for label, op in RUN_BUTTONS.items():
                 button = gui.add_button(label, disabled=True, hint="load a model first")
                 button.on_click(lambda _e, op=op: on_run(op))
                 self.run_buttons[label] = button
-            self.progress = gui.add_progress_bar(0.0, animated=False)
-            self.status = gui.add_markdown("_Choose a model to start._")
-        self.panel.float(x=-12, y=12, width=540)
+            self.windows = gui.add_button_group("Windows", TOOLBAR)
+            self.windows.on_click(lambda e: on_window(e.target.value))
+            self.views = gui.add_button_group("View", VIEWS)
+            self.views.on_click(lambda e: on_view(e.target.value))
 
     def show(self, st: m.SessionState | None, replay: str = "") -> None:
         self.status.content = status_text(st, replay)

@@ -63,9 +63,13 @@ class RunControl:
         if op != "run":
             sc.command(STEER[op]())
             return
-        if c.path is None or not c.path.nodes:
-            raise PathError("the joint path is empty: Teach at least one node in the command panel")
+        editor = c.editor(c.command_kind)  # None: a command this viewer does not edit (the server's)
+        if editor is not None and not editor.nodes:
+            level = "Cartesian" if c.command_kind == "cartesian_path" else "joint"
+            raise PathError(f"the {level} path is empty: Teach at least one node in the command panel")
         c.edits.flush(also=("command",))  # the run takes what the user sees, paused or not
+        if editor is not None and c.edits.refused:
+            raise PathError(f"the server refused the path ({c.edits.refused}): change it, then Run")
         t0 = time.monotonic()
         started: m.RunStarted = sc.command(m.Run())
         self._timing = started.run_id

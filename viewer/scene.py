@@ -19,6 +19,8 @@ from simecs.mesh.kinematics import link_poses
 from simecs.mesh.model import ModelDescription, Shape
 from simecs.mesh.shapes import ShapeGeometry
 
+TOOL_PATH_COLOR = (255, 150, 0)
+
 
 class ArmScene:
     """One tab's 3D prototype: environment, link frames with their solids, and their poses."""
@@ -46,6 +48,8 @@ class ArmScene:
         self._obstacles: list[Any] = []
         self._contacts: Any = None  # the contact forces' arrows, when any
         self._arrows = np.zeros((0, 2, 3))
+        self._path_line: Any = None  # the planned tool path, when there is one
+        self._tool_path = np.zeros((0, 3), dtype=np.float32)
         self._listed: list[Obstacle] = []  # the obstacles drawn, where their list puts them
         self._moved: dict[int, np.ndarray] = {}  # where a run's grasps put some (as last sent)
         self.q: list[float] = [0.0] * len(model.links)
@@ -247,7 +251,26 @@ class ArmScene:
                 head_length=0.025,
             )
 
+    def show_tool_path(self, points: Sequence[Sequence[float]]) -> None:
+        """The tool's path as the server planned the session's command (a polyline; [] hides it);
+        sent only when it changes."""
+        path = np.asarray(points, dtype=np.float32).reshape(-1, 3)
+        if path.shape == self._tool_path.shape and np.array_equal(path, self._tool_path):
+            return
+        self._tool_path = path
+        if self._path_line is not None:
+            self._path_line.remove()
+            self._path_line = None
+        if path.shape[0] >= 2:
+            segments = np.stack([path[:-1], path[1:]], axis=1)
+            self._path_line = self.scene.add_line_segments(
+                "/env/tool_path", segments, colors=TOOL_PATH_COLOR, thickness=2.0, thickness_units="screen"
+            )
+
     def remove(self) -> None:
+        if self._path_line is not None:
+            self._env.append(self._path_line)
+            self._path_line = None
         if self._contacts is not None:
             self._env.append(self._contacts)
             self._contacts = None

@@ -94,18 +94,19 @@ def overlay(
 ) -> tuple[np.ndarray, list[np.ndarray], list[np.ndarray]]:
     """Current and previous run on one time axis (uPlot needs one x array for all series).
 
-    The axis is the union of both runs' times; each run is interpolated onto it and holds its last
-    value beyond its own end (runs of different lengths compare from t = 0).
+    The axis is the union of both runs' times; each run is interpolated onto it and has no value
+    (NaN: uPlot draws nothing there) outside its own samples, so a run that ended early is drawn to
+    where its data ends, never held flat beyond it.
     """
     if len(t_prev) == 0:
-        return t, list(ys), [np.zeros(len(t)) for _ in ys_prev]
+        return t, list(ys), [np.full(len(t), np.nan) for _ in ys_prev]
     if len(t) == 0:
-        return t_prev, [np.zeros(len(t_prev)) for _ in ys], list(ys_prev)
+        return t_prev, [np.full(len(t_prev), np.nan) for _ in ys], list(ys_prev)
     x = np.union1d(t, t_prev)
     if len(x) > 2 * MAX_POINTS:
         x = np.linspace(x[0], x[-1], 2 * MAX_POINTS)
-    cur = [np.interp(x, t, y) for y in ys]
-    prev = [np.interp(x, t_prev, y) for y in ys_prev]
+    cur = [np.interp(x, t, y, left=np.nan, right=np.nan) for y in ys]
+    prev = [np.interp(x, t_prev, y, left=np.nan, right=np.nan) for y in ys_prev]
     return x, cur, prev
 
 

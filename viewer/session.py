@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import logging
 import threading
+import time
 from collections.abc import Callable
 from functools import partial
 
@@ -26,6 +27,7 @@ from simecs.mesh.client import MeshClient, NoReply, RemoteError, SessionClient, 
 from simecs.mesh.model import DocPage, ModelDescription
 
 from . import events as ev
+from .cartesian import CartesianPathEditor, Pose, tool_pose
 from .edits import SYNC_DELAY_S, Edits
 from .errors import describe_error
 from .host import Host
@@ -39,6 +41,8 @@ from .stream import LIVE_BEHIND, RunStream
 from .workers import Dispatcher
 
 log = logging.getLogger("simecs.viewer")
+REOPEN_TRIES = 3  # asks for a remembered session when the server does not answer
+REOPEN_PAUSE_S = 1.0
 
 
 class SessionController(Dispatcher):
@@ -61,6 +65,8 @@ class SessionController(Dispatcher):
         self.obstacles: list[m.Obstacle] = []  # what the arm can touch (the session's list)
         self.shown_q: list[float] = []  # the pose the arm shows: what Teach records
         self.path: JointPathEditor | None = None
+        self.cart: CartesianPathEditor | None = None  # when the model takes Cartesian paths
+        self.command_kind = "joint_path"  # whose path is the session's command (the last one edited)
         self.settings = m.RunSettings()
         self.streamed: set[str] = set()
         self.state: m.SessionState | None = None
@@ -123,8 +129,11 @@ class SessionController(Dispatcher):
             self._remembered = sid
             self.opening.list_library(can_dismiss=False)
             return
-        if not (sid and keys.is_session_id(sid) and self._attach(sid, quiet_missing=True)):
-            self.opening.list_library(can_dismiss=False)
+        if sid and keys.is_session_id(sid):
+            log.info("tab %s reopens its session %s", self.tab_id, sid)
+            if self._attach(sid, quiet_missing=True, tries=REOPEN_TRIES):
+                return
+        self.opening.list_library(can_dismiss=False)
 
     def login(self, password: str) -> None:
         """Log the tab's user in (secured mesh), then reopen the tab's session or list theirs."""
@@ -158,11 +167,18 @@ class SessionController(Dispatcher):
                 log.debug("watch close: %s", exc)
 
     def _attach(
-        self, sid: str, snapshot: m.SessionSnapshot | None = None, quiet_missing: bool = False
+        self,
+        sid: str,
+        snapshot: m.SessionSnapshot | None = None,
+        quiet_missing: bool = False,
+        tries: int = 1,
     ) -> bool:
-        """Make `sid` this tab's session: restore its values, pose, command, settings and runs."""
+        """Make `sid` this tab's session: restore its values, pose, command, settings and runs.
+        `tries` > 1 asks again when the server did not answer (a viewer that has just restarted
+        may ask before the mesh has its routes)."""
         claims = self.host.claims
         if not claims.claim(sid, self):
+            log.info("tab %s: session %s is open in another tab", self.tab_id, sid)
             self.notify(
                 "Session already open",
                 "That session is shown in another tab; each tab works on its own session. "
@@ -172,7 +188,15 @@ class SessionController(Dispatcher):
             return False
         sc = self.mc.session(self.user, sid)
         try:
-            snap = snapshot or sc.snapshot()
+            for attempt in range(1, tries + 1):
+                try:
+                    snap = snapshot or sc.snapshot()
+                    break
+                except NoReply as exc:
+                    if attempt == tries or self.closed:
+                        raise
+                    log.info("tab %s: session %s: %s; asking again", self.tab_id, sid, exc)
+                    time.sleep(REOPEN_PAUSE_S)
             model = self.host.describe(snap.model_id)
             meshes = self.host.meshes(model)
             if missing := len(set(model.mesh_names()) - set(meshes)):
@@ -180,6 +204,7 @@ class SessionController(Dispatcher):
                     "Some parts are not drawn", f"{missing} of the model's meshes did not come.", "warning"
                 )
         except (RemoteError, NoReply) as exc:
+            log.info("tab %s: session %s not opened: %s", self.tab_id, sid, describe_error(exc))
             claims.release(sid, self)
             if quiet_missing and isinstance(exc, RemoteError) and exc.code == "not_found":
                 self.notify("Previous session ended", "Your previous session is no longer on the server.")
@@ -197,6 +222,7 @@ class SessionController(Dispatcher):
             self.session = sc
             self.meshes = meshes
             self._take(model, snap)
+        log.info("tab %s shows session %s (%s, user %s)", self.tab_id, sid, model.id, self.user)
         self.emit(ev.SessionRemembered(sid))
         self.emit(ev.ModelLoaded(model, sid))
         self.show_state()
@@ -209,6 +235,9 @@ class SessionController(Dispatcher):
         )
         with self._lock:
             self._watch = watch
+        if self.editor(self.command_kind) is not None and not self.refusal("set_command"):
+            # the plan of the session's path (its duration, tool path, node poses) is the server's
+            self.submit("Command not planned", self.edits.send_command)
         self.submit("Results", self.refresh_runs, "io")
         self.submit("Parameter sets", self.edits.refresh_sets, "io")
         return True
@@ -229,11 +258,25 @@ class SessionController(Dispatcher):
         every = {v.name for v in model.variables}
         self.streamed = set(snap.settings.live_vars) & every if snap.settings.live_vars else set(every)
         self.path = JointPathEditor(model.links)
+        self.cart = CartesianPathEditor() if "cartesian_path" in model.command_levels else None
         if isinstance(snap.command, m.JointPath):
             self.path.load(snap.command)
+        elif isinstance(snap.command, m.CartesianPath) and self.cart is not None:
+            self.cart.load(snap.command)
+        self.command_kind = snap.command.kind if snap.command is not None else "joint_path"
+        self.edits.plan, self.edits.refused = None, ""
         self.stream = RunStream(model)
         self.replaying = None
         self.edits.forget()
+
+    def editor(self, kind: str) -> JointPathEditor | CartesianPathEditor | None:
+        """The pendant's path of command level `kind` (None: this viewer does not edit that level)."""
+        return {"joint_path": self.path, "cartesian_path": self.cart}.get(kind)
+
+    def tool_pose(self, q: list[float]) -> Pose:
+        """The tool pose at joint positions `q` with the session's values (what Teach records)."""
+        assert self.model is not None
+        return tool_pose(self.model, self.values, q)
 
     # == what the arm shows ========================================================================
     def preview(self, q: list[float]) -> None:
@@ -351,7 +394,7 @@ class SessionController(Dispatcher):
             self.notify(*LIVE_BEHIND)
         if sample.q is not None:
             self.shown_q = sample.q
-        self.emit(ev.LiveSamples(sample.rows, sample.poses, sample.moved, sample.arrows))
+        self.emit(ev.LiveSamples(sample.rows, sample.poses, sample.moved, sample.arrows, sample.tool))
         self.live_frames += 1
         if stream.layout is not None:
             self.control.shown(stream.layout.run_id)

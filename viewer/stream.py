@@ -30,6 +30,7 @@ class Sample:
     first_gap: bool = False  # the first live frames of this run that never came were before this one
     moved: dict[int, np.ndarray] = field(default_factory=dict)
     arrows: np.ndarray = field(default_factory=lambda: np.zeros((0, 2, 3)))
+    tool: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))  # the tool's position, every row
 
 
 #: What a tab says (title, text, kind) when its first live frame of a run is missing.
@@ -51,6 +52,7 @@ class RunStream:
         self.units: dict[str, str] = {v.name: v.unit for v in model.variables}
         self.units.setdefault(columns.TIME, "s")
         self._poses: np.ndarray | None = None
+        self._tool: np.ndarray | None = None  # the live columns of the tool's x, y, z
         self._q: list[int] | None = None
         # The scene draws the link frames: the poses of pose_frames() up to the tool.
         self._frames = columns.pose_frames(model)[: len(model.links)]
@@ -68,6 +70,8 @@ class RunStream:
         self.missed, self._next_seq = 0, None
         self.live.reset(layout.live_columns)
         self._poses = columns.pose_indices(layout.live_columns, self._frames)
+        tool = columns.pose_indices(layout.live_columns, [columns.TOOL_FRAME])
+        self._tool = tool[0, :3] if tool is not None else None
         self._world = WorldColumns(layout.live_columns)
         self.moved = {}
         where = {c: i for i, c in enumerate(layout.live_columns)}
@@ -94,4 +98,5 @@ class RunStream:
         poses = last[self._poses] if self._poses is not None else None
         q = [float(last[i]) for i in self._q] if self._q is not None else None
         self._world.moved(rows, self.moved)
-        return Sample(rows, poses, q, first_gap, dict(self.moved), self._world.arrows(last))
+        tool = rows[:, self._tool] if self._tool is not None else np.zeros((0, 3))
+        return Sample(rows, poses, q, first_gap, dict(self.moved), self._world.arrows(last), tool)

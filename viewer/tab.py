@@ -16,13 +16,17 @@ from typing import Any
 
 from . import browser
 from . import events as ev
+from .docs import LINK_PREFIX
 from .host import Host
+from .layout import Layout
 from .library import LibraryWindow
 from .page import ModelPage
 from .run import Toolbar
 from .session import SessionController
 
 log = logging.getLogger("simecs.viewer")
+BEAT_EVERY = 10  # ticks (about a second) between the beats that tell the page the server is here
+VIEW_KEPT_EVERY = 10  # ticks (about a second) between looks at what the tab shows, kept for a reload
 
 
 class Tab:
@@ -35,6 +39,10 @@ class Tab:
         self.toolbar: Toolbar | None = None
         self.page: ModelPage | None = None
         self.library: LibraryWindow | None = None
+        self.layout = Layout()  # until the browser tells its viewport
+        self.remembered_view: dict[str, Any] = {}  # what the tab showed before a reload (browser.py)
+        self._kept_view: dict[str, Any] = {}  # what the tab's memory holds now
+        self._ticks = 0
         self.lock = threading.RLock()  # one event or panel change at a time
         self._apply: dict[type, Callable[[Any], None]] = {
             ev.Notice: lambda e: browser.notify(client, e.title, e.body, e.kind),
@@ -57,6 +65,18 @@ class Tab:
         """Build the page frame, find out who this is and which session the tab had, and restore it."""
         self.build_frame()
         memory = browser.recall(self.client)  # waits for the browser (not for the server)
+        log.info(
+            "tab %s: the browser remembers session %s, viewport %sx%s",
+            self.client.client_id,
+            memory.session or "(none)",
+            memory.width,
+            memory.height,
+        )
+        self.remembered_view = memory.view
+        if memory.width and memory.height and not self.closed:
+            with self.lock, self.client.atomic():
+                self.layout = Layout(memory.width, memory.height)
+                self.place_frame()
         if not self.closed:
             self.controller.start(memory.session, memory.user)
 
@@ -64,11 +84,18 @@ class Tab:
         """What every tab shows before a model is loaded: the theme, the docked panel, the toolbar."""
         gui = self.gui
         gui.configure_theme(show_share_button=False, control_width="large", show_logo=False)
-        gui.main_panel.dock_left()
-        gui.main_panel.set_width(400)
         gui.set_panel_label("simecs")
         self.client.scene.set_up_direction("+z")
-        self.toolbar = Toolbar(gui, self._on_window, self.controller.control.run_action)
+        self.toolbar = Toolbar(gui, self._on_window, self.controller.control.run_action, self._on_view)
+        self.place_frame()
+        browser.install_doc_links(self.client, LINK_PREFIX)
+        browser.install_watchdog(self.client)
+
+    def place_frame(self) -> None:
+        """The trees' panel and the toolbar docked where this viewport's layout puts them."""
+        self.layout.place_main(self.gui)
+        if self.toolbar is not None:
+            self.layout.place_toolbar(self.toolbar.panel)
 
     def close(self) -> None:
         """The tab went away (closed or reloading): the session stays on the server."""
@@ -83,6 +110,19 @@ class Tab:
         if page is not None and stream is not None:
             with self.lock:
                 page.plots.redraw(stream.live)
+        self._ticks += 1
+        if self._ticks % BEAT_EVERY == 0:
+            browser.beat(self.client)
+        if page is not None and self._ticks % VIEW_KEPT_EVERY == 0:
+            self._keep_view(page)
+
+    def _keep_view(self, page: ModelPage) -> None:
+        """The camera, the open plots and the shown component into the tab's memory, when changed."""
+        with self.lock:  # the plots and the tree change under events
+            view = page.view_state()
+        if view != self._kept_view:
+            self._kept_view = view
+            browser.remember_view(self.client, view)
 
     # -- controller events -------------------------------------------------------------------------
     def _on_event(self, event: ev.Event) -> None:
@@ -100,7 +140,11 @@ class Tab:
         if self.page is not None:
             self.page.remove()
             self.page = None
-        self.page = ModelPage(self.client, self.controller)
+        assert self.toolbar is not None
+        self.page = ModelPage(self.client, self.controller, self.layout, self.toolbar.panel)
+        view, self.remembered_view = self.remembered_view, {}
+        if view.get("session") == event.session:  # a reload of this session: as it was
+            self.page.restore(view)
         browser.set_title(self.client, f"simecs · {event.model.name}")
 
     def _show_state(self, event: ev.StateShown) -> None:
@@ -130,6 +174,14 @@ class Tab:
             self.library = None
 
     # -- toolbar -------------------------------------------------------------------------------------
+    def _on_view(self, name: str) -> None:
+        page = self.page
+        if page is None:
+            self.controller.notify(name, "Load a model first (Models).", "warning")
+            return
+        with self.lock, self.client.atomic():
+            page.look(name)
+
     def _on_window(self, name: str) -> None:
         if name == "Models":
             self.controller.opening.open_library(can_dismiss=True)

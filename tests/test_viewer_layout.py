@@ -1,0 +1,162 @@
+"""The viewer's layout in a real browser (Debian chromium + Playwright), at 1024×768 and 1600×900:
+no region covers the 3D view, the documentation's in-text links work and a new page opens at its
+top, a reload gets back the plots and the shown component, and a page survives a viewer restart
+(it says the server is gone, then reopens the same session by itself).
+
+Screenshots of each state go to `artifacts/viewer/`.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import pytest
+from simecs.testing import browser as chromium
+
+from .conftest import Mesh, free_port, start_service, wait_until
+from .test_viewer_browser import (
+    SHOTS,
+    SPIDER,
+    dismiss_notifications,
+    logs_on_failure,
+    model_shown,
+    new_page,
+    open_components,
+    sessions_of,
+    start_viewer,
+    text_appears,
+)
+
+#: What covers the 3D view's centre, and how wide the view is (the three.js canvas is the largest).
+VIEW_JS = """
+() => {
+  // three.js draws on the page's large canvases; uPlot's are small ones inside panels
+  const area = (c) => { const r = c.getBoundingClientRect(); return r.width * r.height; };
+  const canvases = Array.from(document.querySelectorAll('canvas'));
+  const biggest = Math.max(0, ...canvases.map(area));
+  const isView = (el) => !!el && el.tagName === 'CANVAS' && area(el) >= 0.5 * biggest;
+  if (!biggest) return null;
+  // the part of the view no region sits on, along a row across the window's middle
+  const y = window.innerHeight / 2;
+  let left = null, right = null;
+  for (let x = 1; x < window.innerWidth; x += 4) {
+    if (isView(document.elementFromPoint(x, y))) { if (left === null) left = x; right = x; }
+  }
+  if (left === null) return {free: 0, centre: 'nothing'};
+  const hit = document.elementFromPoint((left + right) / 2, y);
+  return {free: right - left, centre: isView(hit) ? 'view' : (hit ? hit.tagName + '.' + hit.className : '')};
+}
+"""
+
+
+def view_is_clear(page: Any, min_free_px: int) -> None:
+    """Nothing on the 3D view's centre, and the view wide enough (once the page has settled: a
+    closing modal or a panel's opening animation passes within a few seconds)."""
+    found: Any = None
+    for _ in range(40):
+        found = page.evaluate(VIEW_JS)
+        if found is not None and found["centre"] == "view" and found["free"] >= min_free_px:
+            return
+        page.wait_for_timeout(250)
+    assert found is not None, "no 3D canvas on the page"
+    assert found["centre"] == "view", f"the 3D view's centre is covered by {found['centre']}"
+    assert found["free"] >= min_free_px, f"the 3D view is {found['free']} px wide"
+
+
+@pytest.mark.parametrize("size", [(1024, 768), (1600, 900)], ids=["1024x768", "1600x900"])
+def test_no_region_covers_the_arm_and_a_reload_keeps_the_view(
+    mesh: Mesh, browser: Any, size: tuple[int, int]
+) -> None:
+    with logs_on_failure(mesh, "viewer", "proxy"):
+        layout_walk(mesh, browser, size)
+
+
+def layout_walk(mesh: Mesh, browser: Any, size: tuple[int, int]) -> None:
+    start_service(mesh)
+    url = start_viewer(mesh)
+    width, height = size
+    tag = f"{width}x{height}"
+    SHOTS.mkdir(parents=True, exist_ok=True)
+    context = browser.new_context(viewport={"width": width, "height": height})
+    page = new_page(context, url)
+    page.get_by_role("button", name=SPIDER).click()
+    model_shown(page)
+    dismiss_notifications(page)
+    min_free = 300 if width < 1400 else 500
+    view_is_clear(page, min_free)
+
+    # the initial pose sliders open beside the arm, not on it
+    page.get_by_role("button", name="Initialise").click()
+    text_appears(page, "All joints to zero")
+    view_is_clear(page, min_free)
+
+    # a component's parameters come into view when it is picked (the tree folds up under its name)
+    open_components(page)
+    page.get_by_role("button", name="link2 (3)").click()
+    length = page.get_by_label("length [m]")
+    length.wait_for()
+    box = length.bounding_box()
+    assert box is not None and 0 <= box["y"] < height - 20, f"the picked parameters are out of sight: {box}"
+
+    # documentation docked beside the trees; an in-text link opens its page, shown from its top
+    page.get_by_role("button", name="Documentation").click()
+    text_appears(page, "Links on this page")
+    view_is_clear(page, min_free)
+    page.get_by_role("link", name="Joint drive").first.click()
+    text_appears(page, "Sub-components")
+    back = page.get_by_role("button", name="◀ Back")
+    back.wait_for()
+    box = back.bounding_box()
+    assert box is not None and 0 <= box["y"] < height, "a new page did not open at its top"
+
+    # a plot, docked: still nothing on the arm
+    page.get_by_role("tab", name="Variables").click()
+    open_components(page)
+    page.get_by_text("joint1 (14)", exact=True).click()
+    page.get_by_role("button", name="joint1 (2 own)").click()
+    page.get_by_role("button", name="Plot q", exact=True).click()
+    text_appears(page, "Plot 1: joint1.q")
+    view_is_clear(page, 250 if width < 1400 else 400)
+    page.screenshot(path=str(SHOTS / f"layout_{tag}.png"))
+
+    # a reload gets back the session, its plot and the component shown (kept about once a second)
+    page.get_by_role("tab", name="Parameters").click()
+    page.wait_for_timeout(2500)
+    page.reload()
+    model_shown(page)
+    text_appears(page, "Plot 1: joint1.q")
+    page.get_by_text("Components · link2").locator("visible=true").first.wait_for()
+    page.get_by_label("length [m]").wait_for()
+    page.screenshot(path=str(SHOTS / f"reloaded_{tag}.png"))
+
+
+def test_a_page_survives_a_viewer_restart(mesh: Mesh, browser: Any) -> None:
+    with logs_on_failure(mesh, "viewer"):
+        restart_walk(mesh, browser)
+
+
+def restart_walk(mesh: Mesh, browser: Any) -> None:
+    service = start_service(mesh)
+    port = free_port()
+    url = start_viewer(mesh, port=port)
+    page = new_page(browser.new_context(viewport=chromium.VIEWPORT), url)
+    page.get_by_role("button", name=SPIDER).click()
+    model_shown(page)
+    sid = wait_until(lambda: next(iter(sessions_of(service.client)), None), timeout=20, what="a session")
+    # the page shows it (the models window's button says "Spider arm" too): the tab remembers it now
+    text_appears(page, f"session {sid[:8]}")
+    banner = page.locator("#simecs-lost")
+    assert not banner.is_visible()
+
+    mesh.stop("viewer")
+    banner.wait_for(state="visible", timeout=15_000)  # the page says the server is gone
+    assert "reconnects by itself" in banner.inner_text()
+    SHOTS.mkdir(parents=True, exist_ok=True)
+    page.screenshot(path=str(SHOTS / "server_gone.png"))
+
+    start_viewer(mesh, port=port)
+    banner.wait_for(state="hidden", timeout=60_000)  # back by itself, no reload
+    text_appears(page, f"session {sid[:8]}", timeout=60)
+    assert sessions_of(service.client) == {sid}, "the restarted page opened another session"
+    page.get_by_role("button", name="Run", exact=True).wait_for()
+    page.screenshot(path=str(SHOTS / "server_back.png"))

@@ -1,0 +1,109 @@
+"""The command panel: one teach pendant per command level the model takes (paper §2.2: panels, not a
+prompt), docked beside the arm: the joint path, the Cartesian path, the jog panel and the obstacles.
+
+The session's command is the path of the pendant edited last (`SessionController.command_kind`); the
+server's plan of it (duration, the tool path drawn in 3D) or its refusal (shown beside the path,
+naming the node) goes to that pendant, and the other says it is not the session's command.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+from . import events as ev
+from .cartesian_pendant import CartesianPendant
+from .jog_panel import JogPanel
+from .layout import Layout
+from .obstacles import ObstaclePanel
+from .pendant import PendantPanel
+from .scene import ArmScene
+from .session import SessionController
+
+
+class CommandPanel:
+    """The docked panel of command pendants of one model page."""
+
+    def __init__(
+        self,
+        client: Any,
+        c: SessionController,
+        scene: ArmScene,
+        layout: Layout,
+        toolbar: Any,
+        warn: Callable[[str], Callable[[str], None]],
+    ) -> None:
+        model = c.model
+        assert model is not None and c.path is not None
+        gui = client.gui
+        self.c = c
+        self.scene = scene
+        self.pendant: PendantPanel | None = None
+        self.cartesian: CartesianPendant | None = None
+        self.panel = gui.add_panel()
+        with self.panel.add_tab("Joint path"):
+            if "joint_path" in model.command_levels:
+                self.pendant = PendantPanel(
+                    gui,
+                    c.path,
+                    current_q=lambda: list(c.shown_q),
+                    on_changed=c.edits.command_changed,
+                    on_preview=c.preview,
+                    on_error=warn("Joint path"),
+                )
+            else:
+                levels = ", ".join(model.command_levels) or "none"
+                gui.add_markdown(f"_This model takes {levels} commands, not joint paths._")
+        if c.cart is not None:
+            with self.panel.add_tab("Cartesian"):
+                self.cartesian = CartesianPendant(
+                    gui,
+                    client.scene,
+                    c.cart,
+                    tool_pose=lambda: c.tool_pose(list(c.shown_q)),
+                    on_changed=lambda: c.edits.command_changed("cartesian_path"),
+                    on_dragged=lambda: c.edits.command_dragged("cartesian_path"),
+                    on_preview=c.preview,
+                    on_error=warn("Cartesian path"),
+                    reach=scene.extent(),
+                )
+        with self.panel.add_tab("Jog"):
+            self.jog = JogPanel(gui, c.jog, warn("Jog"))
+        with self.panel.add_tab("Obstacles"):
+            self.obstacles = ObstaclePanel(
+                gui, c.obstacles, model.obstacles, c.edits.set_obstacles, warn("Obstacles")
+            )
+        layout.place_command(self.panel, toolbar)
+
+    def show_plan(self, event: ev.PlanChanged | None = None) -> None:
+        """The session's command as the server planned it, on its pendant and as a tool path in 3D
+        (`event`: the server's answer to an edit; None: shown again, e.g. after new settings)."""
+        c = self.c
+        plan, stop, kind = c.edits.plan, c.settings.stop_time, c.command_kind
+        current = plan is not None and plan.kind == kind
+        if self.pendant is not None:
+            self.pendant.show_plan(plan if kind == "joint_path" else None, stop, kind == "joint_path")
+        if self.cartesian is not None:
+            self.cartesian.show_plan(plan, stop, current and kind == "cartesian_path", event is not None)
+        self.scene.show_tool_path(plan.tool_path if current and plan is not None else [])
+
+    def show_refusal(self, event: ev.CommandRefused) -> None:
+        """The server refused the path being edited: the reason beside it, no tool path drawn."""
+        if event.kind == "cartesian_path" and self.cartesian is not None:
+            self.cartesian.show_refusal(event.field, event.reason)
+        elif event.kind == "joint_path" and self.pendant is not None:
+            self.pendant.show_refusal(event.field, event.reason)
+        self.scene.show_tool_path([])
+
+    def show_editable(self) -> None:
+        """The command cannot change while a run is under way."""
+        locked = bool(self.c.refusal("set_command"))
+        if self.pendant is not None:
+            self.pendant.set_disabled(locked)
+        if self.cartesian is not None:
+            self.cartesian.set_disabled(locked)
+
+    def remove(self) -> None:
+        if self.cartesian is not None:
+            self.cartesian.remove()
+        self.panel.remove()
