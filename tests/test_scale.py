@@ -61,7 +61,16 @@ def test_realtime_runs_share_a_small_machine_and_fast_runs_queue_per_core(mesh: 
     assert [st.phase for st in states] == ["running"] * 8, [st.reason for st in states]
     assert {st.host for st in states} == {"simulator-t"}
     load = wait_until(lambda: simulator_loads(mesh).get("simulator-t"), 10, what="the simulator's load")
-    assert load.cores >= 1 and load.cost["spider"] < 0.2, load
+    assert load.cores >= 1, load
+    # the cost is smoothed over the runs' reports: the first ones carry the workers' start on a busy
+    # machine, so it is read until it settles (a real-time Spider run costs a small part of a core)
+    settled = wait_until(
+        lambda: (x := simulator_loads(mesh).get("simulator-t")) and x.cost.get("spider", 1.0) < 0.2 and x,
+        timeout=20,
+        interval=0.5,
+        what=f"a settled real-time run cost (first read {load.cost})",
+    )
+    assert settled.runs and len(settled.runs) == 8, settled
     for s in realtime:
         s.abort()
 

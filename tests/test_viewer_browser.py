@@ -190,6 +190,7 @@ def use_case(mesh: Mesh, browser: Any) -> None:
 
     # 5. a 2-node joint path in the teach pendant
     page.get_by_role("button", name="Teach").click()
+    text_appears(page, "▶1")  # the table grows under the buttons: click again once it has
     page.get_by_role("button", name="Teach").click()
     chromium.set_field(page, chromium.slider_input(page, "joint1 target [deg]"), "30")
     text_appears(page, "▶2")
