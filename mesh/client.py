@@ -303,6 +303,19 @@ class SessionClient:
         every: int = 1,
     ) -> tuple[list[str], np.ndarray]:
         """Full-resolution transients of a finished (or running) run: (column names, rows)."""
+        att, rows = self.results_of(run_id, variables, t0, t1, every)
+        return list(att.columns), rows
+
+    def results_of(
+        self,
+        run_id: str,
+        variables: Sequence[str] | None = None,
+        t0: float | None = None,
+        t1: float | None = None,
+        every: int = 1,
+    ) -> tuple[m.ResultsAttachment, np.ndarray]:
+        """As `results`, with what the reply says of the run: its columns, units, RunInfo and the
+        context it ran with (what a comparison of runs needs)."""
         params = []
         if variables:
             params.append("vars=" + ",".join(variables))
@@ -314,8 +327,7 @@ class SessionClient:
             params.append(f"every={int(every)}")
         key = keys.results(self.user, self.id, run_id) + ("?" + ";".join(params) if params else "")
         payload, att = self.client.request_binary(key, m.ResultsAttachment)
-        frame = frames.decode(payload)
-        return list(att.columns), frame.rows
+        return att, frames.decode(payload).rows
 
     def watch(
         self,

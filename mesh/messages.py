@@ -676,6 +676,13 @@ class ResultsAttachment(Record):
     columns: list[Text]
     units: list[Text]
     run: RunInfo
+    context: Annotated[
+        RunContext | None,
+        Meta(
+            description="what produced the run (its parameter values, initial pose, command, settings, "
+            "obstacles), for comparing runs; null only for results kept from before it was stored"
+        ),
+    ] = None
 
 
 #: Reply `data` of every command and request (the schema and the client use it).

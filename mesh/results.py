@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import frames
-from .messages import ResultsAttachment, RunInfo
+from .messages import ResultsAttachment, RunContext, RunInfo
 from .runtime import Binary, RequestError
 
 #: The selector parameters a results query may carry (anything else is refused).
@@ -66,6 +66,7 @@ def results_reply(
     parameters: Mapping[str, str],
     run_index: int,
     run: RunInfo,
+    context: RunContext | None = None,
 ) -> Binary:
     """Select the columns, the time window `t0`..`t1` and one sample in `every` from `data` (time
     first); the reply frame's attachment names the columns and their units."""
@@ -86,7 +87,7 @@ def results_reply(
     frame = frames.Frame(run_index=run_index, seq=0, wall_ns=0, rows=rows)
     names = [columns[i] for i in idx]
     unit_of = [units[i] if i < len(units) else "" for i in idx]
-    return Binary(frames.encode(frame), ResultsAttachment(names, unit_of, run))
+    return Binary(frames.encode(frame), ResultsAttachment(names, unit_of, run, context))
 
 
 #: Runs whose full-resolution results are kept per session (the oldest go first): the proxy lists

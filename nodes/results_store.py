@@ -31,6 +31,8 @@ class StoredRun:
     columns: list[str]
     units: list[str]
     model_id: str
+    #: What produced the run (RunContext as JSON data): a client compares runs by it.
+    context: dict[str, Any] | None = None
 
 
 class ResultsStore:

@@ -303,7 +303,8 @@ class Simulator(Node):
             raise NotMine()
         run, data = found
         info = m.RunInfo(run.run_id, run.phase, run.stop_time, run.sim_time, run.samples, run.reason)  # type: ignore[arg-type]
-        return results_reply(data, run.columns, run.units, req.parameters, run.run_index, info)
+        context = codec.from_obj(m.RunContext, run.context) if run.context is not None else None
+        return results_reply(data, run.columns, run.units, req.parameters, run.run_index, info, context)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -352,6 +352,7 @@ class Run:
             columns=list(cols),
             units=list(source.units) if source is not None else ["s"],
             model_id=self.req.model_id,
+            context=codec.to_obj(source.context) if source is not None else None,
         )
         self.store.save(self.req.user, self.req.session, run, data)
         self.samples = run.samples

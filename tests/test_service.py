@@ -78,6 +78,10 @@ def test_whole_run(service: Service) -> None:
     picked = [0, layout.columns.index("joint1.q"), layout.columns.index("joint2.q")]
     np.testing.assert_array_equal(some, full[50:101:5][:, picked])
     assert [r.run_id for r in s.runs()] == [run_id]
+    # The reply says what produced the run: the run's own context, as its layout announced it.
+    att, _ = s.results_of(run_id, ["joint1.q"], t1=0.0)
+    assert att.context == layout.context and att.run.run_id == run_id
+    assert att.context is not None and att.context.settings.stop_time == pytest.approx(0.4)
 
     # The last live frame is the last sample, restricted to the live columns.
     last_live = rec.live[-1][1].rows[-1]
