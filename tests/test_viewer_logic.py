@@ -28,6 +28,7 @@ from simecs.mesh.model import DocPage, InitEquation, Link, ModelDescription, Par
 from simecs.testing.launch import wait_until
 from simecs.viewer import (
     browser,
+    compare,
     docs,
     events,
     export,
@@ -70,6 +71,8 @@ HEADLESS = (
     "export",
     "tree",
     "jog",
+    "compare",
+    "markup",
 )
 
 
@@ -163,6 +166,7 @@ class FakeSession:
         self.plan_duration = 1.0  # what the server's plan of a command says it takes
         self.jogs: list[m.JogInput] = []
         self.unanswered = 0  # snapshot queries that get no reply (a server not reachable yet)
+        self.contexts: dict[str, m.RunContext] = {}  # what each run ran with, as results replies say
 
     def command(self, cmd: Any) -> Any:
         self.sent.append(cmd)
@@ -233,6 +237,13 @@ class FakeSession:
         names = ["time", *(variables or ["joint1.q", "joint2.q"])]
         t = np.linspace(0.0, 1.0, 11)
         return names, np.column_stack([t] + [t * (k + 1) for k in range(len(names) - 1)])
+
+    def results_of(
+        self, run_id: str, variables: Any = None, t0: Any = None, t1: Any = None, every: int = 1
+    ) -> tuple[m.ResultsAttachment, np.ndarray]:
+        names, rows = self.results(run_id, variables, t0, t1, every)
+        info = next((r for r in self.run_list if r.run_id == run_id), m.RunInfo(run_id, "finished", 1.0, 1.0))
+        return m.ResultsAttachment(names, [""] * len(names), info, self.contexts.get(run_id)), rows
 
     def watch(self, **callbacks: Any) -> FakeWatch:
         self.watched = callbacks
@@ -840,21 +851,41 @@ def test_full_resolution_requests_stay_bounded() -> None:
 def test_overlay_puts_two_runs_on_one_time_axis() -> None:
     t = np.linspace(0, 1, 11)
     t_prev = np.linspace(0, 2, 5)
-    x, cur, prev = series.overlay(t, [t * 2], t_prev, [t_prev * 3])
+    x, cur, (prev,) = series.overlay(t, [t * 2], [(t_prev, [t_prev * 3])])
     assert x[0] == 0 and x[-1] == 2 and np.all(np.diff(x) > 0)
     assert np.allclose(np.interp(0.5, x, cur[0]), 1.0) and np.allclose(np.interp(1.5, x, prev[0]), 4.5)
     # a shorter run is drawn to its own end, never held flat beyond it (uPlot draws no NaN)
     beyond = x > 1.0
     assert beyond.any() and np.isnan(cur[0][beyond]).all() and not np.isnan(cur[0][~beyond]).any()
     assert not np.isnan(prev[0]).any()
-    x, cur, prev = series.overlay(np.empty(0), [np.empty(0)], t_prev, [t_prev])
+    x, cur, (prev,) = series.overlay(np.empty(0), [np.empty(0)], [(t_prev, [t_prev])])
     assert np.array_equal(x, t_prev) and np.isnan(cur[0]).all()
+    # several compared runs: each interpolated onto the union of all times, each to its own end
+    t3 = np.linspace(0, 0.5, 6)
+    x, cur, (_, (b,)) = series.overlay(t, [t], [(t_prev, [t_prev]), (t3, [-t3])])
+    assert set(t3) <= set(x) and np.isnan(b[x > 0.5]).all() and np.allclose(np.interp(0.25, x, b), -0.25)
+
+
+def test_the_time_cursor_is_a_vertical_line_that_breaks_no_other_line() -> None:
+    x = np.linspace(0, 1, 11)
+    y = 2 * x
+    y_short = np.where(x <= 0.5, -x, np.nan)  # a compared run that ended at 0.5 s
+    x2, (y2, s2), line = series.with_cursor(x, [y, y_short], 0.25)
+    k = int(np.flatnonzero(np.isfinite(line))[0])
+    assert x2[k] == 0.25 and 0.25 < x2[k + 1] < 0.25 + 1e-5 and np.all(np.diff(x2) > 0) and len(x2) == 13
+    assert (line[k], line[k + 1]) == (-0.5, 2.0)  # spans every run's values
+    assert np.isfinite(line).sum() == 2 and y2[k] == 0.5 and s2[k] == -0.25
+    _, (_, s3), _ = series.with_cursor(x, [y, y_short], 0.75)
+    assert np.isnan(s3[np.searchsorted(x, 0.75) :][:2]).all()  # past the short run's end: no value
+    x5, (y5,), line5 = series.with_cursor(x, [y], 0.5)  # on a sample: one point added after it
+    assert len(x5) == 12 and np.all(np.diff(x5) > 0) and line5[5] == 0.0 and line5[6] == 2.0
+    x4, _, none = series.with_cursor(x, [y], 2.0)  # outside the data: no line
+    assert np.array_equal(x4, x) and np.isnan(none).all()
 
 
 def test_plot_redraws_live_then_full_resolution(server: Any) -> None:
     actions = plots.PlotActions(
         load_full=lambda *a: None,
-        overlay=lambda *a: None,
         close=lambda p: None,
         error=lambda msg: None,
         added=lambda p, n: None,
@@ -869,11 +900,17 @@ def test_plot_redraws_live_then_full_resolution(server: Any) -> None:
     assert len(plot.chart.data) == 2 and len(plot.chart.data[0]) == 50
     assert plot.chart.series[1]["label"] == "joint1.q [rad]"
     plot.full = series.Transient("r2", np.linspace(0, 1, 500), {"joint1.q": np.ones(500)})
-    plot.prev = series.Transient("r1", np.linspace(0, 1, 300), {"joint1.q": np.zeros(300)})
-    plot.compare.value = True
+    plot.others = [series.Transient("r1", np.linspace(0, 1, 300), {"joint1.q": np.zeros(300)})]
     plot.redraw(buf)
     assert len(plot.chart.data) == 3 and len(plot.chart.data[0]) >= 500
     assert plot.chart.series[2]["dash"] == [6, 4] and "r2 full res" in plot.title()
+    assert (
+        plot.chart.series[2]["label"] == "joint1.q (r1)" and plot.chart.series[2]["stroke"] == plots.COLORS[1]
+    )
+    plot.cursor = 0.5
+    plot.redraw(buf)
+    assert len(plot.chart.data) == 4 and plot.chart.series[-1]["label"] == "cursor"
+    plot.cursor = None
     plot.add_var.value = "joint2.q"
     plot._add_variable(Event(plot.add_var))
     assert plot.variables == ["joint1.q", "joint2.q"] and plot.add_var.value == "—"
@@ -892,7 +929,6 @@ def test_plot_dock_opens_and_closes_with_its_plots(server: Any) -> None:
     closed: list[Any] = []
     actions = plots.PlotActions(
         load_full=lambda *a: None,
-        overlay=lambda *a: None,
         close=closed.append,
         error=lambda msg: None,
         added=lambda p, n: None,
@@ -1434,21 +1470,36 @@ def test_full_resolution_overlay_and_downloads() -> None:
     ctl, sc, got = attached()
     sc.run_list = [m.RunInfo("r1", "finished", 1.0, 1.0, 11), m.RunInfo("r2", "finished", 1.0, 1.0, 11)]
     ctl.refresh_runs()
-    ctl.results.load_full(5, ["joint1.q"], None, None, run_id="", with_prev=True)
+    ctx = m.RunContext("tester", {"joint1.ctrl.kp_pos": 20.0}, [0.0, 0.0, 0.0], None, m.RunSettings())
+    sc.contexts["r1"] = ctx
+    ctl.results.load_full(5, ["joint1.q"], None, None, run_id="", compare=["r1", "r2"])
     ctl.drain()
     loaded = got.of(events.TransientLoaded)[-1]
-    assert loaded.plot == 5 and loaded.full.run_id == "r2" and loaded.prev.run_id == "r1"
+    assert loaded.plot == 5 and loaded.full.run_id == "r2" and [o.run_id for o in loaded.others] == ["r1"]
+    assert loaded.others[0].context == ctx and loaded.full.context is None
     assert np.allclose(loaded.full.ys["joint1.q"], np.linspace(0, 1, 11))
-    ctl.results.load_previous(5, ["joint1.q"], "r1")
+    ctl.results.load_compared(5, ["joint1.q", "joint2.q"], ["r1"], 0.2, 0.4)
     ctl.drain()
-    assert got.of(events.PreviousLoaded)[-1].prev is None
-    assert "no previous run" in got.of(events.Notice)[-1].body
+    compared = got.of(events.ComparedLoaded)[-1]
+    assert compared.plot == 5 and set(compared.others[0].ys) == {"joint1.q", "joint2.q"}
+    assert compared.others[0].t0 == 0.2 and sc.asked[-1] == ("r1", ["joint1.q", "joint2.q"])
+    ctl.results.load_compared(5, ["joint1.q"], ["r9"])
+    ctl.drain()
+    assert "r9 is no longer kept" in got.of(events.Notice)[-1].body
+    ctl.results.load_track("r1")
+    ctl.drain()
+    track = got.of(events.TrackLoaded)[-1].track
+    assert track.run_id == "r1" and track.context == ctx and track.poses.shape == (11, 3, 7)
+    assert sc.asked[-1] == ("r1", compare.track_columns(ctl.model))
     sc.watched["on_state"](state(sc, "running", "r3"))
     sc.run_list.append(m.RunInfo("r3", "running", 1.0, 0.3))
     ctl.refresh_runs()
     ctl.results.load_full(5, ["joint1.q"])
     ctl.drain()
     assert "still going on" in got.of(events.Notice)[-1].body
+    ctl.results.load_track("r3")
+    ctl.drain()
+    assert "r3 is still going on: compare it once it ends" in got.of(events.Notice)[-1].body
     ctl.results.download_csv("r1", ["joint1.q"])
     ctl.results.download_mcap("r1")
     ctl.drain()
@@ -1553,6 +1604,92 @@ def test_the_tab_applies_controller_events_to_its_panels(server: Any) -> None:
     finally:
         tab.close()
         page.remove()
+
+
+def test_runs_compared_on_every_plot_with_a_time_cursor_that_poses_the_arm(server: Any) -> None:
+    model = arm()
+    tab, client, mesh = started_tab(server, model)
+    ctl = tab.controller
+    ctl.opening.load_model("arm3")
+    ctl.drain()
+    page = tab.page
+    assert page is not None
+    sc = mesh.sessions[ctl.session.id]
+    try:
+        base = m.RunContext("tester", model.default_values(), [0.0, 0.0, 0.0], None, m.RunSettings())
+        kp = model.parameters[0].name
+        sc.contexts = {
+            "r1": base,
+            "r2": msgspec.structs.replace(base, values={**base.values, kp: 1.5}),
+            "r3": base,
+        }
+        sc.run_list = [m.RunInfo(r, "finished", 1.0, 1.0, 11) for r in ("r1", "r2")]
+        sc.run_list.append(m.RunInfo("r3", "running", 1.0, 0.2))
+        ctl.refresh_runs()
+        ctl.drain()
+        cmp = page.compare
+        assert list(cmp.boxes) == ["r1", "r2"] and page.results.selected() == "r3"  # a run going on: no box
+        sc.run_list[-1] = m.RunInfo("r3", "aborted", 1.0, 0.4, 5)
+        ctl.refresh_runs()
+        ctl.drain()
+        page.results.runs.value = next(o for o in page.results.runs.options if o.startswith("r2"))
+        plot = page.open_plot("joint1.q")
+        plot._transient(Event(SimpleNamespace(value="Full resolution")))
+        ctl.drain()
+        assert plot.full is not None and plot.full.run_id == "r2" and plot.others == []
+        # tick r1 and r3: both drawn on the plot beside r2, and listed in how the runs differ
+        for run_id in ("r1", "r3"):
+            cmp.boxes[run_id].value = True
+            cmp._ticked(Event(cmp.boxes[run_id]))
+        ctl.drain()
+        assert [o.run_id for o in plot.others] == ["r1", "r3"]
+        plot.redraw(ctl.stream.live)
+        labels = [s["label"] for s in plot.chart.series]
+        assert labels[2:] == ["joint1.q (r1)", "joint1.q (r3)"]
+        assert f"| {kp} |" in cmp.diff.content and "1.5" in cmp.diff.content
+        # the cursor: every plot marks it, the arm takes r2's pose there, values are read per run
+        assert cmp.cursor.disabled
+        cmp.cursor_on.value = True
+        cmp._cursor_toggled(Event(cmp.cursor_on))
+        assert not cmp.cursor.disabled and cmp.follow.options == ("r2", "r1", "r3")
+        cmp.cursor.value = 0.5
+        ctl.drain()
+        assert plot.cursor == 0.5
+        assert np.allclose(page.scene.frames[0].position, [0.5, 1.0, 1.5])  # the fake's pose.link1.x/y/z
+        assert "| joint1.q [rad] | 0.5 | 0.5 | 0.5 |" in cmp.values.content
+        plot.redraw(ctl.stream.live)
+        assert plot.chart.series[-1]["label"] == "cursor"
+        # a new run takes the arm back: the cursor goes
+        sc.watched["on_state"](state(sc, "running", "r4", seq=20))
+        assert cmp.cursor_on.disabled and not cmp.cursor_on.value and plot.cursor is None
+    finally:
+        tab.close()
+        page.remove()
+
+
+def test_what_runs_differ_in_is_listed_and_values_at_the_cursor_read() -> None:
+    model = arm()
+    base = m.RunContext("u", model.default_values(), [0.0, 0.1, 0.0], None, m.RunSettings())
+    same = compare.differences({"r1": base, "r2": base}, model)
+    assert same == "_r1, r2 ran with the same parameters, initial pose, command and settings._"
+    name = model.parameters[0].name
+    other = msgspec.structs.replace(
+        base,
+        values={**base.values, name: base.values[name] * 2},
+        initial=[0.0, 0.2, 0.0],
+        settings=m.RunSettings(stop_time=2.0),
+        command=m.JointPath([m.PathNode([0.1, 0.0, 0.0])]),
+    )
+    table = compare.differences({"r1": base, "r2": other}, model)
+    assert f"| {name} |" in table and "| initial pose [deg] | 0.0 5.7 0.0 | 0.0 11.5 0.0 |" in table
+    assert "| stop time [s] |" in table and "| command | none | JointPath (1 nodes) |" in table
+    assert "older server" in compare.differences({"r1": base, "r2": None}, model)
+    t = np.linspace(0.0, 1.0, 11)
+    runs = {"r1": {"joint1.q": (t, t)}, "r2": {"joint1.q": (t[:6], -t[:6])}}
+    text = compare.values_table(0.75, runs, ["joint1.q"], {"joint1.q": "rad"})
+    assert "| joint1.q [rad] | 0.75 | — |" in text  # r2 ended at 0.5 s
+    track = compare.RunTrack("r1", t, np.arange(11 * 2 * 7, dtype=float).reshape(11, 2, 7))
+    assert track.at(0.24)[0, 0] == 28.0 and track.at(0.26)[0, 0] == 42.0 and track.at(9.0)[0, 0] == 140.0
 
 
 @pytest.mark.parametrize(

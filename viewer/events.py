@@ -15,6 +15,7 @@ import numpy as np
 from simecs.mesh import messages as m
 from simecs.mesh.model import DocPage, ModelDescription, ModelSummary
 
+from .compare import RunTrack
 from .series import Transient
 
 
@@ -175,20 +176,26 @@ class PosePreview:
 
 @dataclass
 class TransientLoaded:
-    """Full-resolution data for plot `plot`; `prev` is the previous run when an overlay was asked."""
+    """Full-resolution data for plot `plot`, with the compared runs' over the same window."""
 
     plot: int
     full: Transient
-    prev: Transient | None = None
-    with_prev: bool = False
+    others: list[Transient] = field(default_factory=list)
 
 
 @dataclass
-class PreviousLoaded:
-    """The previous run for plot `plot`'s overlay (None: there is none, the overlay is off)."""
+class ComparedLoaded:
+    """The compared runs' data for plot `plot` (the runs picked in the comparison, in its order)."""
 
     plot: int
-    prev: Transient | None
+    others: list[Transient]
+
+
+@dataclass
+class TrackLoaded:
+    """What the time cursor needs of a run: its link poses over time and what produced it."""
+
+    track: RunTrack
 
 
 @dataclass
@@ -228,7 +235,8 @@ Event = (
     | ObstaclesChanged
     | PosePreview
     | TransientLoaded
-    | PreviousLoaded
+    | ComparedLoaded
+    | TrackLoaded
     | DocFetched
     | Download
 )

@@ -17,6 +17,7 @@ from simecs.mesh.codec import DecodeError
 from . import camera
 from . import events as ev
 from .command_panel import CommandPanel
+from .compare_panel import ComparePanel
 from .docs import DocsWindow
 from .joints import InitPanel
 from .layout import Layout
@@ -63,7 +64,8 @@ class ModelPage:
             )
         with tabs.add_tab("Variables"):
             self.variables = VariablePanel(gui, model, c.streamed, self._set_streamed, self.open_plot)
-        with tabs.add_tab("Results"):
+        results_tab = tabs.add_tab("Results")
+        with results_tab:
             self.results = ResultsPanel(gui, self._results_action, c.results.upload)
             self.results.show_runs(c.runs)
 
@@ -81,7 +83,6 @@ class ModelPage:
 
         actions = PlotActions(
             load_full=self._load_full,
-            overlay=self._overlay,
             close=lambda p: self.plots.close(p),
             error=self._warn("Plot"),
             added=lambda _p, name: c.edits.ensure_streamed(name),
@@ -89,19 +90,24 @@ class ModelPage:
             batch=client.atomic,
         )
         self.plots = PlotDock(gui, c.stream.units, actions, lambda panel: layout.place_plots(panel, gui))
+        with results_tab:
+            self.compare = ComparePanel(gui, c, self.plots, self.scene, self.results.selected)
+            self.compare.show_runs(c.runs)
+        self.results.runs.on_update(lambda _e: self.compare.refresh())
         self._apply: dict[type, Callable[[Any], None]] = {
             ev.ValuesChanged: lambda e: self.params.show_values(e.values),
             ev.ParamsRefused: lambda e: self.params.refused(e.field, e.reason),
             ev.ShapesChanged: self._show_shapes,
             ev.StreamedChanged: self._show_streamed,
-            ev.RunsChanged: lambda e: self.results.show_runs(e.runs, e.newest),
+            ev.RunsChanged: self._show_runs,
             ev.ParamSetsChanged: lambda e: self.params.set_names(e.names),
             ev.LayoutChanged: self._new_run,
             ev.ObstaclesChanged: self._show_obstacles,
             ev.LiveSamples: self._show_live,
             ev.PosePreview: self._show_preview,
             ev.TransientLoaded: self._show_transient,
-            ev.PreviousLoaded: self._show_previous,
+            ev.ComparedLoaded: self.compare.apply,
+            ev.TrackLoaded: self.compare.apply,
             ev.DocFetched: self._show_doc,
             ev.SettingsChanged: self._settings_applied,
             ev.PlanChanged: self.commands.show_plan,
@@ -131,6 +137,7 @@ class ModelPage:
 
     def _state_shown(self, _event: ev.StateShown) -> None:
         self.show_editable()
+        self.compare.show_phase()
         self.trace.draw()  # a run that ended: its trace to its last sample
 
     def _show_shapes(self, event: ev.ShapesChanged) -> None:
@@ -151,6 +158,7 @@ class ModelPage:
     def _new_run(self, event: ev.LayoutChanged) -> None:
         layout = event.layout
         self.plots.new_run(f"{'replay' if layout.source == 'replay' else 'run'} {layout.run_id}")
+        self.compare.new_run()
         self.trace.clear()
         self._draw_obstacles()
 
@@ -204,41 +212,30 @@ class ModelPage:
         plot = self.plots.open(name, sorted(self.c.streamed | {name}))
         self.c.edits.ensure_streamed(name)
         if self.c.results.wants_full(name):
-            self.c.results.load_full(plot.number, [name], run_id=self.results.selected())
+            self.c.results.load_full(
+                plot.number, [name], run_id=self.results.selected(), compare=self.compare.compared()
+            )
+        else:
+            self.compare.refresh()
         return plot
 
     def _load_full(self, plot: Plot, t0: float | None, t1: float | None) -> None:
         run_id = self.results.selected()
-        with_prev = bool(plot.compare.value)
-        self.c.results.load_full(plot.number, list(plot.variables), t0, t1, run_id, with_prev)
-
-    def _overlay(self, plot: Plot, on: bool) -> None:
-        if not on:
-            plot.prev = None
-            plot.mark()
-            return
-        full = plot.full
-        current, t0, t1 = (full.run_id, full.t0, full.t1) if full else ("", None, None)  # the same window
-        self.c.results.load_previous(plot.number, list(plot.variables), current, t0, t1)
+        self.c.results.load_full(plot.number, list(plot.variables), t0, t1, run_id, self.compare.compared())
 
     def _show_transient(self, event: ev.TransientLoaded) -> None:
         plot = self.plots.get(event.plot)
         if plot is None:
             return
         plot.full = event.full
-        if event.with_prev:
-            plot.prev = event.prev
+        plot.others = event.others
         plot.folder.label = plot.title()
         plot.reset_zoom()  # the window asked for, not a drag-zoom of the data shown before
+        self.compare.show_cursor()
 
-    def _show_previous(self, event: ev.PreviousLoaded) -> None:
-        plot = self.plots.get(event.plot)
-        if plot is None:
-            return
-        plot.prev = event.prev
-        if event.prev is None and plot.compare.value:
-            plot.compare.value = False
-        plot.mark()
+    def _show_runs(self, event: ev.RunsChanged) -> None:
+        self.results.show_runs(event.runs, event.newest)
+        self.compare.show_runs(event.runs)
 
     # -- results -----------------------------------------------------------------------------------
     def _results_action(self, action: str, run_id: str) -> None:

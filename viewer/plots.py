@@ -1,6 +1,7 @@
 """Trend presentation (paper §3.2, footnote 3: several plots at once): uPlot charts of the live
-window, or of a run's full-resolution transient on request, with zoom and the previous run overlaid;
-the dock on the right that holds them. The data they draw are `series.py`'s, bounded there.
+window, or of a run's full-resolution transient on request, with zoom, the runs picked for comparison
+overlaid (compare.py) and the shared time cursor; the dock on the right that holds them. The data they
+draw are `series.py`'s, bounded there.
 """
 
 from __future__ import annotations
@@ -13,16 +14,27 @@ from typing import Any
 
 import numpy as np
 
-from .series import LiveBuffer, Transient, overlay
+from .series import LiveBuffer, Transient, overlay, with_cursor, y_range
 
 log = logging.getLogger("simecs.viewer")
 COLORS = ["#1f77b4", "#d62728", "#2ca02c", "#ff7f0e", "#9467bd", "#8c564b", "#e377c2", "#17becf"]
-#: The previous run's lines: each a lighter shade of its variable's colour, and dashed.
+#: A compared run's lines on a chart of several variables: a lighter shade of each variable's colour,
+#: dashed in the run's own pattern (on a chart of one variable each run takes a colour of its own).
 PREV_COLORS = ["#9ecae1", "#fc9272", "#a1d99b", "#fdae6b", "#bcbddc", "#c49c94", "#f7b6d2", "#9edae5"]
+DASHES = [[6, 4], [2, 3], [10, 3, 2, 3], [1, 5], [14, 4]]
+CURSOR = {"label": "cursor", "stroke": "#444444", "width": 1.0}
+
+
+def scales(y: tuple[float, float] | None) -> dict[str, Any]:
+    """A chart's scales: time on x; y fitted by uPlot, or the range given when a series has gaps."""
+    out: dict[str, Any] = {"x": {"time": False}}
+    if y is not None:
+        out["y"] = {"auto": False, "range": [y[0], y[1]]}
+    return out
 
 
 class Plot:
-    """One chart: some variables, live or at full resolution, optionally over the previous run."""
+    """One chart: some variables, live or at full resolution, over the runs picked for comparison."""
 
     def __init__(
         self,
@@ -39,7 +51,8 @@ class Plot:
         self.units = units
         self.actions = actions
         self.full: Transient | None = None  # set when the full resolution is loaded
-        self.prev: Transient | None = None  # set when "overlay previous run" is on and loaded
+        self.others: list[Transient] = []  # the compared runs, as loaded for this chart's variables
+        self.cursor: float | None = None  # the shared time cursor, s (None: not shown)
         self.dirty = True
         self.live_label = live_label  # the run the live window shows ("run r3", "replay r4")
         self.folder = gui.add_folder(self.title())
@@ -54,8 +67,6 @@ class Plot:
                 "Reset zoom", color="gray", hint="undo a drag-zoom: the whole window, axes fitted to the data"
             )
             reset.on_click(lambda _e: self.reset_zoom())
-            self.compare = gui.add_checkbox("Overlay previous run", False)
-            self.compare.on_update(self._compare)
             self.add_var = gui.add_dropdown(
                 "Add variable", ("—",), hint="variables with the same unit fit best"
             )
@@ -67,7 +78,7 @@ class Plot:
         return self.gui.add_uplot(
             (np.zeros(2), np.zeros(2)),
             ({"label": "t [s]"}, {"label": "…"}),
-            scales={"x": {"time": False}},
+            scales=scales(None),
             cursor={"drag": {"x": True, "y": False}},
             legend={"show": True},
             height=220,
@@ -110,10 +121,6 @@ class Plot:
             return
         self.actions.load_full(self, *window)
 
-    def _compare(self, event: Any) -> None:
-        if event.client is not None:
-            self.actions.overlay(self, bool(self.compare.value))
-
     def _add_variable(self, event: Any) -> None:
         if event.client is None:
             return
@@ -135,48 +142,55 @@ class Plot:
         if tuple(self.add_var.options) != options:
             self.add_var.options = options
 
-    def series(self, with_prev: bool) -> tuple[dict[str, Any], ...]:
+    def series(self) -> tuple[dict[str, Any], ...]:
         out: list[dict[str, Any]] = [{"label": "t [s]"}]
         for k, name in enumerate(self.variables):
             unit = self.units.get(name, "")
             label = f"{name} [{unit}]" if unit and unit != "-" else name
             out.append({"label": label, "stroke": COLORS[k % len(COLORS)], "width": 1.5})
-        if with_prev and self.prev is not None:
+        one = len(self.variables) == 1
+        for j, other in enumerate(self.others):
             for k, name in enumerate(self.variables):
+                colour = COLORS[(j + 1) % len(COLORS)] if one else PREV_COLORS[k % len(PREV_COLORS)]
                 out.append(
                     {
-                        "label": f"{name} ({self.prev.run_id})",
-                        "stroke": PREV_COLORS[k % len(PREV_COLORS)],
+                        "label": f"{name} ({other.run_id})",
+                        "stroke": colour,
                         "width": 1.0,
-                        "dash": [6, 4],
+                        "dash": DASHES[j % 5],
                     }
                 )
+        if self.cursor is not None:
+            out.append(CURSOR)
         return tuple(out)
 
     def redraw(self, live: LiveBuffer) -> None:
-        """Send the chart its data: live window, or the loaded transient; previous run overlaid."""
+        """Send the chart its data: live window, or the loaded transient; compared runs overlaid."""
         self.dirty = False
         if self.full is not None:
             t = self.full.t
             ys = [self.full.ys.get(v, np.zeros(len(t))) for v in self.variables]
         else:
             t, ys = live.window(self.variables, float(self.window.value))
-        with_prev = bool(self.compare.value) and self.prev is not None
-        if with_prev:
-            assert self.prev is not None
-            prev_ys = [self.prev.ys.get(v, np.zeros(len(self.prev.t))) for v in self.variables]
-            t, ys, prev = overlay(t, ys, self.prev.t, prev_ys)
-            ys = ys + prev
+        others = [(o.t, [o.ys.get(v, np.zeros(len(o.t))) for v in self.variables]) for o in self.others]
+        t, ys, compared = overlay(t, ys, others)
+        ys = ys + [y for run in compared for y in run]
         if len(t) < 2:  # uPlot needs two points to draw axes
             t = np.array([0.0, 1e-3]) if len(t) == 0 else np.array([t[0], t[0] + 1e-3])
             ys = [np.zeros(2) if len(y) == 0 else np.full(2, y[-1]) for y in ys]
-        series = self.series(with_prev)
+        if self.cursor is not None:
+            t, ys, line = with_cursor(np.asarray(t, dtype=float), ys, self.cursor)
+            ys = [*ys, line]
+        series = self.series()
         units = sorted({self.units.get(v, "") for v in self.variables} - {"", "-"})
         axes = ({"label": "time [s]"}, {"label": ", ".join(units)})
+        fixed = scales(y_range(ys))
         with self.actions.batch():
             if self.chart.series != series:
                 self.chart.series = series
                 self.chart.axes = axes
+            if self.chart.scales != fixed:
+                self.chart.scales = fixed
             self.chart.data = (np.asarray(t, dtype=float), *[np.asarray(y, dtype=float) for y in ys])
 
     def remove(self) -> None:
@@ -188,7 +202,6 @@ class PlotActions:
     """What a plot asks its tab to do (the session controller does the requests off-thread)."""
 
     load_full: Callable[[Plot, float | None, float | None], None]
-    overlay: Callable[[Plot, bool], None]
     close: Callable[[Plot], None]
     error: Callable[[str], None]
     added: Callable[[Plot, str], None]
@@ -251,6 +264,13 @@ class PlotDock:
             plot.full = None
             plot.folder.label = plot.title()
             plot.reset_zoom()
+
+    def set_cursor(self, at: float | None) -> None:
+        """The shared time cursor on every chart (None: hidden); drawn at the next redraw."""
+        for plot in self.plots.values():
+            if plot.cursor != at:
+                plot.cursor = at
+                plot.dirty = True
 
     def mark_all(self) -> None:
         for plot in self.plots.values():

@@ -1,6 +1,6 @@
 """A session's results as the tab fetches and saves them (paper §2.2 steps 9-11): full-resolution
-transients for the plots (zoom windows, the previous run for an overlay), CSV and MCAP downloads,
-and uploading a recording to replay it.
+transients for the plots (zoom windows, the runs compared with it), the poses a time cursor scrubs
+through, CSV and MCAP downloads, and uploading a recording to replay it.
 
 Part of the session controller: every method returns at once and does its requests on the
 controller's data worker; what it gets reaches the listeners as events.
@@ -8,6 +8,7 @@ controller's data worker; what it gets reaches the listeners as events.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
 from simecs.mesh import keys, phases
@@ -15,6 +16,7 @@ from simecs.mesh import messages as m
 from simecs.mesh.client import NoReply
 
 from . import events as ev
+from .compare import track_columns, track_every, track_of
 from .export import csv_name, to_csv, upload_name
 from .series import Transient, every_for, transient
 
@@ -46,7 +48,7 @@ class ResultsIO:
         live = stream is not None and stream.live.has(name)
         return bool(self.c.runs) and self.c.phase not in phases.UNDER_WAY and not live
 
-    # -- transients --------------------------------------------------------------------------------
+    # -- transients ---------------------------------------------------------------------------------
     def load_full(
         self,
         plot: int,
@@ -54,9 +56,10 @@ class ResultsIO:
         t0: float | None = None,
         t1: float | None = None,
         run_id: str = "",
-        with_prev: bool = False,
+        compare: Sequence[str] = (),
     ) -> None:
-        """Load `names` of run `run_id` (the newest if '') over [t0, t1] for plot `plot`."""
+        """Load `names` of run `run_id` (the newest if '') over [t0, t1] for plot `plot`, and of the
+        runs in `compare` over the same window."""
 
         def job() -> None:
             run = self.run(run_id)
@@ -66,44 +69,61 @@ class ResultsIO:
             if st is not None and st.run_id == run.run_id and st.phase in phases.UNDER_WAY:
                 raise ValueError("the run is still going on: full resolution is available once it ends")
             full = self._fetch(run, names, t0, t1)
-            prev = self._previous(run.run_id, names, t0, t1) if with_prev else None
-            self.c.emit(ev.TransientLoaded(plot, full, prev, with_prev))
+            others = self._compared([r for r in compare if r != run.run_id], names, t0, t1)
+            self.c.emit(ev.TransientLoaded(plot, full, others))
 
         self.c.submit("Full resolution", job, "io")
 
-    def load_previous(
-        self, plot: int, names: list[str], current: str, t0: float | None = None, t1: float | None = None
+    def load_compared(
+        self,
+        plot: int,
+        names: list[str],
+        compare: Sequence[str],
+        t0: float | None = None,
+        t1: float | None = None,
     ) -> None:
-        """The run before `current` (the shown run if ''), for plot `plot`'s overlay."""
+        """The runs in `compare` (their `names` over [t0, t1]) for plot `plot`'s overlay."""
 
         def job() -> None:
-            layout = self.c.stream.layout if self.c.stream is not None else None
-            prev = self._previous(current or (layout.run_id if layout else ""), names, t0, t1)
-            self.c.emit(ev.PreviousLoaded(plot, prev))
-            if prev is None:
-                raise ValueError("there is no previous run to compare with")
+            self.c.emit(ev.ComparedLoaded(plot, self._compared(compare, names, t0, t1)))
 
-        self.c.submit("Overlay", job, "io")
+        self.c.submit("Compare", job, "io")
 
-    def _previous(
-        self, current: str, names: list[str], t0: float | None, t1: float | None
-    ) -> Transient | None:
-        runs = self.c.runs
-        ids = [r.run_id for r in runs]
-        before = runs[: ids.index(current)] if current in ids else runs[:-1]
-        before = [r for r in before if r.phase in phases.ENDED]
-        return self._fetch(before[-1], names, t0, t1) if before else None
+    def load_track(self, run_id: str) -> None:
+        """What the time cursor needs of run `run_id`: its link poses and its context."""
+
+        def job() -> None:
+            run = self._ended(run_id)
+            sc, model = self.c.session, self.c.model
+            assert sc is not None and model is not None
+            att, rows = sc.results_of(run.run_id, track_columns(model), every=track_every(run.samples))
+            self.c.emit(ev.TrackLoaded(track_of(run.run_id, list(att.columns), rows, att.context)))
+
+        self.c.submit("Time cursor", job, "io")
+
+    def _ended(self, run_id: str) -> m.RunInfo:
+        run = next((r for r in self.c.runs if r.run_id == run_id), None)
+        if run is None:
+            raise ValueError(f"run {run_id} is no longer kept by the server (it keeps the last 10)")
+        if run.phase not in phases.ENDED:
+            raise ValueError(f"run {run_id} is still going on: compare it once it ends")
+        return run
+
+    def _compared(
+        self, compare: Sequence[str], names: list[str], t0: float | None, t1: float | None
+    ) -> list[Transient]:
+        return [self._fetch(self._ended(r), names, t0, t1) for r in compare]
 
     def _fetch(self, run: m.RunInfo, names: list[str], t0: float | None, t1: float | None) -> Transient:
         sc = self.c.session
         assert sc is not None
         every = every_for(run.samples, t0, t1, run.stop_time)
-        cols, rows = sc.results(run.run_id, names, t0, t1, every)
+        att, rows = sc.results_of(run.run_id, names, t0, t1, every)
         if every > 1:
             self.c.notify(
                 "Long run", f"Showing every {every}th sample of {run.run_id}; zoom in for full resolution."
             )
-        return transient(run.run_id, cols, rows, t0, t1, every)
+        return transient(run.run_id, list(att.columns), rows, t0, t1, every, att.context)
 
     # -- files -------------------------------------------------------------------------------------
     def download_csv(self, run_id: str, names: list[str] | None) -> None:

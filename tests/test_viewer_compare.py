@@ -1,0 +1,124 @@
+"""Runs compared in a real browser (Debian chromium + Playwright) on the real service (issue 12, runs
+compared for real): two runs of one session that differ in one gain; the later one's transient in a
+plot with the earlier one ticked beside it, what they differ in listed, and the time cursor posing
+the arm as the picked run was at that instant; an aborted run ticked too is drawn to where its data
+end, and the chart still draws (uPlot fits no axis over a gap).
+
+A screenshot goes to `artifacts/viewer/compare_*.png`.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+from simecs.testing import browser as chromium
+
+from .conftest import Mesh, start_service, wait_until
+from .test_viewer_browser import (
+    SHOTS,
+    SPIDER,
+    USER,
+    dismiss_notifications,
+    logs_on_failure,
+    model_shown,
+    new_page,
+    now_ms,
+    open_components,
+    poses_since,
+    sessions_of,
+    start_viewer,
+    text_appears,
+)
+
+GAIN = "joint1.ctrl.kp_pos"
+
+
+def charts(page: Any) -> list[dict[str, Any]]:
+    """Each chart as the page's uPlot holds it: its series' labels, the time of each series' last
+    drawn value, and its y range (null: uPlot could not fit one and draws nothing)."""
+    return list(
+        page.evaluate("""() => Object.values((window.__viserTestpoints || {}).uplots || {}).map((tp) => {
+  const u = tp.chart, xs = u.data[0];
+  const ends = u.data.slice(1).map((ys) => {
+    for (let i = ys.length - 1; i >= 0; i--) if (Number.isFinite(ys[i])) return xs[i];
+    return null;
+  });
+  return {labels: u.series.slice(1).map((s) => s.label), ends, y: [u.scales.y.min, u.scales.y.max]};
+})""")
+    )
+
+
+def test_two_runs_compared_with_a_time_cursor(mesh: Mesh, browser: Any) -> None:
+    with logs_on_failure(mesh, "viewer", "proxy"):
+        compare_walk(mesh, browser)
+
+
+def compare_walk(mesh: Mesh, browser: Any) -> None:
+    service = start_service(mesh)
+    url = start_viewer(mesh)
+    client = service.client
+    SHOTS.mkdir(parents=True, exist_ok=True)
+    page = new_page(browser.new_context(viewport={"width": 1600, "height": 900}), url)
+    page.get_by_role("button", name=SPIDER).click()
+    model_shown(page)
+    sid = wait_until(lambda: next(iter(sessions_of(client)), None), timeout=20, what="a session")
+    session = client.session(USER, sid)
+    # Two short runs of the same path; the second with a softer joint1 gain (the user's other client)
+    session.set_settings(stop_time=1.0, output_interval=0.002, pacing="fast")
+    session.set_joint_path([([0.8, 0.6, -0.7, 1.0, 0.9, -0.8, 1.2], 100.0, 100.0)])
+    kp = session.snapshot().values[GAIN]
+    session.set_settings(stop_time=1.0, output_interval=0.002, pacing="realtime")
+    assert session.run() == "r1"  # aborted a third of the way: compared, it ends where its data end
+    wait_until(lambda: session.snapshot().state.sim_time > 0.3, timeout=60, what="r1 under way")
+    session.abort()
+    aborted = session.wait_for(["aborted"], 30, "r1").sim_time
+    session.set_settings(stop_time=1.0, output_interval=0.002, pacing="fast")
+    for run_id in ("r2", "r3"):
+        if run_id == "r3":
+            session.set_params({GAIN: kp / 4})
+        assert session.run() == run_id
+        session.wait_for(["finished"], 120, run_id)
+    text_appears(page, "finished run r3", timeout=30)
+    dismiss_notifications(page)
+
+    # the later run's transient in a plot, with the earlier one ticked beside it
+    page.get_by_role("tab", name="Variables").click()
+    open_components(page)
+    page.get_by_text("joint1 (14)", exact=True).click()
+    page.get_by_role("button", name="joint1 (2 own)").click()
+    page.get_by_role("button", name="Plot q", exact=True).click()
+    text_appears(page, "Plot 1: joint1.q")
+    page.get_by_role("tab", name="Results").click()
+    page.get_by_role("button", name="Full resolution").first.click()
+    text_appears(page, "r3 full res")
+    page.get_by_label("r2 · finished", exact=False).check()
+    text_appears(page, "joint1.q (r2)")  # its legend entry: drawn beside r3
+    text_appears(page, GAIN)  # what the runs differ in
+    text_appears(page, f"{kp / 4:.6g}")
+    page.get_by_label("r1 · aborted", exact=False).check()
+    text_appears(page, "joint1.q (r1)")
+    chart = wait_until(lambda: next((c for c in charts(page) if len(c["labels"]) == 3), None), what="3 runs")
+    assert chart["y"][0] is not None and chart["y"][1] > chart["y"][0], chart  # drawn, not blank
+    ends = dict(zip(chart["labels"], chart["ends"], strict=True))
+    assert ends["joint1.q (r2)"] == ends["joint1.q [rad]"] == 1.0
+    assert abs(ends["joint1.q (r1)"] - aborted) < 0.01, (ends, aborted)  # not held flat to 1 s
+
+    # the time cursor: the arm is posed as r2 was at 0.5 s, and the values there are read
+    page.get_by_label("Time cursor").check()
+    box = chromium.slider_input(page, "Cursor [s]")
+    wait_until(lambda: not box.is_disabled(), timeout=20, what="the cursor enabled (the run's poses in)")
+    t = now_ms(page)
+    chromium.set_field(page, box, "0.5")
+    wait_until(lambda: poses_since(page, t) > 0, timeout=10, what="the arm posed at the cursor")
+    text_appears(page, "at 0.500 s")
+    _, rows = session.results("r3", ["joint1.q"], t0=0.5, t1=0.5)
+    assert rows.shape[0] == 1
+    text_appears(page, f"{rows[0, 1]:.6g}")  # r3's joint1.q at the cursor, as the server has it
+    chart = wait_until(
+        lambda: next((c for c in charts(page) if "cursor" in c["labels"]), None), what="cursor"
+    )
+    assert chart["y"][0] is not None, chart
+    assert abs(rows[0, 1]) > math.radians(1)  # the arm had moved: the pose shown is not the start
+    page.wait_for_timeout(1500)
+    page.screenshot(path=str(SHOTS / "compare_1600x900.png"))

@@ -1,0 +1,161 @@
+"""Runs compared (paper §3.2 trend presentation, issue 12 "runs compared for real"): what a shared
+time cursor shows of each run and how the runs differ. No widgets here (compare_panel.py draws them).
+
+A run is scrubbed from its `RunTrack`: the link poses the server computed, fetched once per run (at
+most `TRACK_POINTS` samples), so moving the cursor redraws the arm without asking the server again.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from simecs.mesh import columns
+from simecs.mesh import messages as m
+from simecs.mesh.model import ModelDescription
+
+from .markup import escape_html
+from .series import value_at
+
+TRACK_POINTS = 4000  # samples of a run's poses kept for scrubbing (about 1 ms apart over 5 s)
+MAX_DIFF_ROWS = 40  # parameters listed as differing at most (the rest are counted)
+
+
+@dataclass
+class RunTrack:
+    """A finished run's link poses over time, and the context it ran with."""
+
+    run_id: str
+    t: np.ndarray  # (n,) s
+    poses: np.ndarray  # (n, frames, 7): x y z qw qx qy qz per link frame
+    context: m.RunContext | None = None
+
+    @property
+    def end(self) -> float:
+        return float(self.t[-1]) if len(self.t) else 0.0
+
+    def at(self, time: float) -> np.ndarray | None:
+        """The poses of the sample nearest `time` (the server's own, never interpolated); None for a
+        run without samples."""
+        if not len(self.t):
+            return None
+        k = int(np.searchsorted(self.t, time))
+        if k >= len(self.t) or (k > 0 and time - self.t[k - 1] <= self.t[k] - time):
+            k -= 1
+        return np.asarray(self.poses[max(k, 0)])
+
+
+def track_columns(model: ModelDescription) -> list[str]:
+    """The columns a track is made of: every link frame's pose, in the scene's order."""
+    frames = columns.pose_frames(model)[: len(model.links)]
+    return [columns.pose_column(f, field) for f in frames for field in columns.POSE_FIELDS]
+
+
+def track_of(run_id: str, names: Sequence[str], rows: np.ndarray, context: m.RunContext | None) -> RunTrack:
+    """A results reply of `track_columns` (time first) as a track."""
+    frames = (len(names) - 1) // len(columns.POSE_FIELDS)
+    poses = np.asarray(rows[:, 1 : 1 + frames * len(columns.POSE_FIELDS)], dtype=float)
+    return RunTrack(
+        run_id, np.asarray(rows[:, 0], dtype=float), poses.reshape(len(rows), frames, -1), context
+    )
+
+
+def track_every(samples: int) -> int:
+    return max(1, math.ceil(samples / TRACK_POINTS))
+
+
+def _number(value: float | None, unit: str = "") -> str:
+    if value is None or not math.isfinite(value):
+        return "—"
+    text = f"{value:.6g}"
+    return f"{text} {unit}" if unit and unit != "-" else text
+
+
+def values_table(
+    at: float,
+    runs: dict[str, dict[str, tuple[np.ndarray, np.ndarray]]],
+    variables: Sequence[str],
+    units: dict[str, str],
+) -> str:
+    """Markdown: each plotted variable's value at the cursor, a column per run (run → variable →
+    (t, y) as the plots hold them); "—" where a run has no sample, e.g. after it ended."""
+    if not runs or not variables:
+        return "_Load a run's full resolution into a plot to read its values at the cursor._"
+    lines = [f"| at {at:.3f} s | " + " | ".join(runs) + " |", "|---|" + "---:|" * len(runs)]
+    for name in variables:
+        cells = [_number(value_at(*data[name], at) if name in data else None) for data in runs.values()]
+        unit = units.get(name, "")
+        label = f"{name} [{unit}]" if unit and unit != "-" else name
+        lines.append(f"| {escape_html(label)} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def differences(contexts: dict[str, m.RunContext | None], model: ModelDescription) -> str:
+    """Markdown: what differs between the runs' contexts (parameters, initial pose, command, settings,
+    obstacles), a column per run; says so when they ran with the same inputs."""
+    runs = list(contexts)
+    if len(runs) < 2:
+        return "_Pick a run to compare with: its differences from the shown run are listed here._"
+    missing = [r for r, ctx in contexts.items() if ctx is None]
+    if missing:
+        return f"_Not known what produced {', '.join(missing)} (kept from an older server)._"
+    ctxs = [c for c in contexts.values() if c is not None]
+    units = {p.name: p.unit for p in model.parameters}
+    head = "| differs | " + " | ".join(runs) + " |"
+    lines = [head, "|---|" + "---:|" * len(runs)]
+    names = sorted({n for c in ctxs for n in c.values})
+    rows = 0
+    for name in names:
+        vals = [c.values.get(name) for c in ctxs]
+        if _same_numbers(vals):
+            continue
+        rows += 1
+        if rows <= MAX_DIFF_ROWS:
+            row = " | ".join(_number(v, units.get(name, "")) for v in vals)
+            lines.append(f"| {escape_html(name)} | {row} |")
+    if rows > MAX_DIFF_ROWS:
+        lines.append(f"| … {rows - MAX_DIFF_ROWS} more parameters | " + " | ".join("" for _ in runs) + " |")
+    if not _same_numbers_lists([list(c.initial) for c in ctxs]):
+        deg = [" ".join(f"{math.degrees(q):.1f}" for q in c.initial) for c in ctxs]
+        lines.append("| initial pose [deg] | " + " | ".join(deg) + " |")
+    for label, value in (
+        ("stop time [s]", lambda c: f"{c.settings.stop_time:g}"),
+        ("control system", lambda c: c.settings.control_system),
+        ("pacing", lambda c: c.settings.pacing),
+        ("obstacles", lambda c: str(len(c.obstacles))),
+        ("replay of", lambda c: c.recording or "—"),
+    ):
+        cells = [value(c) for c in ctxs]
+        if len(set(cells)) > 1:
+            lines.append(f"| {label} | " + " | ".join(escape_html(x) for x in cells) + " |")
+    commands = [c.command for c in ctxs]
+    if any(x != commands[0] for x in commands):
+        labels = [_command_label(x) for x in commands]
+        mark = "" if len(set(labels)) > 1 else " · edited"  # same kind and size, other targets
+        lines.append("| command | " + " | ".join(escape_html(x) + mark for x in labels) + " |")
+    if len(lines) == 2:
+        return f"_{', '.join(runs)} ran with the same parameters, initial pose, command and settings._"
+    return "\n".join(lines)
+
+
+def _same_numbers(vals: Sequence[float | None]) -> bool:
+    first = vals[0]
+    return all(
+        (v is None and first is None)
+        or (v is not None and first is not None and math.isclose(v, first, rel_tol=1e-12, abs_tol=0.0))
+        for v in vals
+    )
+
+
+def _same_numbers_lists(lists: Sequence[list[float]]) -> bool:
+    return all(len(x) == len(lists[0]) and np.allclose(x, lists[0], rtol=1e-12, atol=1e-12) for x in lists)
+
+
+def _command_label(command: m.RobotCommand | None) -> str:
+    if command is None:
+        return "none"
+    kind = type(command).__name__
+    nodes = getattr(command, "nodes", None)
+    return f"{kind} ({len(nodes)} nodes)" if isinstance(nodes, list) else kind

@@ -1,0 +1,223 @@
+"""The "Compare runs" folder of the Results tab (issue 12, runs compared for real): tick any kept runs
+of the session (replays of recordings are runs too) to draw them in every plot, each to its own end;
+move one time cursor across every plot while the arm shows the chosen run at that instant; read the
+values at the cursor and what the runs differ in.
+
+The run compared against is the one the Results tab has picked (what "Full resolution" loads).
+Requests go through the session controller (`results_io.py`); their answers come back as
+`ComparedLoaded` and `TrackLoaded` events.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import numpy as np
+from simecs.mesh import messages as m
+from simecs.mesh import phases
+
+from . import events as ev
+from .compare import RunTrack, differences, values_table
+from .plots import PlotDock
+from .results import run_label
+from .scene import ArmScene
+from .session import SessionController
+
+MAX_COMPARED = 5  # runs drawn beside the shown one (each a dash pattern of its own)
+NO_RUN = "—"
+
+
+class ComparePanel:
+    """Which runs are compared, the shared time cursor, and what it reads."""
+
+    def __init__(
+        self,
+        gui: Any,
+        controller: SessionController,
+        plots: PlotDock,
+        scene: ArmScene,
+        shown: Callable[[], str],
+    ) -> None:
+        self.gui = gui
+        self.c = controller
+        self.plots = plots
+        self.scene = scene
+        self.shown = shown  # the run the Results tab picked ('' before any run)
+        self.tracks: dict[str, RunTrack] = {}
+        self.asked: set[str] = set()  # tracks asked for (once each: a few MB)
+        self.boxes: dict[str, Any] = {}
+        self.folder = gui.add_folder("Compare runs")
+        with self.folder:
+            gui.add_markdown(
+                "Tick runs to draw them in every plot beside the picked run, each to its own end. "
+                "The **time cursor** moves across every plot and poses the arm as the chosen run was then."
+            )
+            self.box_folder = gui.add_folder("Runs to compare")
+            self.cursor_on = gui.add_checkbox(
+                "Time cursor", False, hint="a finished run only: the arm shows that run at the cursor"
+            )
+            self.cursor_on.on_update(self._cursor_toggled)
+            self.cursor = gui.add_slider("Cursor [s]", min=0.0, max=1.0, step=0.001, initial_value=0.0)
+            self.cursor.on_update(lambda _e: self.show_cursor())
+            self.follow = gui.add_dropdown(
+                "Arm shows", (NO_RUN,), hint="whose pose the arm takes at the cursor"
+            )
+            self.follow.on_update(self._follow_changed)
+            self.values = gui.add_markdown("")
+            self.diff = gui.add_markdown("")
+        self._show_cursor_widgets()
+
+    # -- which runs ----------------------------------------------------------------------------------
+    def compared(self) -> list[str]:
+        """The ticked runs other than the shown one, oldest first."""
+        shown = self.shown()
+        return [r for r, box in self.boxes.items() if box.value and r != shown][:MAX_COMPARED]
+
+    def show_runs(self, runs: Sequence[m.RunInfo]) -> None:
+        """Boxes for the ended runs the server keeps (a run going on is compared once it ends)."""
+        ended = {r.run_id: r for r in runs if r.phase in phases.ENDED}
+        for run_id in [r for r in self.boxes if r not in ended]:
+            self.boxes.pop(run_id).remove()
+            self.tracks.pop(run_id, None)
+            self.asked.discard(run_id)
+        for run_id, info in ended.items():
+            if run_id in self.boxes:
+                self.boxes[run_id].label = run_label(info)
+                continue
+            with self.box_folder:
+                box = self.gui.add_checkbox(run_label(info), False)
+            box.on_update(self._ticked)
+            self.boxes[run_id] = box
+        if not ended:
+            self.values.content = "_No finished run yet: runs are compared once they end._"
+        self.refresh()
+
+    def _ticked(self, event: Any) -> None:
+        if event.client is None:
+            return
+        if len([b for b in self.boxes.values() if b.value]) > MAX_COMPARED + 1:
+            event.target.value = False
+            self.c.notify("Compare", f"At most {MAX_COMPARED} runs beside the picked one.", "warning")
+            return
+        self.refresh()
+
+    def refresh(self) -> None:
+        """Load what the plots and the cursor need of the runs now compared (the shown one too)."""
+        compare = self.compared()
+        for plot in self.plots.plots.values():
+            have = [o.run_id for o in plot.others]
+            if have == compare and all(v in o.ys for o in plot.others for v in plot.variables):
+                continue
+            if not compare:
+                plot.others = []
+                plot.mark()
+            elif plot.full is not None:
+                self.c.results.load_compared(
+                    plot.number, list(plot.variables), compare, plot.full.t0, plot.full.t1
+                )
+            else:
+                self.c.results.load_compared(plot.number, list(plot.variables), compare)
+        if compare or self.cursor_on.value:  # a track is a few MB: fetched when it is used
+            for run_id in [self.shown(), *compare]:
+                if run_id and run_id in self.boxes and run_id not in {*self.tracks, *self.asked}:
+                    self.asked.add(run_id)
+                    self.c.results.load_track(run_id)
+        self._show_cursor_widgets()
+
+    # -- events --------------------------------------------------------------------------------------
+    def apply(self, event: ev.Event) -> None:
+        if isinstance(event, ev.ComparedLoaded):
+            plot = self.plots.get(event.plot)
+            if plot is not None:
+                plot.others = event.others
+                plot.mark()
+            self.show_cursor()
+        elif isinstance(event, ev.TrackLoaded):
+            self.tracks[event.track.run_id] = event.track
+            self._show_cursor_widgets()
+
+    def new_run(self) -> None:
+        """A run starts: the arm is the live one's again, the cursor goes."""
+        if self.cursor_on.value:
+            self.cursor_on.value = False
+        self.plots.set_cursor(None)
+        self._show_cursor_widgets()
+
+    def show_phase(self) -> None:
+        """The cursor poses the arm: not while a run moves it."""
+        busy = self.c.phase in phases.UNDER_WAY
+        self.cursor_on.disabled = busy
+        if busy and self.cursor_on.value:
+            self.cursor_on.value = False
+            self.plots.set_cursor(None)
+        self._show_cursor_widgets()
+
+    # -- the cursor ----------------------------------------------------------------------------------
+    def _runs_in_view(self) -> list[str]:
+        shown = self.shown()
+        return [r for r in [shown, *self.compared()] if r]
+
+    def _show_cursor_widgets(self) -> None:
+        runs = [r for r in self._runs_in_view() if r in self.tracks]
+        options = tuple(runs) or (NO_RUN,)
+        if tuple(self.follow.options) != options:
+            keep = self.follow.value
+            self.follow.options = options
+            self.follow.value = keep if keep in options else options[0]
+        end = max((self.tracks[r].end for r in runs), default=0.0)
+        if end > 0 and abs(float(self.cursor.max) - end) > 1e-9:
+            self.cursor.max = end
+            if float(self.cursor.value) > end:
+                self.cursor.value = end
+        on = bool(self.cursor_on.value)
+        self.cursor.disabled = not on or not runs
+        self.follow.disabled = not on or not runs
+        contexts = {r: self.tracks[r].context for r in runs}
+        self.diff.content = differences(contexts, self.c.model) if self.c.model is not None else ""
+
+    def _cursor_toggled(self, event: Any) -> None:
+        if event.client is None:
+            return
+        if self.cursor_on.value and not [r for r in self._runs_in_view() if r in self.boxes]:
+            self.c.notify("Time cursor", "No finished run to scrub yet: run a simulation first.", "warning")
+        self.asked &= set(self.tracks)  # a track that never came (a failed request) is asked again
+        self.refresh()
+        self.show_cursor()
+
+    def _follow_changed(self, event: Any) -> None:
+        if event.client is not None:
+            self.show_cursor()
+
+    def show_cursor(self) -> None:
+        """Cursor on: every plot marks it, the arm takes the followed run's pose, values are read."""
+        if not self.cursor_on.value:
+            self.plots.set_cursor(None)
+            return
+        at = float(self.cursor.value)
+        self.plots.set_cursor(at)
+        track = self.tracks.get(str(self.follow.value))
+        poses = track.at(at) if track is not None else None
+        if poses is not None:
+            self.scene.apply_poses(poses)
+        self.values.content = values_table(at, self._series(), self._variables(), self.plots.units)
+
+    def _variables(self) -> list[str]:
+        seen: list[str] = []
+        for plot in self.plots.plots.values():
+            seen += [v for v in plot.variables if v not in seen]
+        return seen
+
+    def _series(self) -> dict[str, dict[str, tuple[np.ndarray, np.ndarray]]]:
+        """Each run's data as the plots hold it: run → variable → (t, y)."""
+        out: dict[str, dict[str, tuple[np.ndarray, np.ndarray]]] = {}
+        for plot in self.plots.plots.values():
+            loaded = ([plot.full] if plot.full is not None else []) + plot.others
+            for tr in loaded:
+                for name, y in tr.ys.items():
+                    out.setdefault(tr.run_id, {})[name] = (tr.t, y)
+        order = self._runs_in_view()
+        return {r: out[r] for r in [*order, *[r for r in out if r not in order]] if r in out}
+
+    def remove(self) -> None:
+        self.folder.remove()
