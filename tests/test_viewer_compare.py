@@ -120,5 +120,10 @@ def compare_walk(mesh: Mesh, browser: Any) -> None:
     )
     assert chart["y"][0] is not None, chart
     assert abs(rows[0, 1]) > math.radians(1)  # the arm had moved: the pose shown is not the start
-    page.wait_for_timeout(1500)
+    # angles in degrees, chosen once in the plots dock: the plot and the values at the cursor follow
+    page.get_by_label("Angles in").click()
+    page.get_by_role("option", name="deg", exact=True).click()
+    text_appears(page, "joint1.q [deg]")
+    text_appears(page, f"{math.degrees(rows[0, 1]):.6g}")
+    page.wait_for_timeout(1500)  # the chart redrawn in its new range
     page.screenshot(path=str(SHOTS / "compare_1600x900.png"))

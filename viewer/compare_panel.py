@@ -18,6 +18,7 @@ from simecs.mesh import messages as m
 from simecs.mesh import phases
 
 from . import events as ev
+from . import units
 from .compare import RunTrack, differences, values_table
 from .plots import PlotDock
 from .results import run_label
@@ -200,7 +201,9 @@ class ComparePanel:
         poses = track.at(at) if track is not None else None
         if poses is not None:
             self.scene.apply_poses(poses)
-        self.values.content = values_table(at, self._series(), self._variables(), self.plots.units)
+        names = self._variables()
+        shown = {v: units.shown(self.plots.units.get(v, ""), self.plots.angles)[0] for v in names}
+        self.values.content = values_table(at, self._series(), names, shown)
 
     def _variables(self) -> list[str]:
         seen: list[str] = []
@@ -209,13 +212,14 @@ class ComparePanel:
         return seen
 
     def _series(self) -> dict[str, dict[str, tuple[np.ndarray, np.ndarray]]]:
-        """Each run's data as the plots hold it: run → variable → (t, y)."""
+        """Each run's data as the plots hold it, in the units they show: run → variable → (t, y)."""
         out: dict[str, dict[str, tuple[np.ndarray, np.ndarray]]] = {}
         for plot in self.plots.plots.values():
             loaded = ([plot.full] if plot.full is not None else []) + plot.others
             for tr in loaded:
                 for name, y in tr.ys.items():
-                    out.setdefault(tr.run_id, {})[name] = (tr.t, y)
+                    factor = units.shown(self.plots.units.get(name, ""), self.plots.angles)[1]
+                    out.setdefault(tr.run_id, {})[name] = (tr.t, y * factor)
         order = self._runs_in_view()
         return {r: out[r] for r in [*order, *[r for r in out if r not in order]] if r in out}
 

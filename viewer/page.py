@@ -60,8 +60,15 @@ class ModelPage:
         self.handles += [self.header, tabs]
         with tabs.add_tab("Parameters"):
             self.params = ParamPanel(
-                gui, model, c.values, c.edits.set_params, c.edits.reset_params, c.edits.param_set
+                gui,
+                model,
+                c.values,
+                c.edits.set_params,
+                c.edits.reset_params,
+                c.edits.param_set,
+                c.edits.undo_params,
             )
+            self.params.show_undo(c.edits.undo_what())
         with tabs.add_tab("Variables"):
             self.variables = VariablePanel(gui, model, c.streamed, self._set_streamed, self.open_plot)
         results_tab = tabs.add_tab("Results")
@@ -94,6 +101,7 @@ class ModelPage:
             self.compare = ComparePanel(gui, c, self.plots, self.scene, self.results.selected)
             self.compare.show_runs(c.runs)
         self.results.runs.on_update(lambda _e: self.compare.refresh())
+        self.plots.on_angles = lambda _a: self.compare.show_cursor()
         self._apply: dict[type, Callable[[Any], None]] = {
             ev.ValuesChanged: lambda e: self.params.show_values(e.values),
             ev.ParamsRefused: lambda e: self.params.refused(e.field, e.reason),
@@ -101,6 +109,7 @@ class ModelPage:
             ev.StreamedChanged: self._show_streamed,
             ev.RunsChanged: self._show_runs,
             ev.ParamSetsChanged: lambda e: self.params.set_names(e.names),
+            ev.UndoChanged: lambda e: self.params.show_undo(e.what),
             ev.LayoutChanged: self._new_run,
             ev.ObstaclesChanged: self._show_obstacles,
             ev.LiveSamples: self._show_live,
@@ -180,6 +189,7 @@ class ModelPage:
             "camera": pose.to_obj() if pose is not None else None,
             "plots": [list(p.variables) for p in self.plots.plots.values()],
             "component": self.params.tree.picked,
+            "angles": self.plots.angles,
         }
 
     def restore(self, view: dict[str, Any]) -> None:
@@ -196,6 +206,8 @@ class ModelPage:
                 plot = self.open_plot(names[0])
                 for name in names[1:]:
                     plot.add(name)
+        if isinstance(view.get("angles"), str):
+            self.plots.set_angles(view["angles"])  # checked against units.ANGLES there
         if isinstance(view.get("component"), str):
             self.params.show_path(view["component"])
 

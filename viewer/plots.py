@@ -14,6 +14,7 @@ from typing import Any
 
 import numpy as np
 
+from . import units as unit_choice
 from .series import LiveBuffer, Transient, overlay, with_cursor, y_range
 
 log = logging.getLogger("simecs.viewer")
@@ -53,6 +54,7 @@ class Plot:
         self.full: Transient | None = None  # set when the full resolution is loaded
         self.others: list[Transient] = []  # the compared runs, as loaded for this chart's variables
         self.cursor: float | None = None  # the shared time cursor, s (None: not shown)
+        self.angles = "rad"  # what angles are shown in (the plots dock's choice, units.py)
         self.dirty = True
         self.live_label = live_label  # the run the live window shows ("run r3", "replay r4")
         self.folder = gui.add_folder(self.title())
@@ -142,10 +144,14 @@ class Plot:
         if tuple(self.add_var.options) != options:
             self.add_var.options = options
 
+    def unit_of(self, name: str) -> tuple[str, float]:
+        """The unit `name` is drawn in and the factor from the server's value (units.py)."""
+        return unit_choice.shown(self.units.get(name, ""), self.angles)
+
     def series(self) -> tuple[dict[str, Any], ...]:
         out: list[dict[str, Any]] = [{"label": "t [s]"}]
         for k, name in enumerate(self.variables):
-            unit = self.units.get(name, "")
+            unit = self.unit_of(name)[0]
             label = f"{name} [{unit}]" if unit and unit != "-" else name
             out.append({"label": label, "stroke": COLORS[k % len(COLORS)], "width": 1.5})
         one = len(self.variables) == 1
@@ -173,6 +179,9 @@ class Plot:
         else:
             t, ys = live.window(self.variables, float(self.window.value))
         others = [(o.t, [o.ys.get(v, np.zeros(len(o.t))) for v in self.variables]) for o in self.others]
+        factors = [self.unit_of(v)[1] for v in self.variables]
+        ys = [y * f for y, f in zip(ys, factors, strict=True)]
+        others = [(t_o, [y * f for y, f in zip(ys_o, factors, strict=True)]) for t_o, ys_o in others]
         t, ys, compared = overlay(t, ys, others)
         ys = ys + [y for run in compared for y in run]
         if len(t) < 2:  # uPlot needs two points to draw axes
@@ -182,7 +191,7 @@ class Plot:
             t, ys, line = with_cursor(np.asarray(t, dtype=float), ys, self.cursor)
             ys = [*ys, line]
         series = self.series()
-        units = sorted({self.units.get(v, "") for v in self.variables} - {"", "-"})
+        units = sorted({self.unit_of(v)[0] for v in self.variables} - {"", "-"})
         axes = ({"label": "time [s]"}, {"label": ", ".join(units)})
         fixed = scales(y_range(ys))
         with self.actions.batch():
@@ -223,6 +232,9 @@ class PlotDock:
         self.actions = actions
         self.plots: dict[int, Plot] = {}
         self.live_label = ""  # the run shown live, named in each plot's title
+        self.angles = "rad"  # angles shown in rad or deg: one choice for every plot (units.py)
+        self.on_angles: Callable[[str], None] = lambda _a: None
+        self.angle_choice: Any = None  # the dropdown, while the dock is shown
         self.counter = 0
         self.panel: Any = None
         self.tab: Any = None
@@ -231,10 +243,19 @@ class PlotDock:
         if self.panel is None:
             self.panel = self.gui.add_panel()
             self.tab = self.panel.add_tab("Plots")
+            with self.tab:
+                self.angle_choice = self.gui.add_dropdown(
+                    "Angles in",
+                    unit_choice.ANGLES,
+                    initial_value=self.angles,
+                    hint="every plot and the cursor",
+                )
+                self.angle_choice.on_update(lambda e: self.set_angles(str(e.target.value)))
             self.place(self.panel)
         self.counter += 1
         with self.tab:
             plot = Plot(self.gui, self.counter, [name], self.units, self.actions, self.live_label)
+            plot.angles = self.angles
         self.plots[plot.number] = plot
         self.set_choices(choices)
         return plot
@@ -244,7 +265,7 @@ class PlotDock:
         self.plots.pop(plot.number, None)
         if not self.plots and self.panel is not None:
             self.panel.remove()
-            self.panel, self.tab = None, None
+            self.panel, self.tab, self.angle_choice = None, None, None
 
     def get(self, number: int) -> Plot | None:
         return self.plots.get(number)
@@ -264,6 +285,18 @@ class PlotDock:
             plot.full = None
             plot.folder.label = plot.title()
             plot.reset_zoom()
+
+    def set_angles(self, angles: str) -> None:
+        """Angles in rad or deg on every plot (and the values read at the cursor)."""
+        if angles not in unit_choice.ANGLES or angles == self.angles:
+            return
+        self.angles = angles
+        if self.angle_choice is not None and self.angle_choice.value != angles:
+            self.angle_choice.value = angles
+        for plot in self.plots.values():
+            plot.angles = angles
+            plot.dirty = True
+        self.on_angles(angles)
 
     def set_cursor(self, at: float | None) -> None:
         """The shared time cursor on every chart (None: hidden); drawn at the next redraw."""

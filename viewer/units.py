@@ -1,0 +1,21 @@
+"""Angles in degrees or radians, chosen once per tab (issue 12: "units (deg/rad) chosen once").
+
+The server's variables are SI (rad, rad/s); the pendants take degrees. The plots and the values read
+at the time cursor show angles in what the user picked in the plots dock; the tab remembers it over
+reloads. Parameters, CSV files and recordings stay SI: they are what the server stores.
+"""
+
+from __future__ import annotations
+
+import math
+
+ANGLES = ("rad", "deg")
+#: An angular unit and its counterpart in degrees.
+_IN_DEGREES = {"rad": "deg", "rad/s": "deg/s", "rad/s^2": "deg/s^2"}
+
+
+def shown(unit: str, angles: str) -> tuple[str, float]:
+    """The unit a value of `unit` is shown in, and the factor from the server's value to it."""
+    if angles == "deg" and unit in _IN_DEGREES:
+        return _IN_DEGREES[unit], 180.0 / math.pi
+    return unit, 1.0
