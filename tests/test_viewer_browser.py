@@ -313,6 +313,12 @@ def test_a_value_typed_key_by_key_is_stored_exactly_when_applied(mesh: Mesh, bro
         wait_until(lambda: page.get_by_label("J_rotor [kg*m^2] •", exact=True).count() == 1, what="applied")
         assert field.input_value() == "0.00008"
         page.screenshot(path=str(ARTIFACTS / "viewer_param_applied.png"))
+        # Undo puts back what the change replaced, on the server and in the field
+        page.get_by_role("button", name="Undo last change").click()
+        wait_until(
+            lambda: session.snapshot().values["joint3.motor.J_rotor"] == 6e-5, timeout=10, what="6e-5 back"
+        )
+        wait_until(lambda: float(field.input_value()) == 6e-5, timeout=10, what="the field back to 6e-5")
         context.close()
 
 

@@ -1508,6 +1508,31 @@ def test_full_resolution_overlay_and_downloads() -> None:
     assert mcap.filename == f"{keys.recording_name(sc.id, 'r1')}.mcap" and mcap.data.startswith(b"\x89MCAP")
 
 
+def test_undo_puts_back_what_the_last_change_of_values_replaced() -> None:
+    ctl, sc, got = attached()
+    name, other = ctl.model.parameters[0].name, ctl.model.parameters[1].name
+    old, old_other = ctl.values[name], ctl.values[other]
+    assert ctl.edits.undo_what() == ""
+    ctl.edits.set_params({name: old * 2})
+    ctl.drain()
+    assert got.of(events.UndoChanged)[-1].what == f"{name} back to {old:g}"
+    ctl.edits.set_params({name: old * 3, other: old_other * 0.9})
+    ctl.drain()
+    assert ctl.edits.undo_what() == "2 parameters back to their values before the last change"
+    ctl.edits.undo_params()
+    ctl.drain()
+    assert sc.of(m.SetParams)[-1].values == {name: old * 2, other: old_other}
+    assert ctl.values[name] == old * 2 and got.of(events.Notice)[-1].title == "Undone"
+    ctl.edits.undo_params()
+    ctl.drain()
+    assert ctl.values[name] == old and ctl.edits.undo_what() == ""
+    assert got.of(events.UndoChanged)[-1].what == ""
+    ctl.edits.undo_params()  # nothing left: said, nothing sent
+    ctl.drain()
+    assert "no change of parameter values to undo" in got.of(events.Notice)[-1].body
+    assert len(sc.of(m.SetParams)) == 4
+
+
 def test_documentation_pages_not_carried_are_fetched_off_thread() -> None:
     ctl, sc, got = attached()
     ctl.fetch_doc("arm.motor")
@@ -1659,6 +1684,17 @@ def test_runs_compared_on_every_plot_with_a_time_cursor_that_poses_the_arm(serve
         assert "| joint1.q [rad] | 0.5 | 0.5 | 0.5 |" in cmp.values.content
         plot.redraw(ctl.stream.live)
         assert plot.chart.series[-1]["label"] == "cursor"
+        # angles in degrees, chosen once: every plot and the values read at the cursor; remembered
+        page.plots.angle_choice.value = "deg"
+        assert (
+            plot.angles == "deg" and "| joint1.q [deg] | 28.6479 | 28.6479 | 28.6479 |" in cmp.values.content
+        )
+        plot.redraw(ctl.stream.live)
+        assert plot.chart.series[1]["label"] == "joint1.q [deg]" and plot.chart.axes[1]["label"] == "deg"
+        assert max(plot.chart.data[1]) == pytest.approx(math.degrees(1.0))
+        assert page.view_state()["angles"] == "deg"
+        page.plots.set_angles("grad")  # a reload's memory is the browser's: only known choices are taken
+        assert page.plots.angles == "deg"
         # a new run takes the arm back: the cursor goes
         sc.watched["on_state"](state(sc, "running", "r4", seq=20))
         assert cmp.cursor_on.disabled and not cmp.cursor_on.value and plot.cursor is None

@@ -30,6 +30,17 @@ SYNC_DELAY_S = 0.25  # an edit is sent once the user paused this long (sliders f
 DEBOUNCED = ("initial", "command", "settings")
 
 
+UNDO_DEPTH = 20  # changes of parameter values that can be undone, one after the other
+
+
+def undo_label(before: dict[str, float]) -> str:
+    """What undoing a change puts back, as the button's hint and the notice say it."""
+    if len(before) == 1:
+        name, value = next(iter(before.items()))
+        return f"{name} back to {value:g}"
+    return f"{len(before)} parameters back to their values before the last change"
+
+
 class Edits:
     """Sending one controller's edits."""
 
@@ -42,6 +53,8 @@ class Edits:
         self.refused = ""  # why the server refused the path last sent ('' when it took it)
         self._in_flight = False  # a dragged command is being sent
         self._again = False  # and it moved since: send once more
+        #: What the user's last changes of parameter values replaced (newest last): Undo puts it back.
+        self.undo_stack: list[dict[str, float]] = []
 
     def command(self, cmd: Any) -> Any:
         """Send a session command after the local phase check (the server checks again)."""
@@ -77,6 +90,7 @@ class Edits:
             c.emit(ev.ShapesChanged({**c.values, **{k: float(v) for k, v in changes.items()}}))
 
         def job() -> None:
+            before = dict(c.values)  # the session's stream may bring the new values before the reply
             try:
                 values = sc.command(m.SetParams({k: float(v) for k, v in changes.items()}))
             except (RemoteError, NoReply) as exc:
@@ -85,13 +99,48 @@ class Edits:
                     c.emit(ev.ParamsRefused(exc.field.removeprefix("values."), exc.error.message))
                 c.fail(f"{what} not changed", exc)
                 return
+            self._replaced(before, values)
             self.show_values(values)
 
         c.submit(f"{what} not changed", job)
 
+    def undo_params(self) -> None:
+        """Put back the values the user's last change (applied edits, a reset, a loaded set) replaced."""
+        c = self.c
+
+        def job() -> None:
+            if not self.undo_stack:
+                raise ValueError("no change of parameter values to undo")
+            before = self.undo_stack[-1]
+            values = self.command(m.SetParams(dict(before)))
+            self.undo_stack.pop()
+            self.show_values(values)
+            self._undo_shown()
+            c.notify("Undone", undo_label(before), "ok")
+
+        c.submit("Undo refused", job)
+
+    def _replaced(self, before: dict[str, float], values: dict[str, float]) -> None:
+        """The server took a change of the user's (`before` the values when it was sent): keep what
+        it replaced for Undo."""
+        replaced = {k: v for k, v in before.items() if k in values and values[k] != v}
+        if replaced:
+            self.undo_stack = [*self.undo_stack, replaced][-UNDO_DEPTH:]
+            self._undo_shown()
+
+    def undo_what(self) -> str:
+        """What Undo would put back now ('' when there is nothing to undo)."""
+        return undo_label(self.undo_stack[-1]) if self.undo_stack else ""
+
+    def _undo_shown(self) -> None:
+        self.c.emit(ev.UndoChanged(self.undo_what()))
+
     def reset_params(self, names: list[str]) -> None:
         def job() -> None:
-            self.show_values(self.command(m.ResetParams(list(names))))
+            before = dict(self.c.values)
+            values = self.command(m.ResetParams(list(names)))
+            self._replaced(before, values)
+            self.show_values(values)
             self.c.notify("Parameters", f"{len(names) or 'All'} parameter(s) back to their defaults.", "ok")
 
         self.c.submit("Reset refused", job)
@@ -107,7 +156,10 @@ class Edits:
                 self.command(m.SaveParamSet(name))
                 c.notify("Parameter set saved", f"Saved **{name}**.", "ok")
             elif op == "load":
-                self.show_values(self.command(m.LoadParamSet(name)))
+                before = dict(c.values)
+                values = self.command(m.LoadParamSet(name))
+                self._replaced(before, values)
+                self.show_values(values)
                 c.notify("Parameter set loaded", f"Loaded **{name}**.", "ok")
             elif op == "delete":
                 self.command(m.DeleteParamSet(name))

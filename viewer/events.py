@@ -175,6 +175,13 @@ class PosePreview:
 
 
 @dataclass
+class UndoChanged:
+    """What Undo would put back now ('' when the user changed no parameter value yet)."""
+
+    what: str
+
+
+@dataclass
 class TransientLoaded:
     """Full-resolution data for plot `plot`, with the compared runs' over the same window."""
 
@@ -236,6 +243,7 @@ Event = (
     | PosePreview
     | TransientLoaded
     | ComparedLoaded
+    | UndoChanged
     | TrackLoaded
     | DocFetched
     | Download

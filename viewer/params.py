@@ -65,6 +65,7 @@ class ParamPanel:
         on_apply: Callable[[dict[str, float]], None],
         on_reset: Callable[[list[str]], None],
         on_set_op: Callable[[str, str], None],
+        on_undo: Callable[[], None] = lambda: None,
     ) -> None:
         self.gui = gui
         self.model = model
@@ -98,6 +99,8 @@ class ParamPanel:
         self.apply.on_click(lambda _e: self._apply())
         self.discard = gui.add_button("Discard edits", disabled=True, hint="back to the stored values")
         self.discard.on_click(lambda _e: self._discard())
+        self.undo = gui.add_button("Undo last change", disabled=True, hint="no change of values yet")
+        self.undo.on_click(lambda _e: on_undo())
         self.reset_shown = gui.add_button("Reset shown to defaults", hint="only the parameters listed above")
         self.reset_shown.on_click(lambda _e: self.on_reset([p.name for p in self.shown]))
         self.reset_all = gui.add_button("Reset all to defaults", color="orange", hint="every parameter")
@@ -212,6 +215,11 @@ class ParamPanel:
             self._show_edits()
             return
         self.on_apply(dict(self.drafts))
+
+    def show_undo(self, what: str) -> None:
+        """What Undo would put back ('' : nothing to undo, the button is off)."""
+        self.undo.disabled = not what
+        self.undo.hint = f"puts {what}" if what else "no change of values yet"
 
     def confirm_reset_all(self) -> None:
         """Every parameter back to its default, once the user says so: it cannot be undone here
