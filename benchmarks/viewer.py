@@ -11,7 +11,7 @@ target is taught through the command panel, and Run is clicked. Measured in the 
   path sent, planned by the server (inverse kinematics) and the arm drawn at the node (p50, target
   <= 300 ms: the arm follows the hand);
 - `scrub_frame_ms`: after the run, the Results tab's time cursor is turned on and set 15 times (typed
-  into its box, as a user's scrub sets it); from each setting to the first batch that moves the arm
+  into its box); from the page sending each new cursor value to the first batch that moves the arm
   to the run's pose at that instant (p50, target <= 100 ms: scrubbing feels direct).
 
 The simulator is warmed first by one short run through the typed client (its first worker compiles
@@ -148,14 +148,16 @@ def measure_scrub(page: Any, moves: int = 15) -> dict[str, Any]:
     waits = []
     for k in range(moves):
         at = 0.2 + 4.5 * ((k * 7) % moves) / moves  # spread over the 5 s run, not in order
-        t = float(page.evaluate("() => performance.now()"))
+        typed = float(page.evaluate("() => performance.now()"))
         browser.set_field(page, box, f"{at:.3f}")
         stop = time.monotonic() + 10.0
-        drawn = None
+        t = drawn = None
         while drawn is None and time.monotonic() < stop:
-            drawn = next((b for b, _n in browser.pose_batches(page) if b > t), None)
+            # from the page sending the cursor's value (not from the test's typing) to the arm drawn
+            t = next((s for s in browser.sent_updates(page) if s > typed), None)
+            drawn = next((b for b, _n in browser.pose_batches(page) if b > t), None) if t else None
             time.sleep(0.005)
-        if drawn is None:
+        if drawn is None or t is None:
             raise TimeoutError(f"cursor setting {k + 1}: the arm was not redrawn within 10 s")
         waits.append(drawn - t)
         time.sleep(0.1)

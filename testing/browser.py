@@ -28,11 +28,16 @@ VIEWPORT = {"width": 1600, "height": 1000}
 
 PROBE_JS = """
 (() => {
-  const rec = window.__simecs = {batches: [], clicks: [], plots: [], glbs: [],
+  const rec = window.__simecs = {batches: [], clicks: [], plots: [], glbs: [], sent: [],
                                  gizmos: {}, gizmoTurns: {}, worker: null};
   const Base = window.Worker;
   if (!Base) return;
   class Probed extends Base {
+    postMessage(data, ...rest) {  // what the page sends: a widget's new value leaves here
+      const m = data && data.type === 'send' ? data.message : null;
+      if (m && m.type === 'GuiUpdateMessage') rec.sent.push([performance.now(), m.uuid]);
+      return super.postMessage(data, ...rest);
+    }
     constructor(...args) {
       super(...args);
       rec.worker = this;  // what sends the page's messages: a drag is replayed through it
@@ -137,6 +142,11 @@ def pose_batches(page: Any) -> list[tuple[float, int]]:
     return [
         (float(t), int(n)) for t, n in page.evaluate("() => window.__simecs ? window.__simecs.batches : []")
     ]
+
+
+def sent_updates(page: Any) -> list[float]:
+    """The page's time (ms) of every widget value it sent to the viewer."""
+    return [float(t) for t, _uuid in page.evaluate("() => window.__simecs ? window.__simecs.sent : []")]
 
 
 def glbs(page: Any) -> list[tuple[str, int]]:
