@@ -16,7 +16,7 @@ from contextlib import contextmanager
 from typing import Any
 
 from simecs.mesh import keys
-from simecs.mesh.client import MeshClient
+from simecs.mesh.client import MeshClient, SessionClient
 from simecs.testing import browser as chromium
 
 from .conftest import ARTIFACTS, Mesh, Secured, free_port, start_service, wait_until
@@ -51,6 +51,22 @@ def new_page(context: Any, url: str) -> Any:
     page.add_init_script(chromium.PROBE_JS)
     page.goto(url)
     return page
+
+
+def spider_tab(
+    mesh: Mesh, browser: Any, viewport: dict[str, int] | None = None
+) -> tuple[Any, Any, SessionClient]:
+    """The service and a viewer on `mesh`, and a tab that loaded the Spider: (page, its browser
+    context, the tab's session as its user's client sees it)."""
+    service = start_service(mesh)
+    url = start_viewer(mesh)
+    context = browser.new_context(viewport=viewport or chromium.VIEWPORT)
+    page = new_page(context, url)
+    page.get_by_role("button", name=SPIDER).click()
+    model_shown(page)
+    client = service.client
+    sid = wait_until(lambda: next(iter(sessions_of(client)), None), timeout=20, what="a session")
+    return page, context, client.session(USER, sid)
 
 
 def sessions_of(client: MeshClient) -> set[str]:
@@ -285,15 +301,7 @@ def test_a_value_typed_key_by_key_is_stored_exactly_when_applied(mesh: Mesh, bro
     """Issue 12, 0: typing `0.00008` into J_rotor one key at a time sends nothing half-typed (no "0",
     no clobbered field); Apply stores exactly the typed value, and the field shows the stored one."""
     with logs_on_failure(mesh, "viewer", "proxy"):
-        service = start_service(mesh)
-        url = start_viewer(mesh)
-        client = service.client
-        context = browser.new_context(viewport=chromium.VIEWPORT)
-        page = new_page(context, url)
-        page.get_by_role("button", name=SPIDER).click()
-        model_shown(page)
-        sid = wait_until(lambda: next(iter(sessions_of(client)), None), timeout=20, what="a session")
-        session = client.session(USER, sid)
+        page, context, session = spider_tab(mesh, browser)
         search = text_field(page, "Find parameter")
         search.fill("joint3 J_rotor")
         # the label gains a mark as the value is typed (✎) and applied (•): found by its start

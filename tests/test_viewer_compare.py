@@ -14,20 +14,15 @@ from typing import Any
 
 from simecs.testing import browser as chromium
 
-from .conftest import Mesh, start_service, wait_until
+from .conftest import Mesh, wait_until
 from .test_viewer_browser import (
     SHOTS,
-    SPIDER,
-    USER,
     dismiss_notifications,
     logs_on_failure,
-    model_shown,
-    new_page,
     now_ms,
     open_components,
     poses_since,
-    sessions_of,
-    start_viewer,
+    spider_tab,
     text_appears,
 )
 
@@ -55,15 +50,8 @@ def test_two_runs_compared_with_a_time_cursor(mesh: Mesh, browser: Any) -> None:
 
 
 def compare_walk(mesh: Mesh, browser: Any) -> None:
-    service = start_service(mesh)
-    url = start_viewer(mesh)
-    client = service.client
     SHOTS.mkdir(parents=True, exist_ok=True)
-    page = new_page(browser.new_context(viewport={"width": 1600, "height": 900}), url)
-    page.get_by_role("button", name=SPIDER).click()
-    model_shown(page)
-    sid = wait_until(lambda: next(iter(sessions_of(client)), None), timeout=20, what="a session")
-    session = client.session(USER, sid)
+    page, _context, session = spider_tab(mesh, browser, {"width": 1600, "height": 900})
     # Two short runs of the same path; the second with a softer joint1 gain (the user's other client)
     session.set_settings(stop_time=1.0, output_interval=0.002, pacing="fast")
     session.set_joint_path([([0.8, 0.6, -0.7, 1.0, 0.9, -0.8, 1.2], 100.0, 100.0)])
@@ -127,3 +115,10 @@ def compare_walk(mesh: Mesh, browser: Any) -> None:
     text_appears(page, f"{math.degrees(rows[0, 1]):.6g}")
     page.wait_for_timeout(1500)  # the chart redrawn in its new range
     page.screenshot(path=str(SHOTS / "compare_1600x900.png"))
+    # one variable against another: each run's curve, and a dot at the cursor
+    page.get_by_label("X axis").click()
+    page.get_by_role("option", name="joint2.q", exact=True).click()
+    text_appears(page, "joint1.q vs joint2.q")
+    wait_until(lambda: page.locator("polyline").count() == 3, timeout=20, what="3 runs against joint2.q")
+    assert page.locator("svg circle").count() >= 1
+    page.screenshot(path=str(SHOTS / "compare_xy_1600x900.png"))

@@ -38,6 +38,7 @@ from simecs.viewer import (
     params,
     path,
     pendant,
+    plot_dock,
     plots,
     results,
     run,
@@ -45,6 +46,7 @@ from simecs.viewer import (
     series,
     session,
     tree,
+    xy_plot,
 )
 from simecs.viewer.errors import describe_error
 from simecs.viewer.host import Claims
@@ -895,6 +897,9 @@ def test_plot_redraws_live_then_full_resolution(server: Any) -> None:
     plot = plots.Plot(server.gui, 1, ["joint1.q"], {"joint1.q": "rad"}, actions)
     buf = series.LiveBuffer()
     buf.reset(["time", "joint1.q"])
+    plot.redraw(buf)  # no sample yet: the live window's span, nothing drawn in it, a y axis all the same
+    assert list(plot.chart.data[0]) == [0.0, 10.0] and np.isnan(plot.chart.data[1]).all()
+    assert plot.chart.scales["y"]["range"] == [-0.5, 0.5]
     buf.append(np.column_stack([np.linspace(0, 1, 50), np.linspace(0, 2, 50)]))
     plot.redraw(buf)
     assert len(plot.chart.data) == 2 and len(plot.chart.data[0]) == 50
@@ -925,6 +930,46 @@ def test_plot_redraws_live_then_full_resolution(server: Any) -> None:
     plot.remove()
 
 
+def test_a_variable_against_another_is_drawn_as_a_curve(server: Any) -> None:
+    loaded: list[Any] = []
+    actions = plots.PlotActions(
+        load_full=lambda p, t0, t1: loaded.append((p.names(), t0, t1)),
+        close=lambda p: None,
+        error=lambda msg: None,
+        added=lambda p, n: loaded.append(n),
+        variable_names=lambda: ["joint1.q", "joint2.q"],
+        batch=server.atomic,
+    )
+    units = {"joint1.q": "rad", "joint2.q": "rad"}
+    plot = plots.Plot(server.gui, 1, ["joint1.q"], units, actions)
+    plot.set_choices(["joint1.q", "joint2.q"])
+    assert plot.x_axis.options == ("time", "joint2.q")
+    plot.x_axis.value = "joint2.q"
+    plot._x_axis_changed(Event(plot.x_axis))
+    assert plot.names() == ["joint1.q", "joint2.q"] and loaded == ["joint2.q"]  # streamed from now on
+    assert not plot.chart.visible and plot.xy.visible and "vs joint2.q" in plot.title()
+    buf = series.LiveBuffer()
+    buf.reset(["time", "joint1.q", "joint2.q"])
+    t = np.linspace(0, 2 * np.pi, 200)
+    buf.append(np.column_stack([t, np.cos(t), np.sin(t)]))  # a circle: x turns back on itself
+    plot.cursor = np.pi / 2
+    plot.redraw(buf)
+    content = plot.xy.content
+    assert content.count("<polyline") == 1 and "joint2.q [rad]" in content and "<circle" in content
+    plot.others = [series.Transient("r1", t, {"joint1.q": 0.5 * np.cos(t), "joint2.q": 0.5 * np.sin(t)})]
+    plot.redraw(buf)
+    assert plot.xy.content.count("<polyline") == 2 and "stroke-dasharray" in plot.xy.content
+    assert xy_plot.nice_ticks(-1.05, 1.05) == [-1.0, 0.0, 1.0]
+    assert xy_plot.nice_ticks(0.0, 1.0) == [0.0, 0.25, 0.5, 0.75, 1.0]
+    assert "no data yet" in xy_plot.svg([], "x", "y")
+    assert "&lt;b&gt;" in xy_plot.svg([xy_plot.XYLine("<b>", "#000", t, t)], "x", "y")  # labels escaped
+    plot.full = series.Transient("r2", t, {"joint1.q": t})
+    plot.x_axis.value = "time"
+    plot._x_axis_changed(Event(plot.x_axis))
+    assert plot.chart.visible and not plot.xy.visible and plot.names() == ["joint1.q"]
+    plot.remove()
+
+
 def test_plot_dock_opens_and_closes_with_its_plots(server: Any) -> None:
     closed: list[Any] = []
     actions = plots.PlotActions(
@@ -936,7 +981,7 @@ def test_plot_dock_opens_and_closes_with_its_plots(server: Any) -> None:
         batch=server.atomic,
     )
     placed: list[Any] = []
-    dock = plots.PlotDock(server.gui, {}, actions, placed.append)
+    dock = plot_dock.PlotDock(server.gui, {}, actions, placed.append)
     a = dock.open("joint1.q", ["joint1.q", "joint2.q"])
     b = dock.open("joint2.q", ["joint1.q", "joint2.q"])
     assert (a.number, b.number) == (1, 2) and dock.get(2) is b and dock.plotted() == {"joint1.q", "joint2.q"}

@@ -20,7 +20,7 @@ from simecs.mesh import phases
 from . import events as ev
 from . import units
 from .compare import RunTrack, differences, values_table
-from .plots import PlotDock
+from .plot_dock import PlotDock
 from .results import run_label
 from .scene import ArmScene
 from .session import SessionController
@@ -108,17 +108,15 @@ class ComparePanel:
         compare = self.compared()
         for plot in self.plots.plots.values():
             have = [o.run_id for o in plot.others]
-            if have == compare and all(v in o.ys for o in plot.others for v in plot.variables):
+            if have == compare and all(v in o.ys for o in plot.others for v in plot.names()):
                 continue
             if not compare:
                 plot.others = []
                 plot.mark()
             elif plot.full is not None:
-                self.c.results.load_compared(
-                    plot.number, list(plot.variables), compare, plot.full.t0, plot.full.t1
-                )
+                self.c.results.load_compared(plot.number, plot.names(), compare, plot.full.t0, plot.full.t1)
             else:
-                self.c.results.load_compared(plot.number, list(plot.variables), compare)
+                self.c.results.load_compared(plot.number, plot.names(), compare)
         if compare or self.cursor_on.value:  # a track is a few MB: fetched when it is used
             for run_id in [self.shown(), *compare]:
                 if run_id and run_id in self.boxes and run_id not in {*self.tracks, *self.asked}:

@@ -24,7 +24,8 @@ from .layout import Layout
 from .markup import escape_html
 from .params import ParamPanel, VariablePanel
 from .path import clamp_to_limits
-from .plots import Plot, PlotActions, PlotDock
+from .plot_dock import PlotDock
+from .plots import Plot, PlotActions
 from .results import ResultsPanel
 from .run import SettingsWindow, settings_from_form
 from .scene import ArmScene
@@ -233,7 +234,7 @@ class ModelPage:
 
     def _load_full(self, plot: Plot, t0: float | None, t1: float | None) -> None:
         run_id = self.results.selected()
-        self.c.results.load_full(plot.number, list(plot.variables), t0, t1, run_id, self.compare.compared())
+        self.c.results.load_full(plot.number, plot.names(), t0, t1, run_id, self.compare.compared())
 
     def _show_transient(self, event: ev.TransientLoaded) -> None:
         plot = self.plots.get(event.plot)

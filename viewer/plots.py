@@ -1,7 +1,7 @@
 """Trend presentation (paper §3.2, footnote 3: several plots at once): uPlot charts of the live
 window, or of a run's full-resolution transient on request, with zoom, the runs picked for comparison
-overlaid (compare.py) and the shared time cursor; the dock on the right that holds them. The data they
-draw are `series.py`'s, bounded there.
+overlaid (compare.py), the shared time cursor, and one variable against another (xy_plot.py). The
+data they draw are `series.py`'s, bounded there; the dock that holds the charts is `plot_dock.py`.
 """
 
 from __future__ import annotations
@@ -15,7 +15,8 @@ from typing import Any
 import numpy as np
 
 from . import units as unit_choice
-from .series import LiveBuffer, Transient, overlay, with_cursor, y_range
+from .series import LiveBuffer, Transient, overlay, value_at, with_cursor, y_range
+from .xy_plot import XYLine, svg
 
 log = logging.getLogger("simecs.viewer")
 COLORS = ["#1f77b4", "#d62728", "#2ca02c", "#ff7f0e", "#9467bd", "#8c564b", "#e377c2", "#17becf"]
@@ -24,6 +25,7 @@ COLORS = ["#1f77b4", "#d62728", "#2ca02c", "#ff7f0e", "#9467bd", "#8c564b", "#e3
 PREV_COLORS = ["#9ecae1", "#fc9272", "#a1d99b", "#fdae6b", "#bcbddc", "#c49c94", "#f7b6d2", "#9edae5"]
 DASHES = [[6, 4], [2, 3], [10, 3, 2, 3], [1, 5], [14, 4]]
 CURSOR = {"label": "cursor", "stroke": "#444444", "width": 1.0}
+TIME_AXIS = "time"  # the X axis choice of a chart over time (any other: a variable, xy_plot.py)
 
 
 def scales(y: tuple[float, float] | None) -> dict[str, Any]:
@@ -57,9 +59,11 @@ class Plot:
         self.angles = "rad"  # what angles are shown in (the plots dock's choice, units.py)
         self.dirty = True
         self.live_label = live_label  # the run the live window shows ("run r3", "replay r4")
+        self.x_var = TIME_AXIS  # what the variables are drawn against
         self.folder = gui.add_folder(self.title())
         with self.folder:
             self.chart = self._new_chart()
+            self.xy = gui.add_html("", visible=False)
             self.window = gui.add_number("Live window [s]", 10.0, min=0.5, max=3600.0, step=0.5)
             self.window.on_update(lambda _e: self.mark())
             self.span = gui.add_vector2("Zoom t0, t1 [s]", (0.0, 0.0), step=0.001, hint="0, 0: the whole run")
@@ -73,6 +77,10 @@ class Plot:
                 "Add variable", ("—",), hint="variables with the same unit fit best"
             )
             self.add_var.on_update(self._add_variable)
+            self.x_axis = gui.add_dropdown(
+                "X axis", (TIME_AXIS,), hint="time, or a variable to draw the others against (tool x vs y)"
+            )
+            self.x_axis.on_update(self._x_axis_changed)
             close = gui.add_button("Close plot", color="gray")
             close.on_click(lambda _e: self.actions.close(self))
 
@@ -85,6 +93,7 @@ class Plot:
             legend={"show": True},
             height=220,
             order=order,
+            visible=self.x_var == TIME_AXIS,
         )
 
     def reset_zoom(self) -> None:
@@ -102,7 +111,8 @@ class Plot:
         if self.full is not None:
             window = f" {self.full.t0:g}–{self.full.t1:g} s" if self.full.t0 is not None else ""
             where = f" · {self.full.run_id} full res{window}"
-        return f"Plot {self.number}: " + ", ".join(self.variables) + where
+        against = f" vs {self.x_var}" if self.x_var != TIME_AXIS else ""
+        return f"Plot {self.number}: " + ", ".join(self.variables) + against + where
 
     def mark(self) -> None:
         self.dirty = True
@@ -143,6 +153,28 @@ class Plot:
         options = ("—", *[n for n in names if n not in self.variables])
         if tuple(self.add_var.options) != options:
             self.add_var.options = options
+        axes = (TIME_AXIS, *[n for n in names if n not in self.variables])
+        if self.x_var not in axes:
+            axes = (*axes, self.x_var)
+        if tuple(self.x_axis.options) != axes:
+            self.x_axis.options = axes
+
+    def names(self) -> list[str]:
+        """What the chart needs of a run: its variables, and the one on the X axis if not time."""
+        return self.variables + ([self.x_var] if self.x_var != TIME_AXIS else [])
+
+    def _x_axis_changed(self, event: Any) -> None:
+        if event.client is None or str(event.target.value) == self.x_var:
+            return
+        self.x_var = str(event.target.value)
+        self.chart.visible = self.x_var == TIME_AXIS
+        self.xy.visible = self.x_var != TIME_AXIS
+        if self.x_var != TIME_AXIS:
+            self.actions.added(self, self.x_var)  # streamed from now on
+            if self.full is not None:
+                self.actions.load_full(self, self.full.t0, self.full.t1)
+        self.folder.label = self.title()
+        self.mark()
 
     def unit_of(self, name: str) -> tuple[str, float]:
         """The unit `name` is drawn in and the factor from the server's value (units.py)."""
@@ -173,6 +205,9 @@ class Plot:
     def redraw(self, live: LiveBuffer) -> None:
         """Send the chart its data: live window, or the loaded transient; compared runs overlaid."""
         self.dirty = False
+        if self.x_var != TIME_AXIS:
+            self._redraw_xy(live)
+            return
         if self.full is not None:
             t = self.full.t
             ys = [self.full.ys.get(v, np.zeros(len(t))) for v in self.variables]
@@ -184,9 +219,10 @@ class Plot:
         others = [(t_o, [y * f for y, f in zip(ys_o, factors, strict=True)]) for t_o, ys_o in others]
         t, ys, compared = overlay(t, ys, others)
         ys = ys + [y for run in compared for y in run]
-        if len(t) < 2:  # uPlot needs two points to draw axes
-            t = np.array([0.0, 1e-3]) if len(t) == 0 else np.array([t[0], t[0] + 1e-3])
-            ys = [np.zeros(2) if len(y) == 0 else np.full(2, y[-1]) for y in ys]
+        if len(t) < 2:  # uPlot needs two x values to draw axes: the live window, nothing invented in it
+            start = float(t[0]) if len(t) else 0.0
+            t = np.array([start, start + float(self.window.value)])
+            ys = [np.array([y[-1] if len(y) else np.nan, np.nan]) for y in ys]
         if self.cursor is not None:
             t, ys, line = with_cursor(np.asarray(t, dtype=float), ys, self.cursor)
             ys = [*ys, line]
@@ -202,6 +238,48 @@ class Plot:
                 self.chart.scales = fixed
             self.chart.data = (np.asarray(t, dtype=float), *[np.asarray(y, dtype=float) for y in ys])
 
+    def _redraw_xy(self, live: LiveBuffer) -> None:
+        """The variables against the X-axis variable, for the shown run and the compared ones."""
+        names = self.names()
+        if self.full is not None:
+            runs = [
+                (
+                    self.full.run_id,
+                    self.full.t,
+                    [self.full.ys.get(v, np.full(len(self.full.t), np.nan)) for v in names],
+                )
+            ]
+        else:
+            t, ys = live.window(names, float(self.window.value))
+            runs = [(self.live_label or "live", t, ys)]
+        runs += [
+            (o.run_id, o.t, [o.ys.get(v, np.full(len(o.t), np.nan)) for v in names]) for o in self.others
+        ]
+        factors = [self.unit_of(v)[1] for v in names]
+        lines, marks = [], []
+        one = len(self.variables) == 1
+        for j, (run_id, t, ys) in enumerate(runs):
+            x = ys[-1] * factors[-1]
+            for k, name in enumerate(self.variables):
+                y = ys[k] * factors[k]
+                if j == 0:
+                    colour, dash = COLORS[k % len(COLORS)], ""
+                else:
+                    colour = COLORS[j % len(COLORS)] if one else PREV_COLORS[k % len(PREV_COLORS)]
+                    dash = " ".join(str(d) for d in DASHES[(j - 1) % len(DASHES)])
+                lines.append(XYLine(f"{name} ({run_id})", colour, x, y, dash))
+                if self.cursor is not None:
+                    at_x, at_y = value_at(t, x, self.cursor), value_at(t, y, self.cursor)
+                    if at_x is not None and at_y is not None:
+                        marks.append((at_x, at_y))
+        x_unit = self.unit_of(self.x_var)[0]
+        y_units = sorted({self.unit_of(v)[0] for v in self.variables} - {"", "-"})
+        x_label = f"{self.x_var} [{x_unit}]" if x_unit and x_unit != "-" else self.x_var
+        content = svg(lines, x_label, ", ".join(y_units), marks)
+        with self.actions.batch():
+            if self.xy.content != content:
+                self.xy.content = content
+
     def remove(self) -> None:
         self.folder.remove()
 
@@ -216,108 +294,3 @@ class PlotActions:
     added: Callable[[Plot, str], None]
     variable_names: Callable[[], Sequence[str]]
     batch: Callable[[], AbstractContextManager[None]]
-
-
-class PlotDock:
-    """The open plots of a tab, docked where the layout says: the dock appears with the first plot
-    and goes with the last; plots are known by their number (what the session controller's events
-    name)."""
-
-    def __init__(
-        self, gui: Any, units: dict[str, str], actions: PlotActions, place: Callable[[Any], None]
-    ) -> None:
-        self.gui = gui
-        self.place = place  # docks the plots' panel (layout.py)
-        self.units = units
-        self.actions = actions
-        self.plots: dict[int, Plot] = {}
-        self.live_label = ""  # the run shown live, named in each plot's title
-        self.angles = "rad"  # angles shown in rad or deg: one choice for every plot (units.py)
-        self.on_angles: Callable[[str], None] = lambda _a: None
-        self.angle_choice: Any = None  # the dropdown, while the dock is shown
-        self.counter = 0
-        self.panel: Any = None
-        self.tab: Any = None
-
-    def open(self, name: str, choices: Sequence[str]) -> Plot:
-        if self.panel is None:
-            self.panel = self.gui.add_panel()
-            self.tab = self.panel.add_tab("Plots")
-            with self.tab:
-                self.angle_choice = self.gui.add_dropdown(
-                    "Angles in",
-                    unit_choice.ANGLES,
-                    initial_value=self.angles,
-                    hint="every plot and the cursor",
-                )
-                self.angle_choice.on_update(lambda e: self.set_angles(str(e.target.value)))
-            self.place(self.panel)
-        self.counter += 1
-        with self.tab:
-            plot = Plot(self.gui, self.counter, [name], self.units, self.actions, self.live_label)
-            plot.angles = self.angles
-        self.plots[plot.number] = plot
-        self.set_choices(choices)
-        return plot
-
-    def close(self, plot: Plot) -> None:
-        plot.remove()
-        self.plots.pop(plot.number, None)
-        if not self.plots and self.panel is not None:
-            self.panel.remove()
-            self.panel, self.tab, self.angle_choice = None, None, None
-
-    def get(self, number: int) -> Plot | None:
-        return self.plots.get(number)
-
-    def plotted(self) -> set[str]:
-        return {v for p in self.plots.values() for v in p.variables}
-
-    def set_choices(self, names: Sequence[str]) -> None:
-        for plot in self.plots.values():
-            plot.set_choices(names)
-
-    def new_run(self, label: str = "") -> None:
-        """A new run is shown (`label`: "run r3", "replay r4"): every plot back to its live window."""
-        self.live_label = label
-        for plot in self.plots.values():
-            plot.live_label = label
-            plot.full = None
-            plot.folder.label = plot.title()
-            plot.reset_zoom()
-
-    def set_angles(self, angles: str) -> None:
-        """Angles in rad or deg on every plot (and the values read at the cursor)."""
-        if angles not in unit_choice.ANGLES or angles == self.angles:
-            return
-        self.angles = angles
-        if self.angle_choice is not None and self.angle_choice.value != angles:
-            self.angle_choice.value = angles
-        for plot in self.plots.values():
-            plot.angles = angles
-            plot.dirty = True
-        self.on_angles(angles)
-
-    def set_cursor(self, at: float | None) -> None:
-        """The shared time cursor on every chart (None: hidden); drawn at the next redraw."""
-        for plot in self.plots.values():
-            if plot.cursor != at:
-                plot.cursor = at
-                plot.dirty = True
-
-    def mark_all(self) -> None:
-        for plot in self.plots.values():
-            plot.dirty = True
-
-    def redraw(self, live: LiveBuffer) -> None:
-        """Redraw the plots that have new data (about 10 times a second)."""
-        for plot in list(self.plots.values()):
-            if plot.dirty:
-                try:
-                    plot.redraw(live)
-                except Exception as exc:  # a plot removed meanwhile, a closed tab
-                    log.debug("plot redraw skipped: %s", exc)
-
-    def remove(self) -> None:
-        for plot in list(self.plots.values()):
-            self.close(plot)
