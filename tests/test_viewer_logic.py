@@ -1624,6 +1624,16 @@ def started_tab(server: Any, model: ModelDescription) -> tuple[Tab, FakeClient, 
     return tab, client, mesh
 
 
+def loaded_tab(server: Any, model: ModelDescription) -> tuple[Tab, FakeClient, Any, FakeSession]:
+    """A started tab that loaded `model`: the tab, its client, its page and the fake session behind it."""
+    tab, client, mesh = started_tab(server, model)
+    ctl = tab.controller
+    ctl.opening.load_model(model.id)
+    ctl.drain()
+    assert tab.page is not None and ctl.session is not None
+    return tab, client, tab.page, mesh.sessions[ctl.session.id]
+
+
 def test_the_tab_applies_controller_events_to_its_panels(server: Any) -> None:
     model = arm()
     tab, client, mesh = started_tab(server, model)
@@ -1678,13 +1688,8 @@ def test_the_tab_applies_controller_events_to_its_panels(server: Any) -> None:
 
 def test_runs_compared_on_every_plot_with_a_time_cursor_that_poses_the_arm(server: Any) -> None:
     model = arm()
-    tab, client, mesh = started_tab(server, model)
+    tab, client, page, sc = loaded_tab(server, model)
     ctl = tab.controller
-    ctl.opening.load_model("arm3")
-    ctl.drain()
-    page = tab.page
-    assert page is not None
-    sc = mesh.sessions[ctl.session.id]
     try:
         base = m.RunContext("tester", model.default_values(), [0.0, 0.0, 0.0], None, m.RunSettings())
         kp = model.parameters[0].name
@@ -1964,13 +1969,8 @@ def test_the_page_draws_the_sessions_obstacles_and_a_runs_grasps_and_contacts(se
     from simecs.viewer.obstacles import NEW
 
     model = arm()
-    tab, client, mesh = started_tab(server, model)
+    tab, client, page, sc = loaded_tab(server, model)
     ctl = tab.controller
-    ctl.opening.load_model("arm3")
-    ctl.drain()
-    page = tab.page
-    assert page is not None
-    sc = mesh.sessions[ctl.session.id]
     try:
         # another client's set_obstacles reaches this tab: drawn, and offered in the panel
         box = m.Obstacle("box1", "box", [0.5, 0.0, 0.1], size=[0.1, 0.1, 0.1], mass=1.0)

@@ -11,7 +11,7 @@ import pytest
 from simecs.mesh.kinematics import link_poses
 from simecs.viewer import trace
 
-from .test_viewer_logic import arm, layout, live_frame, started_tab, state
+from .test_viewer_logic import arm, layout, live_frame, loaded_tab, state
 
 
 class Scene:
@@ -49,13 +49,7 @@ def test_the_trace_is_throttled_bounded_and_cleared() -> None:
 
 def test_the_page_draws_the_tools_trace_of_the_shown_run(server: Any) -> None:
     model = arm()
-    tab, _client, mesh = started_tab(server, model)
-    ctl = tab.controller
-    ctl.opening.load_model("arm3")
-    ctl.drain()
-    page = tab.page
-    assert page is not None and ctl.session is not None
-    sc = mesh.sessions[ctl.session.id]
+    tab, _client, page, sc = loaded_tab(server, model)
     try:
         lay = layout(sc, model, "r1")
         sc.watched["on_layout"](lay)
