@@ -63,7 +63,7 @@ def svg(
     ys_all = np.concatenate([c[2] for c in curves]) if curves else np.empty(0)
     if not len(xs_all):
         return (
-            f'<svg {FRAME}>'
+            f"<svg {FRAME}>"
             f'<text x="{WIDTH / 2}" y="{HEIGHT / 2}" text-anchor="middle" font-size="12" fill="#888">'
             "no data yet</text></svg>"
         )
