@@ -1718,6 +1718,9 @@ def test_runs_compared_on_every_plot_with_a_time_cursor_that_poses_the_arm(serve
             cmp._ticked(Event(cmp.boxes[run_id]))
         ctl.drain()
         assert [o.run_id for o in plot.others] == ["r1", "r3"]
+        stale = series.Transient("r1", np.linspace(0, 1, 3), {"joint1.q": np.zeros(3)})
+        cmp.apply(events.ComparedLoaded(plot.number, [stale]))  # an answer to an older tick
+        assert [o.run_id for o in plot.others] == ["r1", "r3"] and plot.others[0] is not stale
         plot.redraw(ctl.stream.live)
         labels = [s["label"] for s in plot.chart.series]
         assert labels[2:] == ["joint1.q (r1)", "joint1.q (r3)"]

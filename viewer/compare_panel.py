@@ -128,7 +128,7 @@ class ComparePanel:
     def apply(self, event: ev.Event) -> None:
         if isinstance(event, ev.ComparedLoaded):
             plot = self.plots.get(event.plot)
-            if plot is not None:
+            if plot is not None and [o.run_id for o in event.others] == self.compared():  # not a stale answer
                 plot.others = event.others
                 plot.mark()
             self.show_cursor()
