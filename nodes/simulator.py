@@ -303,7 +303,14 @@ class Simulator(Node):
             raise NotMine()
         run, data = found
         info = m.RunInfo(run.run_id, run.phase, run.stop_time, run.sim_time, run.samples, run.reason)  # type: ignore[arg-type]
-        context = codec.from_obj(m.RunContext, run.context) if run.context is not None else None
+        context = None
+        if run.context is not None:
+            try:
+                context = codec.from_obj(m.RunContext, run.context)
+            except codec.DecodeError as exc:  # a damaged file: its rows are still worth serving
+                self.log.warning(
+                    "run %s: its stored context is unreadable (%s): sent without it", run.run_id, exc
+                )
         return results_reply(data, run.columns, run.units, req.parameters, run.run_index, info, context)
 
 

@@ -3,6 +3,7 @@ driven by a client that uses only mesh/ types."""
 
 from __future__ import annotations
 
+import json
 import os
 import re
 import signal
@@ -82,6 +83,13 @@ def test_whole_run(service: Service) -> None:
     att, _ = s.results_of(run_id, ["joint1.q"], t1=0.0)
     assert att.context == layout.context and att.run.run_id == run_id
     assert att.context is not None and att.context.settings.stop_time == pytest.approx(0.4)
+    # a damaged description on disk costs the context, never the rows
+    meta = service.data_dir / "results" / "ann" / s.id / f"{run_id}.json"
+    stored = json.loads(meta.read_text())
+    meta.write_text(json.dumps({**stored, "context": {"user": 5}}))
+    att, again = s.results_of(run_id)
+    assert att.context is None and again.shape == full.shape
+    assert "stored context is unreadable" in service.mesh.log("simulator")
 
     # The last live frame is the last sample, restricted to the live columns.
     last_live = rec.live[-1][1].rows[-1]
