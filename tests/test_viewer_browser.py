@@ -53,6 +53,16 @@ def new_page(context: Any, url: str) -> Any:
     return page
 
 
+def plot_joint1_q(page: Any) -> None:
+    """Open the first plot, of joint1.q, from the Variables tab as a user does."""
+    page.get_by_role("tab", name="Variables").click()
+    open_components(page)
+    page.get_by_text("joint1 (14)", exact=True).click()
+    page.get_by_role("button", name="joint1 (2 own)").click()
+    page.get_by_role("button", name="Plot q", exact=True).click()
+    text_appears(page, "Plot 1: joint1.q")
+
+
 def spider_tab(
     mesh: Mesh, browser: Any, viewport: dict[str, int] | None = None
 ) -> tuple[Any, Any, SessionClient]:
@@ -187,12 +197,7 @@ def use_case(mesh: Mesh, browser: Any) -> None:
     page.get_by_role("button", name="Close", exact=True).click()
 
     # 3. variables: choose what to stream and open a plot
-    page.get_by_role("tab", name="Variables").click()
-    open_components(page)
-    page.get_by_text("joint1 (14)", exact=True).click()
-    page.get_by_role("button", name="joint1 (2 own)").click()
-    page.get_by_role("button", name="Plot q", exact=True).click()
-    text_appears(page, "Plot 1: joint1.q")
+    plot_joint1_q(page)
 
     # 4. initial pose with the sliders: the 3D arm follows at once; the server gets it
     page.get_by_role("button", name="Initialise").click()

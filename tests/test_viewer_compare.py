@@ -20,7 +20,7 @@ from .test_viewer_browser import (
     dismiss_notifications,
     logs_on_failure,
     now_ms,
-    open_components,
+    plot_joint1_q,
     poses_since,
     spider_tab,
     text_appears,
@@ -71,12 +71,7 @@ def compare_walk(mesh: Mesh, browser: Any) -> None:
     dismiss_notifications(page)
 
     # the later run's transient in a plot, with the earlier one ticked beside it
-    page.get_by_role("tab", name="Variables").click()
-    open_components(page)
-    page.get_by_text("joint1 (14)", exact=True).click()
-    page.get_by_role("button", name="joint1 (2 own)").click()
-    page.get_by_role("button", name="Plot q", exact=True).click()
-    text_appears(page, "Plot 1: joint1.q")
+    plot_joint1_q(page)
     page.get_by_role("tab", name="Results").click()
     page.get_by_role("button", name="Full resolution").first.click()
     text_appears(page, "r3 full res")

@@ -22,6 +22,7 @@ from .test_viewer_browser import (
     model_shown,
     new_page,
     open_components,
+    plot_joint1_q,
     sessions_of,
     start_viewer,
     text_appears,
@@ -110,12 +111,7 @@ def layout_walk(mesh: Mesh, browser: Any, size: tuple[int, int]) -> None:
     assert box is not None and 0 <= box["y"] < height, "a new page did not open at its top"
 
     # a plot, docked: still nothing on the arm
-    page.get_by_role("tab", name="Variables").click()
-    open_components(page)
-    page.get_by_text("joint1 (14)", exact=True).click()
-    page.get_by_role("button", name="joint1 (2 own)").click()
-    page.get_by_role("button", name="Plot q", exact=True).click()
-    text_appears(page, "Plot 1: joint1.q")
+    plot_joint1_q(page)
     view_is_clear(page, 250 if width < 1400 else 400)
     page.screenshot(path=str(SHOTS / f"layout_{tag}.png"))
 

@@ -75,6 +75,7 @@ HEADLESS = (
     "jog",
     "compare",
     "markup",
+    "units",
 )
 
 

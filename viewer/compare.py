@@ -18,6 +18,7 @@ from simecs.mesh.model import ModelDescription
 
 from .markup import escape_html
 from .series import value_at
+from .units import labelled
 
 TRACK_POINTS = 4000  # samples of a run's poses kept for scrubbing (about 1 ms apart over 5 s)
 MAX_DIFF_ROWS = 40  # parameters listed as differing at most (the rest are counted)
@@ -86,8 +87,7 @@ def values_table(
     lines = [f"| at {at:.3f} s | " + " | ".join(runs) + " |", "|---|" + "---:|" * len(runs)]
     for name in variables:
         cells = [_number(value_at(*data[name], at) if name in data else None) for data in runs.values()]
-        unit = units.get(name, "")
-        label = f"{name} [{unit}]" if unit and unit != "-" else name
+        label = labelled(name, units.get(name, ""))
         lines.append(f"| {escape_html(label)} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 

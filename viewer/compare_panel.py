@@ -18,7 +18,6 @@ from simecs.mesh import messages as m
 from simecs.mesh import phases
 
 from . import events as ev
-from . import units
 from .compare import RunTrack, differences, values_table
 from .plot_dock import PlotDock
 from .results import run_label
@@ -200,7 +199,7 @@ class ComparePanel:
         if poses is not None:
             self.scene.apply_poses(poses)
         names = self._variables()
-        shown = {v: units.shown(self.plots.units.get(v, ""), self.plots.angles)[0] for v in names}
+        shown = {v: self.plots.unit_of(v)[0] for v in names}
         self.values.content = values_table(at, self._series(), names, shown)
 
     def _variables(self) -> list[str]:
@@ -216,7 +215,7 @@ class ComparePanel:
             loaded = ([plot.full] if plot.full is not None else []) + plot.others
             for tr in loaded:
                 for name, y in tr.ys.items():
-                    factor = units.shown(self.plots.units.get(name, ""), self.plots.angles)[1]
+                    factor = self.plots.unit_of(name)[1]
                     out.setdefault(tr.run_id, {})[name] = (tr.t, y * factor)
         order = self._runs_in_view()
         return {r: out[r] for r in [*order, *[r for r in out if r not in order]] if r in out}

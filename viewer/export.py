@@ -10,6 +10,8 @@ from collections.abc import Sequence
 import numpy as np
 from simecs.mesh import keys
 
+from .units import labelled
+
 
 def to_csv(
     columns: Sequence[str], units: Sequence[str], rows: np.ndarray, meta: dict[str, str] | None = None
@@ -18,7 +20,7 @@ def to_csv(
     out = io.StringIO()
     for key, value in (meta or {}).items():
         out.write(f"# {key}: {value}\n")
-    head = [f"{c} [{u}]" if u and u != "-" else c for c, u in zip(columns, units, strict=True)]
+    head = [labelled(c, u) for c, u in zip(columns, units, strict=True)]
     out.write(",".join(head) + "\n")
     if rows.size:
         np.savetxt(out, np.asarray(rows, dtype=float), delimiter=",", fmt="%.17g")

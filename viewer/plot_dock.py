@@ -95,6 +95,10 @@ class PlotDock:
             plot.dirty = True
         self.on_angles(angles)
 
+    def unit_of(self, name: str) -> tuple[str, float]:
+        """The unit `name` is shown in on every plot, and the factor from the server's value."""
+        return unit_choice.shown(self.units.get(name, ""), self.angles)
+
     def set_cursor(self, at: float | None) -> None:
         """The shared time cursor on every chart (None: hidden); drawn at the next redraw."""
         for plot in self.plots.values():

@@ -180,27 +180,49 @@ class Plot:
         """The unit `name` is drawn in and the factor from the server's value (units.py)."""
         return unit_choice.shown(self.units.get(name, ""), self.angles)
 
+    def style(self, run: int, k: int) -> tuple[str, list[int]]:
+        """Colour and dash pattern of variable `k` of run `run` (0: the shown run, 1..: the compared
+        ones in order): on a chart of one variable each run takes a colour of its own."""
+        if run == 0:
+            return COLORS[k % len(COLORS)], []
+        colour = COLORS[run % len(COLORS)] if len(self.variables) == 1 else PREV_COLORS[k % len(PREV_COLORS)]
+        return colour, DASHES[(run - 1) % len(DASHES)]
+
     def series(self) -> tuple[dict[str, Any], ...]:
         out: list[dict[str, Any]] = [{"label": "t [s]"}]
         for k, name in enumerate(self.variables):
-            unit = self.unit_of(name)[0]
-            label = f"{name} [{unit}]" if unit and unit != "-" else name
-            out.append({"label": label, "stroke": COLORS[k % len(COLORS)], "width": 1.5})
-        one = len(self.variables) == 1
-        for j, other in enumerate(self.others):
+            label = unit_choice.labelled(name, self.unit_of(name)[0])
+            out.append({"label": label, "stroke": self.style(0, k)[0], "width": 1.5})
+        for j, other in enumerate(self.others, start=1):
             for k, name in enumerate(self.variables):
-                colour = COLORS[(j + 1) % len(COLORS)] if one else PREV_COLORS[k % len(PREV_COLORS)]
+                colour, dash = self.style(j, k)
                 out.append(
-                    {
-                        "label": f"{name} ({other.run_id})",
-                        "stroke": colour,
-                        "width": 1.0,
-                        "dash": DASHES[j % 5],
-                    }
+                    {"label": f"{name} ({other.run_id})", "stroke": colour, "width": 1.0, "dash": dash}
                 )
         if self.cursor is not None:
             out.append(CURSOR)
         return tuple(out)
+
+    def runs_data(
+        self, live: LiveBuffer, names: list[str], missing: float = 0.0
+    ) -> list[tuple[str, np.ndarray, list[np.ndarray]]]:
+        """(run, t, the columns `names` in the units shown) of the shown run (its full resolution,
+        else the live window) and then of each compared run; `missing` fills a column a run lacks."""
+        if self.full is not None:
+            shown = [(self.full.run_id, self.full.t, [self.full.ys.get(v) for v in names])]
+        else:
+            t, ys = live.window(names, float(self.window.value))
+            shown = [(self.live_label or "live", t, list(ys))]
+        runs = shown + [(o.run_id, o.t, [o.ys.get(v) for v in names]) for o in self.others]
+        factors = [self.unit_of(v)[1] for v in names]
+        return [
+            (
+                run_id,
+                t,
+                [np.full(len(t), missing) if y is None else y * f for y, f in zip(ys, factors, strict=True)],
+            )
+            for run_id, t, ys in runs
+        ]
 
     def redraw(self, live: LiveBuffer) -> None:
         """Send the chart its data: live window, or the loaded transient; compared runs overlaid."""
@@ -208,16 +230,8 @@ class Plot:
         if self.x_var != TIME_AXIS:
             self._redraw_xy(live)
             return
-        if self.full is not None:
-            t = self.full.t
-            ys = [self.full.ys.get(v, np.zeros(len(t))) for v in self.variables]
-        else:
-            t, ys = live.window(self.variables, float(self.window.value))
-        others = [(o.t, [o.ys.get(v, np.zeros(len(o.t))) for v in self.variables]) for o in self.others]
-        factors = [self.unit_of(v)[1] for v in self.variables]
-        ys = [y * f for y, f in zip(ys, factors, strict=True)]
-        others = [(t_o, [y * f for y, f in zip(ys_o, factors, strict=True)]) for t_o, ys_o in others]
-        t, ys, compared = overlay(t, ys, others)
+        (_, t, ys), *others = self.runs_data(live, self.variables)
+        t, ys, compared = overlay(t, ys, [(t_o, ys_o) for _, t_o, ys_o in others])
         ys = ys + [y for run in compared for y in run]
         if len(t) < 2:  # uPlot needs two x values to draw axes: the live window, nothing invented in it
             start = float(t[0]) if len(t) else 0.0
@@ -240,41 +254,18 @@ class Plot:
 
     def _redraw_xy(self, live: LiveBuffer) -> None:
         """The variables against the X-axis variable, for the shown run and the compared ones."""
-        names = self.names()
-        if self.full is not None:
-            runs = [
-                (
-                    self.full.run_id,
-                    self.full.t,
-                    [self.full.ys.get(v, np.full(len(self.full.t), np.nan)) for v in names],
-                )
-            ]
-        else:
-            t, ys = live.window(names, float(self.window.value))
-            runs = [(self.live_label or "live", t, ys)]
-        runs += [
-            (o.run_id, o.t, [o.ys.get(v, np.full(len(o.t), np.nan)) for v in names]) for o in self.others
-        ]
-        factors = [self.unit_of(v)[1] for v in names]
         lines, marks = [], []
-        one = len(self.variables) == 1
-        for j, (run_id, t, ys) in enumerate(runs):
-            x = ys[-1] * factors[-1]
+        for j, (run_id, t, ys) in enumerate(self.runs_data(live, self.names(), missing=np.nan)):
+            x = ys[-1]
             for k, name in enumerate(self.variables):
-                y = ys[k] * factors[k]
-                if j == 0:
-                    colour, dash = COLORS[k % len(COLORS)], ""
-                else:
-                    colour = COLORS[j % len(COLORS)] if one else PREV_COLORS[k % len(PREV_COLORS)]
-                    dash = " ".join(str(d) for d in DASHES[(j - 1) % len(DASHES)])
-                lines.append(XYLine(f"{name} ({run_id})", colour, x, y, dash))
+                colour, dash = self.style(j, k)
+                lines.append(XYLine(f"{name} ({run_id})", colour, x, ys[k], " ".join(map(str, dash))))
                 if self.cursor is not None:
-                    at_x, at_y = value_at(t, x, self.cursor), value_at(t, y, self.cursor)
+                    at_x, at_y = value_at(t, x, self.cursor), value_at(t, ys[k], self.cursor)
                     if at_x is not None and at_y is not None:
                         marks.append((at_x, at_y))
-        x_unit = self.unit_of(self.x_var)[0]
         y_units = sorted({self.unit_of(v)[0] for v in self.variables} - {"", "-"})
-        x_label = f"{self.x_var} [{x_unit}]" if x_unit and x_unit != "-" else self.x_var
+        x_label = unit_choice.labelled(self.x_var, self.unit_of(self.x_var)[0])
         content = svg(lines, x_label, ", ".join(y_units), marks)
         with self.actions.batch():
             if self.xy.content != content:

@@ -143,14 +143,19 @@ def with_cursor(
         )
 
     ys2 = [np.insert(y, [k] * len(new), at_cursor(y)) for y in ys]
-    finite = [y[np.isfinite(y)] for y in ys]
-    values = np.concatenate([f for f in finite if len(f)]) if any(len(f) for f in finite) else np.zeros(1)
-    lo, hi = float(values.min()), float(values.max())
+    lo, hi = finite_span(ys)
     if hi <= lo:
         lo, hi = lo - 0.5, hi + 0.5
     line = np.full(len(x2), np.nan)
     line[first], line[first + 1] = lo, hi
     return x2, ys2, line
+
+
+def finite_span(ys: Sequence[np.ndarray]) -> tuple[float, float]:
+    """The smallest and largest finite value of all `ys` ((0, 0) when there is none)."""
+    finite = [y[np.isfinite(y)] for y in ys]
+    values = np.concatenate([f for f in finite if len(f)]) if any(len(f) for f in finite) else np.zeros(1)
+    return float(values.min()), float(values.max())
 
 
 def y_range(ys: Sequence[np.ndarray]) -> tuple[float, float] | None:
@@ -163,9 +168,7 @@ def y_range(ys: Sequence[np.ndarray]) -> tuple[float, float] | None:
     """
     if all(np.isfinite(y).all() for y in ys):
         return None
-    finite = [y[np.isfinite(y)] for y in ys]
-    values = np.concatenate([f for f in finite if len(f)]) if any(len(f) for f in finite) else np.zeros(1)
-    lo, hi = float(values.min()), float(values.max())
+    lo, hi = finite_span(ys)
     span = hi - lo if hi > lo else max(abs(hi), 1.0)
     step = 10.0 ** math.floor(math.log10(span)) / 2
     lo, hi = math.floor(lo / step) * step, math.ceil(hi / step) * step

@@ -12,6 +12,8 @@ from typing import Any
 
 from simecs.mesh.model import Parameter, Variable
 
+from .units import labelled
+
 
 @dataclass
 class Component:
@@ -86,8 +88,7 @@ def fmt(value: float) -> str:
 
 
 def param_label(p: Parameter) -> str:
-    unit = f" [{p.unit}]" if p.unit and p.unit != "-" else ""
-    return f"{short_name(p)}{unit}"
+    return labelled(short_name(p), p.unit)
 
 
 def param_hint(p: Parameter, default: float | None = None) -> str:
@@ -106,8 +107,7 @@ def param_hint(p: Parameter, default: float | None = None) -> str:
 
 
 def var_label(v: Variable) -> str:
-    unit = f" [{v.unit}]" if v.unit and v.unit != "-" else ""
-    return f"{short_name(v)}{unit}"
+    return labelled(short_name(v), v.unit)
 
 
 def var_hint(v: Variable) -> str:

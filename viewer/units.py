@@ -14,6 +14,11 @@ ANGLES = ("rad", "deg")
 _IN_DEGREES = {"rad": "deg", "rad/s": "deg/s", "rad/s^2": "deg/s^2"}
 
 
+def labelled(name: str, unit: str) -> str:
+    """`name [unit]`, or the bare name for a number without a unit ('' or '-')."""
+    return f"{name} [{unit}]" if unit and unit != "-" else name
+
+
 def shown(unit: str, angles: str) -> tuple[str, float]:
     """The unit a value of `unit` is shown in, and the factor from the server's value to it."""
     if angles == "deg" and unit in _IN_DEGREES:
