@@ -1577,6 +1577,11 @@ def test_undo_puts_back_what_the_last_change_of_values_replaced() -> None:
     ctl.drain()
     assert "no change of parameter values to undo" in got.of(events.Notice)[-1].body
     assert len(sc.of(m.SetParams)) == 4
+    ctl.edits.set_params({name: old * 2})
+    ctl.drain()
+    ctl.opening.load_model(ctl.model.id)  # another session: the last one's changes are not undone here
+    ctl.drain()
+    assert ctl.session.id != sc.id and ctl.edits.undo_what() == ""
 
 
 def test_documentation_pages_not_carried_are_fetched_off_thread() -> None:

@@ -291,8 +291,11 @@ class Edits:
             self._due[what] = time.monotonic() + self.sync_delay_s
 
     def forget(self) -> None:
+        """Another session is shown: nothing of the last one is sent, planned or undone."""
         with self._lock:
             self._due.clear()
+        self.plan, self.refused = None, ""
+        self.undo_stack = []
 
     def tick(self, now: float | None = None) -> None:
         """Send the edits whose pause has come."""

@@ -264,7 +264,6 @@ class SessionController(Dispatcher):
         elif isinstance(snap.command, m.CartesianPath) and self.cart is not None:
             self.cart.load(snap.command)
         self.command_kind = snap.command.kind if snap.command is not None else "joint_path"
-        self.edits.plan, self.edits.refused = None, ""
         self.stream = RunStream(model)
         self.replaying = None
         self.edits.forget()
