@@ -92,10 +92,6 @@ class CartesianPathEditor(NodeList[CartNode]):
     def set_move(self, move: str, i: int | None = None) -> None:
         self.nodes[self._check_index(self.selected if i is None else i)].move = self._move(move)
 
-    def set_pct(self, speed: float, acc: float, i: int | None = None) -> None:
-        node = self.nodes[self._check_index(self.selected if i is None else i)]
-        node.speed_pct, node.acc_pct = self._pct(speed, acc)
-
     @staticmethod
     def _move(move: str) -> str:
         move = str(move).lower()

@@ -22,7 +22,7 @@ from .cartesian import (
     rotation_wxyz,
     rpy_of_wxyz,
 )
-from .path import DEG, PATH_BUTTONS, PathError, plan_text, press
+from .path import DEG, LOCKED, PATH_BUTTONS, PathError, pick, plan_text, press, take_pct
 
 GIZMO = "/cartesian/target"
 NODE_COLOR = (40, 110, 220)
@@ -97,7 +97,7 @@ class CartesianPendant:
     # -- the user's edits --------------------------------------------------------------------------
     def _guard(self) -> bool:
         if self.locked:
-            self.on_error("the command cannot change while the run goes on: abort it or wait for its end")
+            self.on_error(LOCKED)
         return not self.locked
 
     def _clicked(self, event: Any) -> None:
@@ -113,11 +113,7 @@ class CartesianPendant:
         self._edited(at_once=False)
 
     def _picked(self, event: Any) -> None:
-        if event.client is None or not self.editor.nodes:
-            return
-        try:
-            self.editor.select(int(event.target.value) - 1)
-        except (ValueError, PathError):
+        if event.client is None or not self.editor.nodes or not pick(self.editor, event.target.value):
             return
         self.refresh()
         q = node_target(self.plan, self.editor.selected)
@@ -133,14 +129,8 @@ class CartesianPendant:
     def _pct(self, event: Any) -> None:
         if event.client is None or not self.editor.nodes:
             return
-        try:
-            self.editor.set_pct(float(self.speed.value), float(self.acc.value))
-        except PathError as exc:
-            self.on_error(str(exc))
-            node = self.editor.nodes[self.editor.selected]
-            self.speed.value, self.acc.value = node.speed_pct, node.acc_pct
-            return
-        self._edited(at_once=False)
+        if take_pct(self.editor, self.speed, self.acc, self.on_error):
+            self._edited(at_once=False)
 
     def _typed(self, _event: Any) -> None:
         if not self.editor.nodes:

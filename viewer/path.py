@@ -26,7 +26,18 @@ def clamp_to_limits(q: Sequence[float], links: Sequence[Link]) -> list[float]:
 
 
 MAX_NODES = 1000  # the protocol's limit (messages.JointPath, CartesianPath)
-N = TypeVar("N")
+#: Why a pendant takes no edit while a run goes on (the server refuses a command then anyway).
+LOCKED = "the command cannot change while the run goes on: abort it or wait for its end"
+
+
+class PaceNode(Protocol):
+    """What every node of a pendant's path has: its speed and acceleration reductions."""
+
+    speed_pct: float
+    acc_pct: float
+
+
+N = TypeVar("N", bound=PaceNode)
 
 
 class PathError(ValueError):
@@ -84,12 +95,38 @@ class NodeList(Generic[N]):
         self.nodes.clear()
         self.selected = -1
 
+    def set_pct(self, speed: float, acc: float, i: int | None = None) -> None:
+        node = self.nodes[self._check_index(self.selected if i is None else i)]
+        node.speed_pct, node.acc_pct = self._pct(speed, acc)
+
     @staticmethod
     def _pct(speed: float, acc: float) -> tuple[float, float]:
         for name, v in (("speed", speed), ("acceleration", acc)):
             if not 0.0 < float(v) <= 100.0:
                 raise PathError(f"{name} {fmt(float(v))} % is not in (0, 100] %")
         return float(speed), float(acc)
+
+
+def pick(path: NodeList[Any], label: str) -> bool:
+    """Select the node a pendant's Node dropdown names (1-based); False when it names none."""
+    try:
+        path.select(int(label) - 1)
+    except (ValueError, PathError):
+        return False
+    return True
+
+
+def take_pct(path: NodeList[Any], speed: Any, acc: Any, on_error: Callable[[str], None]) -> bool:
+    """A pendant's Speed and Acceleration fields onto the selected node; a value the path refuses
+    is said and the fields show the node's own again."""
+    try:
+        path.set_pct(float(speed.value), float(acc.value))
+    except PathError as exc:
+        on_error(str(exc))
+        node = path.nodes[path.selected]
+        speed.value, acc.value = node.speed_pct, node.acc_pct
+        return False
+    return True
 
 
 #: The path buttons of every pendant: Teach records where the arm is, Add copies the selected node.
@@ -156,10 +193,6 @@ class JointPathEditor(NodeList[Node]):
         if len(q) != self.n_joints:
             raise PathError(f"a node needs {self.n_joints} joint positions, got {len(q)}")
         self.nodes[i].q = clamp_to_limits(q, self.links)
-
-    def set_pct(self, speed: float, acc: float, i: int | None = None) -> None:
-        i = self._check_index(self.selected if i is None else i)
-        self.nodes[i].speed_pct, self.nodes[i].acc_pct = self._pct(speed, acc)
 
     # -- protocol --------------------------------------------------------------------------------
     def to_command(self) -> m.JointPath:

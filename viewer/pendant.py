@@ -12,7 +12,7 @@ from simecs.mesh import messages as m
 
 from .cartesian import NODE_FIELD
 from .joints import JointSliders
-from .path import PATH_BUTTONS, JointPathEditor, PathError, plan_text, press
+from .path import LOCKED, PATH_BUTTONS, JointPathEditor, PathError, pick, plan_text, press, take_pct
 
 
 class PendantPanel:
@@ -63,7 +63,7 @@ class PendantPanel:
         action = event.target.value
         ed = self.editor
         if self.locked:
-            self.on_error("the command cannot change while the run goes on: abort it or wait for its end")
+            self.on_error(LOCKED)
             return
         try:
             press(ed, action, self.current_q)
@@ -74,11 +74,7 @@ class PendantPanel:
         self.on_changed()
 
     def _picked(self, event: Any) -> None:
-        if event.client is None or not self.editor.nodes:
-            return
-        try:
-            self.editor.select(int(event.target.value) - 1)
-        except (ValueError, PathError):
+        if event.client is None or not self.editor.nodes or not pick(self.editor, event.target.value):
             return
         self.refresh()
         self.on_preview(self.editor.nodes[self.editor.selected].q)
@@ -89,12 +85,7 @@ class PendantPanel:
         if not self.editor.nodes:
             self.on_error("the path is empty: teach a node first")
             return
-        try:
-            self.editor.set_pct(float(self.speed.value), float(self.acc.value))
-        except PathError as exc:
-            self.on_error(str(exc))
-            node = self.editor.nodes[self.editor.selected]
-            self.speed.value, self.acc.value = node.speed_pct, node.acc_pct
+        if not take_pct(self.editor, self.speed, self.acc, self.on_error):
             return
         self.refresh()
         self.on_changed()
