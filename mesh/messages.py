@@ -37,6 +37,7 @@ from .robot_commands import (  # noqa: F401  (the protocol's one namespace: m.Jo
     RobotCommand,
     Seconds,
     Signal,
+    SignalUnit,
     SineSignal,
     StepSignal,
     TableSignal,
@@ -281,9 +282,29 @@ class PlanStep(Record):
         Meta(
             max_length=64,
             description="rad, the joint set points when the step ends (a pendant draws the arm there); "
-            "[] when not known before the run (direct input)",
+            "[] when not known before the run (a direct input of motor currents)",
         ),
     ] = []
+
+
+#: Rows of a direct input's preview in a plan (SignalPreview).
+PREVIEW_POINTS = 1000
+
+
+class SignalPreview(Record):
+    """A direct input's signals as the server expanded them (what the run follows), for a preview plot.
+    At most 1000 samples (PREVIEW_POINTS) of the full table: all its rows when they fit, else each span of
+    time's first row and each joint's lowest and highest (a dense sine keeps its envelope)."""
+
+    unit: Annotated[
+        SignalUnit,
+        Meta(description="open_loop: A (motor current); closed_loop: rad (position) or rad/s (speed)"),
+    ]
+    t: Annotated[list[float], Meta(max_length=PREVIEW_POINTS, description="s, non-decreasing")]
+    values: Annotated[
+        dict[Name, Annotated[list[float], Meta(max_length=PREVIEW_POINTS)]],
+        Meta(max_length=64, description="per signalled joint (joint1...), one value per t"),
+    ]
 
 
 class CommandPlan(Record):
@@ -304,6 +325,9 @@ class CommandPlan(Record):
         Meta(max_length=6, description="the tool at the initial pose: x, y, z (m), roll, pitch, yaw (rad)"),
     ] = []
     end_pose: Annotated[list[float], Meta(max_length=6, description="the tool once the command is done")] = []
+    signals: Annotated[
+        SignalPreview | None, Meta(description="direct_input: its signals as expanded; null otherwise")
+    ] = None
 
 
 class GetSession(Command, tag="get_session"):

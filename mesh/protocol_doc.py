@@ -36,6 +36,7 @@ GROUPS: list[tuple[str, list[str]]] = [
             "RunStarted",
             "CommandPlan",
             "PlanStep",
+            "SignalPreview",
         ],
     ),
     (

@@ -154,6 +154,8 @@ class ChirpSignal(Record, tag_field="type", tag="chirp"):
     start: Seconds = 0.0
 
 
+#: A direct input's unit: motor current (open loop), joint position or speed (closed loop).
+SignalUnit = Literal["A", "rad", "rad/s"]
 Signal = TableSignal | StepSignal | RampSignal | SineSignal | ChirpSignal
 SIGNAL_TYPES = ("table", "step", "ramp", "sine", "chirp")
 
@@ -172,6 +174,13 @@ class DirectInput(RobotCommandBase, tag="direct_input"):
     reference: Annotated[
         Literal["position", "speed"], Meta(description="closed_loop: what the signals are")
     ] = "position"
+
+    @property
+    def unit(self) -> SignalUnit:
+        """What the signals' values are in."""
+        if self.mode == "open_loop":
+            return "A"
+        return "rad" if self.reference == "position" else "rad/s"
 
 
 # -- high level: actions, tasks, missions ----------------------------------------------------------

@@ -90,6 +90,7 @@ class Plan:
     tool_path: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     start_pose: list[float] = field(default_factory=list)  # the tool: x, y, z, roll, pitch, yaw
     end_pose: list[float] = field(default_factory=list)
+    preview: m.SignalPreview | None = None  # direct input: its signals as expanded
 
     def apply(self, sim: Any) -> None:
         """Hand the plan to a `Simulation` for its next run."""
@@ -142,6 +143,7 @@ class Plan:
             final_q=[float(x) for x in self.final_q],
             tool_path=[[float(x) for x in p] for p in self.tool_path],
             stop_time_cuts=self.duration > stop_time + 1e-9,
+            signals=self.preview,
         )
 
 
@@ -409,13 +411,24 @@ class Planner:
             cmd, self.names, bounds, self.q0, self.stop_time, self.max_rows
         )
         what = cmd.mode if cmd.mode == "open_loop" else f"closed_loop {cmd.reference}"
+        joints = [self.names.index(name) for name in cmd.signals]
+        t, values = signals.preview(tab, jmode, joints, m.PREVIEW_POINTS)
+        preview = m.SignalPreview(
+            cmd.unit, _floats(t), {self.names[j]: _floats(values[:, k]) for k, j in enumerate(joints)}
+        )
+        # Where the joints are meant to be is known before the run unless a current drives one.
+        known = cmd.mode == "closed_loop"
+        qs = tab[:, 1 : 1 + self.n]
+        final_q = qs[-1].copy() if known else self.q0
         return Plan(
             kind="direct_input",
             duration=self.stop_time,
-            steps=[PlanStep("signals", what, 0.0, self.stop_time)],
-            final_q=self.q0,
+            steps=[PlanStep("signals", what, 0.0, self.stop_time, q_end=_floats(final_q) if known else [])],
+            final_q=final_q,
             tab=tab,
             jmode=jmode,
+            tool_path=self._tool_path(qs) if known else np.zeros((0, 3)),
+            preview=preview,
         )
 
     # ---- moves ----

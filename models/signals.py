@@ -155,6 +155,36 @@ def expand_direct_input(
     return tab, jmode
 
 
+def preview(
+    tab: np.ndarray, jmode: np.ndarray, joints: Sequence[int], points: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """The signalled joints' set points as the run will follow them, in at most `points` rows of the
+    table (t, values (rows, len(joints))): a client's preview plot, drawn from this module's own
+    expansion rather than a copy of its rules. All rows when they fit (every jump exact); otherwise
+    the table cut into equal spans of time, each keeping its first row and each joint's lowest and
+    highest one, so a sine sampled densely keeps its envelope. The value is the column the joint's
+    mode reads: the current (A) or position (rad) set point `r`, or the speed set point `rd`."""
+    n = jmode.shape[0]
+    cols = [1 + n + j if jmode[j] == JM_SPEED else 1 + j for j in joints]
+    values = tab[:, cols]
+    k = tab.shape[0]
+    if k <= points:
+        return tab[:, 0].copy(), values.copy()
+    spans = max(1, (points - 1) // (1 + 2 * max(1, len(cols))))
+    t = tab[:, 0]
+    edges = np.searchsorted(t, np.linspace(t[0], t[-1], spans + 1)[1:-1], side="left")
+    keep = {k - 1}
+    for lo, hi in zip(np.concatenate([[0], edges]), np.concatenate([edges, [k]]), strict=True):
+        if hi <= lo:
+            continue
+        keep.add(int(lo))
+        block = values[lo:hi]
+        keep.update(int(lo + i) for i in np.argmin(block, axis=0))
+        keep.update(int(lo + i) for i in np.argmax(block, axis=0))
+    rows = np.array(sorted(keep))
+    return t[rows].copy(), values[rows].copy()
+
+
 # ---- signals to breakpoints --------------------------------------------------------------------------
 def _breaks(sig: Signal, stop: float, max_samples: int) -> _Breaks:
     """The signal's breakpoints up to stop_time (a wave is not sampled past it)."""

@@ -135,6 +135,11 @@ def test_an_open_loop_current_step_moves_the_joint_as_its_inertia_predicts(servi
     cmd = m.DirectInput("open_loop", {"joint3": m.StepSignal(amplitude=amps, start=0.1)})
     plan = s.set_command(cmd)
     assert plan.steps[0].what == "open_loop"
+    # the preview: the server's own expansion of the step, in A; no pose is known before the run
+    assert plan.signals is not None and plan.signals.unit == "A" and list(plan.signals.values) == ["joint3"]
+    shown = dict(zip(plan.signals.t, plan.signals.values["joint3"], strict=True))
+    assert shown[0.0] == 0.0 and plan.signals.values["joint3"][-1] == amps
+    assert plan.steps[0].q_end == [] and plan.tool_path == []
     s.set_settings(stop_time=0.6, output_interval=0.002, pacing="fast")
     run_id = s.run()
     assert s.wait_for(["finished", "failed"], 60, run_id).phase == "finished"
@@ -159,13 +164,18 @@ def test_a_closed_loop_position_step_settles_and_a_speed_set_point_is_held(servi
     s = service.client.create_session("ann", "spider")
     s.set_initial(SPIDER_Q0)
     target = SPIDER_Q0[4] + 0.05
-    s.set_command(
+    plan = s.set_command(
         m.DirectInput(
             "closed_loop",
             {"joint5": m.StepSignal(amplitude=0.05, offset=SPIDER_Q0[4], start=0.1)},
             "position",
         )
     )
+    # a position signal: where the arm ends and the tool's path are known before the run
+    assert plan.signals is not None and plan.signals.unit == "rad"
+    assert plan.signals.values["joint5"][-1] == pytest.approx(target)
+    assert plan.final_q == pytest.approx([*SPIDER_Q0[:4], target, *SPIDER_Q0[5:]])
+    assert plan.steps[0].q_end == plan.final_q and len(plan.tool_path) >= 2
     s.set_settings(stop_time=2.0, output_interval=0.002, pacing="fast")
     run_id = s.run()
     assert s.wait_for(["finished", "failed"], 60, run_id).phase == "finished"

@@ -29,6 +29,7 @@ from simecs.models.signals import (
     MIN_SAMPLE_STEP,
     JointBounds,
     expand_direct_input,
+    preview,
 )
 
 N = 7
@@ -518,3 +519,34 @@ def test_position_rows_fit_the_default_limit(bounds):
     sig = SineSignal(amplitude=0.05, frequency_hz=1.0)
     tab, _ = expand(bounds, "closed_loop", {"joint1": sig}, stop=400.0)
     assert 159_000 < len(tab) <= ROWS
+
+
+def test_a_short_table_is_previewed_row_for_row(bounds):
+    """Every row when they fit: the jump of a step is exact, the value column the joint's mode reads."""
+    step = {"joint2": StepSignal(amplitude=0.2, start=1.0)}
+    tab, jmode = expand(bounds, "closed_loop", step, reference="speed")
+    t, values = preview(tab, jmode, [1], 1000)
+    assert np.array_equal(t, tab[:, 0]) and np.array_equal(values[:, 0], tab[:, 1 + N + 1])
+    tab, jmode = expand(bounds, "open_loop", {"joint3": StepSignal(amplitude=1.5, start=1.0)})
+    t, values = preview(tab, jmode, [2], 1000)
+    assert values[0, 0] == 0.0 and values[-1, 0] == 1.5 and np.count_nonzero(t == 1.0) == 2
+
+
+@pytest.mark.parametrize("points", [1000, 101, 12])
+def test_a_dense_preview_keeps_its_bound_its_envelope_and_its_ends(bounds, points):
+    """A chirp to 40 Hz on two joints is ~50k rows: the preview holds at most `points` rows, keeps
+    each joint's extremes, the first and last rows, and only rows of the table itself."""
+    signals = {
+        "joint1": ChirpSignal(amplitude=2.0, f0_hz=1.0, f1_hz=40.0, duration=4.0, offset=0.5),
+        "joint4": SineSignal(amplitude=1.0, frequency_hz=3.0, start=0.5),
+    }
+    tab, jmode = expand(bounds, "open_loop", signals)
+    assert tab.shape[0] > 10 * points
+    t, values = preview(tab, jmode, [0, 3], points)
+    assert len(t) <= points and np.all(np.diff(t) >= 0.0)
+    assert t[0] == 0.0 and t[-1] == tab[-1, 0]
+    for k, j in enumerate([0, 3]):
+        column = tab[:, 1 + j]
+        assert values[:, k].max() == column.max() and values[:, k].min() == column.min()
+    rows = {(float(a), float(b), float(c)) for a, b, c in tab[:, [0, 1, 4]]}
+    assert all((float(a), float(b), float(c)) in rows for a, (b, c) in zip(t, values, strict=True))
