@@ -70,6 +70,7 @@ HEADLESS = (
     "series",
     "path",
     "cartesian",
+    "direct",
     "export",
     "tree",
     "jog",

@@ -113,7 +113,7 @@ class CartesianPathEditor(NodeList[CartNode]):
     # -- protocol --------------------------------------------------------------------------------
     def to_command(self) -> m.CartesianPath:
         if not self.nodes:
-            raise PathError("the path is empty: teach or add at least one node")
+            raise PathError("the Cartesian path is empty: teach or add at least one node")
         return m.CartesianPath(
             [
                 m.CartesianNode(

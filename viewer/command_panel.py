@@ -1,9 +1,11 @@
 """The command panel: one teach pendant per command level the model takes (paper §2.2: panels, not a
-prompt), docked beside the arm: the joint path, the Cartesian path, the jog panel and the obstacles.
+prompt), docked beside the arm: the joint path, the Cartesian path, the direct input's signals, the
+jog panel and the obstacles.
 
-The session's command is the path of the pendant edited last (`SessionController.command_kind`); the
-server's plan of it (duration, the tool path drawn in 3D) or its refusal (shown beside the path,
-naming the node) goes to that pendant, and the other says it is not the session's command.
+The session's command is the one of the pendant edited last (`SessionController.command_kind`); the
+server's plan of it (duration, the tool path drawn in 3D, the signals' preview) or its refusal (shown
+beside it, naming the node or the signal's number) goes to that pendant, and the others say theirs is
+not the session's command.
 """
 
 from __future__ import annotations
@@ -13,6 +15,7 @@ from typing import Any
 
 from . import events as ev
 from .cartesian_pendant import CartesianPendant
+from .direct_pendant import DirectInputPanel
 from .jog_panel import JogPanel
 from .layout import Layout
 from .obstacles import ObstaclePanel
@@ -67,6 +70,15 @@ class CommandPanel:
                     on_error=warn("Cartesian path"),
                     reach=scene.extent(),
                 )
+        self.direct: DirectInputPanel | None = None
+        if c.direct is not None:
+            with self.panel.add_tab("Direct input"):
+                self.direct = DirectInputPanel(
+                    gui,
+                    c.direct,
+                    on_changed=lambda: c.edits.command_changed("direct_input"),
+                    on_error=warn("Direct input"),
+                )
         with self.panel.add_tab("Jog"):
             self.jog = JogPanel(gui, c.jog, warn("Jog"))
         with self.panel.add_tab("Obstacles"):
@@ -85,6 +97,8 @@ class CommandPanel:
             self.pendant.show_plan(plan if kind == "joint_path" else None, stop, kind == "joint_path")
         if self.cartesian is not None:
             self.cartesian.show_plan(plan, stop, current and kind == "cartesian_path", event is not None)
+        if self.direct is not None:
+            self.direct.show_plan(plan, stop, current and kind == "direct_input")
         self.scene.show_tool_path(plan.tool_path if current and plan is not None else [])
 
     def show_refusal(self, event: ev.CommandRefused) -> None:
@@ -93,6 +107,8 @@ class CommandPanel:
             self.cartesian.show_refusal(event.field, event.reason)
         elif event.kind == "joint_path" and self.pendant is not None:
             self.pendant.show_refusal(event.field, event.reason)
+        elif event.kind == "direct_input" and self.direct is not None:
+            self.direct.show_refusal(event.field, event.reason)
         self.scene.show_tool_path([])
 
     def show_editable(self) -> None:
@@ -102,6 +118,8 @@ class CommandPanel:
             self.pendant.set_disabled(locked)
         if self.cartesian is not None:
             self.cartesian.set_disabled(locked)
+        if self.direct is not None:
+            self.direct.set_disabled(locked)
 
     def remove(self) -> None:
         if self.cartesian is not None:

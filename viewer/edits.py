@@ -333,7 +333,7 @@ class Edits:
         path (shown beside the path, naming the node: `CommandRefused`)."""
         c = self.c
         editor = c.editor(c.command_kind)
-        if editor is None or not editor.nodes:
+        if editor is None or editor.empty:
             return
         try:
             plan = self.command(m.SetCommand(editor.to_command()))

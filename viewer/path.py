@@ -60,6 +60,10 @@ class NodeList(Generic[N]):
         self.nodes: list[N] = []
         self.selected = -1
 
+    @property
+    def empty(self) -> bool:
+        return not self.nodes
+
     def _check_index(self, i: int) -> int:
         if not 0 <= i < len(self.nodes):
             raise PathError(f"there is no node {i + 1} (the path has {len(self.nodes)})")
@@ -197,7 +201,7 @@ class JointPathEditor(NodeList[Node]):
     # -- protocol --------------------------------------------------------------------------------
     def to_command(self) -> m.JointPath:
         if not self.nodes:
-            raise PathError("the path is empty: teach or add at least one node")
+            raise PathError("the joint path is empty: teach or add at least one node")
         return m.JointPath([m.PathNode(list(n.q), n.speed_pct, n.acc_pct) for n in self.nodes])
 
     def load(self, path: m.JointPath) -> None:

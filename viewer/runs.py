@@ -64,9 +64,8 @@ class RunControl:
             sc.command(STEER[op]())
             return
         editor = c.editor(c.command_kind)  # None: a command this viewer does not edit (the server's)
-        if editor is not None and not editor.nodes:
-            level = "Cartesian" if c.command_kind == "cartesian_path" else "joint"
-            raise PathError(f"the {level} path is empty: Teach at least one node in the command panel")
+        if editor is not None and editor.empty:
+            editor.to_command()  # raises PathError: what the empty command lacks
         c.edits.flush(also=("command",))  # the run takes what the user sees, paused or not
         if editor is not None and c.edits.refused:
             raise PathError(f"the server refused the path ({c.edits.refused}): change it, then Run")

@@ -28,6 +28,7 @@ from simecs.mesh.model import DocPage, ModelDescription
 
 from . import events as ev
 from .cartesian import CartesianPathEditor, Pose, tool_pose
+from .direct import DirectInputEditor
 from .edits import SYNC_DELAY_S, Edits
 from .errors import describe_error
 from .host import Host
@@ -66,6 +67,7 @@ class SessionController(Dispatcher):
         self.shown_q: list[float] = []  # the pose the arm shows: what Teach records
         self.path: JointPathEditor | None = None
         self.cart: CartesianPathEditor | None = None  # when the model takes Cartesian paths
+        self.direct: DirectInputEditor | None = None  # when the model takes direct inputs
         self.command_kind = "joint_path"  # whose path is the session's command (the last one edited)
         self.settings = m.RunSettings()
         self.streamed: set[str] = set()
@@ -259,18 +261,23 @@ class SessionController(Dispatcher):
         self.streamed = set(snap.settings.live_vars) & every if snap.settings.live_vars else set(every)
         self.path = JointPathEditor(model.links)
         self.cart = CartesianPathEditor() if "cartesian_path" in model.command_levels else None
+        joints = [link.joint for link in model.links]
+        self.direct = DirectInputEditor(joints) if "direct_input" in model.command_levels else None
         if isinstance(snap.command, m.JointPath):
             self.path.load(snap.command)
         elif isinstance(snap.command, m.CartesianPath) and self.cart is not None:
             self.cart.load(snap.command)
+        elif isinstance(snap.command, m.DirectInput) and self.direct is not None:
+            self.direct.load(snap.command)
         self.command_kind = snap.command.kind if snap.command is not None else "joint_path"
         self.stream = RunStream(model)
         self.replaying = None
         self.edits.forget()
 
-    def editor(self, kind: str) -> JointPathEditor | CartesianPathEditor | None:
-        """The pendant's path of command level `kind` (None: this viewer does not edit that level)."""
-        return {"joint_path": self.path, "cartesian_path": self.cart}.get(kind)
+    def editor(self, kind: str) -> JointPathEditor | CartesianPathEditor | DirectInputEditor | None:
+        """The pendant's command of level `kind` (None: this viewer does not edit that level)."""
+        editors = {"joint_path": self.path, "cartesian_path": self.cart, "direct_input": self.direct}
+        return editors.get(kind)
 
     def tool_pose(self, q: list[float]) -> Pose:
         """The tool pose at joint positions `q` with the session's values (what Teach records)."""
