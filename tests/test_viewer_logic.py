@@ -71,6 +71,7 @@ HEADLESS = (
     "path",
     "cartesian",
     "direct",
+    "program",
     "export",
     "tree",
     "jog",
@@ -1083,6 +1084,11 @@ def test_status_line_and_run_buttons() -> None:
     st = m.SessionState("s" * 22, "running", run_id="r2", progress=0.5, sim_time=1.0, rtf=0.98)
     assert run.status_text(st) == "**running** run r2 · t = 1.000 s · 50 % · RTF 0.98"
     assert "**running** replay r2 of `s_r1`" in run.status_text(st, replay="s_r1")
+    doing = msgspec.structs.replace(st, step="tasks[1].actions[0]", task="back", action="home")
+    assert run.status_text(doing).endswith("RTF 0.98 · ⏵ back · home")  # the step that runs
+    assert run.status_text(msgspec.structs.replace(doing, task="", action="")).endswith(
+        "⏵ tasks[1].actions[0]"
+    )
     failed = m.SessionState("s" * 22, "failed", run_id="r2", reason="diverged")
     assert "diverged" in run.status_text(failed)
     queued = m.SessionState("s" * 22, "queued", run_id="r3", queue_position=2)

@@ -1,6 +1,6 @@
 """The command panel: one teach pendant per command level the model takes (paper §2.2: panels, not a
 prompt), docked beside the arm: the joint path, the Cartesian path, the direct input's signals, the
-jog panel and the obstacles.
+tasks of actions, the jog panel and the obstacles.
 
 The session's command is the one of the pendant edited last (`SessionController.command_kind`); the
 server's plan of it (duration, the tool path drawn in 3D, the signals' preview) or its refusal (shown
@@ -13,6 +13,8 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any
 
+from simecs.mesh import messages as m
+
 from . import events as ev
 from .cartesian_pendant import CartesianPendant
 from .direct_pendant import DirectInputPanel
@@ -20,6 +22,8 @@ from .jog_panel import JogPanel
 from .layout import Layout
 from .obstacles import ObstaclePanel
 from .pendant import PendantPanel
+from .program import LEVELS
+from .program_pendant import ProgramPanel
 from .scene import ArmScene
 from .session import SessionController
 
@@ -79,6 +83,21 @@ class CommandPanel:
                     on_changed=lambda: c.edits.command_changed("direct_input"),
                     on_error=warn("Direct input"),
                 )
+        self.program: ProgramPanel | None = None
+        if c.program is not None:
+            program = c.program
+            with self.panel.add_tab("Tasks"):
+                self.program = ProgramPanel(
+                    gui,
+                    program,
+                    current_q=lambda: list(c.shown_q),
+                    tool_pose=c.tool_pose,
+                    on_changed=lambda: c.edits.command_changed(program.kind),
+                    on_preview=c.preview,
+                    request=c.edits.command,
+                    submit=c.submit,
+                    on_error=warn("Tasks"),
+                )
         with self.panel.add_tab("Jog"):
             self.jog = JogPanel(gui, c.jog, warn("Jog"))
         with self.panel.add_tab("Obstacles"):
@@ -99,6 +118,8 @@ class CommandPanel:
             self.cartesian.show_plan(plan, stop, current and kind == "cartesian_path", event is not None)
         if self.direct is not None:
             self.direct.show_plan(plan, stop, current and kind == "direct_input")
+        if self.program is not None:
+            self.program.show_plan(plan, stop, current and kind in LEVELS)
         self.scene.show_tool_path(plan.tool_path if current and plan is not None else [])
 
     def show_refusal(self, event: ev.CommandRefused) -> None:
@@ -109,6 +130,8 @@ class CommandPanel:
             self.pendant.show_refusal(event.field, event.reason)
         elif event.kind == "direct_input" and self.direct is not None:
             self.direct.show_refusal(event.field, event.reason)
+        elif event.kind in LEVELS and self.program is not None:
+            self.program.show_refusal(event.field, event.reason)
         self.scene.show_tool_path([])
 
     def show_editable(self) -> None:
@@ -120,6 +143,13 @@ class CommandPanel:
             self.cartesian.set_disabled(locked)
         if self.direct is not None:
             self.direct.set_disabled(locked)
+        if self.program is not None:
+            self.program.set_disabled(locked)
+
+    def show_state(self, state: m.SessionState | None) -> None:
+        """The run's progress through its command: the task pendant marks the step that runs."""
+        if self.program is not None:
+            self.program.show_state(state, self.c.command_kind in LEVELS)
 
     def remove(self) -> None:
         if self.cartesian is not None:

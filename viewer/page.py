@@ -145,8 +145,9 @@ class ModelPage:
         if self.init_widget is not None:
             self.init_widget.sliders.set_disabled(bool(self.c.refusal("set_initial")))
 
-    def _state_shown(self, _event: ev.StateShown) -> None:
+    def _state_shown(self, event: ev.StateShown) -> None:
         self.show_editable()
+        self.commands.show_state(event.state)
         self.compare.show_phase()
         self.trace.draw()  # a run that ended: its trace to its last sample
 

@@ -227,16 +227,17 @@ class JointPathEditor(NodeList[Node]):
         return "\n".join(rows) + "\n\nangles in degrees"
 
 
-def plan_text(plan: m.CommandPlan | None, stop_time: float) -> str:
-    """The command's duration as the server planned it, and a warning when the stop time cuts it."""
+def plan_text(plan: m.CommandPlan | None, stop_time: float, what: str = "path") -> str:
+    """The command's duration as the server planned it, and a warning when the stop time cuts it
+    (`what`: the command as the pendant names it)."""
     if plan is None:
-        return "_Path duration: known once the path is sent._"
+        return f"_{what.capitalize()} duration: known once the {what} is sent._"
     if plan.duration > stop_time + 1e-9:
         return (
-            f"**Warning:** the stop time ({stop_time:g} s) ends the run before the path is done "
+            f"**Warning:** the stop time ({stop_time:g} s) ends the run before the {what} is done "
             f"({plan.duration:.2f} s): raise it in Settings."
         )
-    return f"Path duration **{plan.duration:.2f} s** (stop time {stop_time:g} s)."
+    return f"{what.capitalize()} duration **{plan.duration:.2f} s** (stop time {stop_time:g} s)."
 
 
 def ended_early(plan: m.CommandPlan | None, sim_time: float) -> str:

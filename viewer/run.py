@@ -45,6 +45,9 @@ def status_text(st: m.SessionState | None, replay: str = "") -> str:
         line = (
             f"**{st.phase}** {what} · t = {st.sim_time:.3f} s · {st.progress * 100:.0f} % · RTF {st.rtf:.2f}"
         )
+        doing = " · ".join(x for x in (st.task, st.action) if x) or st.step
+        if doing and st.phase in phases.GOING:  # the step of a task or path that runs now
+            line += f" · ⏵ {escape_html(doing)}"
         if st.reason and st.phase in ("aborted", "failed"):
             line += f"\n\n{escape_html(st.reason)}"
         for warning in st.warnings:

@@ -36,6 +36,7 @@ from .identity import Identity, new_user_name
 from .jog import JogControl
 from .opening import Opening
 from .path import JointPathEditor, clamp_to_limits
+from .program import ProgramEditor
 from .results_io import ResultsIO
 from .runs import RunControl
 from .stream import LIVE_BEHIND, RunStream
@@ -68,6 +69,7 @@ class SessionController(Dispatcher):
         self.path: JointPathEditor | None = None
         self.cart: CartesianPathEditor | None = None  # when the model takes Cartesian paths
         self.direct: DirectInputEditor | None = None  # when the model takes direct inputs
+        self.program: ProgramEditor | None = None  # when the model takes tasks
         self.command_kind = "joint_path"  # whose path is the session's command (the last one edited)
         self.settings = m.RunSettings()
         self.streamed: set[str] = set()
@@ -263,21 +265,28 @@ class SessionController(Dispatcher):
         self.cart = CartesianPathEditor() if "cartesian_path" in model.command_levels else None
         joints = [link.joint for link in model.links]
         self.direct = DirectInputEditor(joints) if "direct_input" in model.command_levels else None
+        self.program = ProgramEditor(joints) if "task" in model.command_levels else None
         if isinstance(snap.command, m.JointPath):
             self.path.load(snap.command)
         elif isinstance(snap.command, m.CartesianPath) and self.cart is not None:
             self.cart.load(snap.command)
         elif isinstance(snap.command, m.DirectInput) and self.direct is not None:
             self.direct.load(snap.command)
+        elif isinstance(snap.command, m.Action | m.Task | m.Mission) and self.program is not None:
+            self.program.load(snap.command)
         self.command_kind = snap.command.kind if snap.command is not None else "joint_path"
+        if self.command_kind == "action":
+            self.command_kind = "task"  # the task pendant sends an action as a task of one
         self.stream = RunStream(model)
         self.replaying = None
         self.edits.forget()
 
-    def editor(self, kind: str) -> JointPathEditor | CartesianPathEditor | DirectInputEditor | None:
+    def editor(
+        self, kind: str
+    ) -> JointPathEditor | CartesianPathEditor | DirectInputEditor | ProgramEditor | None:
         """The pendant's command of level `kind` (None: this viewer does not edit that level)."""
         editors = {"joint_path": self.path, "cartesian_path": self.cart, "direct_input": self.direct}
-        return editors.get(kind)
+        return editors.get(kind) or (self.program if kind in ("task", "mission") else None)
 
     def tool_pose(self, q: list[float]) -> Pose:
         """The tool pose at joint positions `q` with the session's values (what Teach records)."""

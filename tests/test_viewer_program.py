@@ -1,0 +1,186 @@
+"""The task pendant (issue 12, build item 2: actions, tasks and missions composed from the user's
+library, reordered, saved, with the running step shown).
+
+The composition as data (the protocol's primitives and arguments, step paths as the server names
+them), then the pendant in a real browser on the real service, at 1024×768 and 1600×900: a task of
+two actions taught and typed is stored and planned, saved in the library, a second task makes a
+mission, an argument out of bounds is refused beside the arguments naming the task and action, and
+at 1600×900 the mission runs with its running step marked.
+
+Screenshots go to `artifacts/viewer/tasks_*.png`.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import pytest
+from simecs.mesh import codec
+from simecs.mesh import messages as m
+from simecs.testing import browser as chromium
+from simecs.viewer import program
+from simecs.viewer.path import PathError
+from simecs.viewer.program_pendant import refusal_text
+
+from .conftest import Mesh, wait_until
+from .test_viewer_browser import SHOTS, dismiss_notifications, logs_on_failure, spider_tab, text_appears
+from .test_viewer_layout import view_is_clear
+
+JOINTS = ["joint1", "joint2", "joint3"]
+
+
+def test_the_composition_is_what_the_protocol_takes_and_steps_are_named_as_the_server_names_them() -> None:
+    ed = program.ProgramEditor(JOINTS)
+    assert ed.empty and ed.kind == "task"
+    ed.insert(ed.build("move_joints", {"q": "0.1, 0.2 0.3", "speed_pct": "50"}, "reach"))
+    ed.insert(ed.build("wait", {"duration": "0.5"}))
+    ed.insert(ed.build("move_linear", {"position": "0.4, 0, 0.3"}))  # rpy left out: optional
+    ed.move(-1)
+    ed.remove()  # the line, now second
+    cmd = ed.to_command()
+    assert cmd == m.Task(
+        "task1",
+        [
+            m.Action("move_joints", {"q": [0.1, 0.2, 0.3], "speed_pct": 50.0}, "reach"),
+            m.Action("wait", {"duration": 0.5}),
+        ],
+    )
+    assert codec.loads(m.Task, codec.dumps(cmd)) == cmd
+    assert ed.step_path(0, 1) == "actions[1]"
+    ed.add_task("place")
+    with pytest.raises(PathError, match="task place has no action"):
+        ed.to_command()
+    ed.insert(ed.build("home", {}))
+    mission = ed.to_command()
+    assert isinstance(mission, m.Mission) and [t.name for t in mission.tasks] == ["task1", "place"]
+    assert ed.kind == "mission" and ed.step_path(1, 0) == "tasks[1].actions[0]"
+    table = ed.table_markdown({"tasks[0].actions[1]": (1.25, 1.75)}, running="tasks[1].actions[0]")
+    assert "| 2 | wait (duration 0.5) | 1.25–1.75 |" in table and "| ⏵ **▶1** | home | — |" in table
+
+    # what the editor cannot take is named, and nothing changes
+    for primitive, texts, label, match in [
+        ("move_joints", {"q": "1, 2"}, "", "q: 3 numbers, got 2"),
+        ("move_joints", {}, "", "q is required"),
+        ("wait", {"duration": "soon"}, "", "duration: 'soon' is not a number"),
+        ("wait", {"duration": "1"}, "no spaces", "wait: name"),
+        ("fly", {}, "", "no primitive 'fly'"),
+    ]:
+        with pytest.raises(PathError, match=match):
+            ed.build(primitive, texts, label)
+    with pytest.raises(PathError, match="task name"):
+        ed.add_task("two words")
+    ed.move_task(-1)
+    assert [t.name for t in ed.tasks] == ["place", "task1"] and ed.task == 0
+
+    # saved programs come in where the user is; a stored mission comes back whole
+    other = program.ProgramEditor(JOINTS)
+    other.take(mission.tasks[0])  # a task into an empty composition takes its place
+    other.take(m.Action("release"))
+    assert [t.name for t in other.tasks] == ["task1"] and other.current.actions[-1].primitive == "release"
+    other.load(mission)
+    assert other.to_command() == mission and (other.task, other.action) == (0, 1)
+    assert refusal_text(other, "command.tasks[1].actions[0].args.speed_pct", "250 % is outside") == (
+        "**✗ The server refused place, action 1 (speed_pct):** 250 % is outside"
+    )
+
+
+def field(page: Any, label: str) -> Any:
+    """A viser text or number input by its label (a text input's label is not tied to it, and viser
+    breaks a label after each '_' with a <wbr>)."""
+    return (
+        page.locator(
+            f"xpath=//label[normalize-space(.)='{label}']/ancestor::div[contains(@class,'mantine-Flex-root')][1]"
+            "//input"
+        )
+        .locator("visible=true")
+        .first
+    )
+
+
+def type_text(page: Any, label: str, value: str) -> None:
+    chromium.set_field(page, field(page, label), value)
+
+
+def pick(page: Any, label: str, option: str) -> None:
+    page.get_by_label(label, exact=True).locator("visible=true").first.click()
+    page.get_by_role("option", name=option, exact=True).click()
+
+
+def press(page: Any, button: str, nth: int = 0) -> None:
+    page.get_by_role("button", name=button, exact=True).locator("visible=true").nth(nth).click()
+
+
+@pytest.mark.parametrize("size", [(1024, 768), (1600, 900)], ids=["1024x768", "1600x900"])
+def test_the_task_pendant_composes_saves_refuses_and_runs(
+    mesh: Mesh, browser: Any, size: tuple[int, int]
+) -> None:
+    with logs_on_failure(mesh, "viewer", "proxy"):
+        tasks_walk(mesh, browser, size)
+
+
+def tasks_walk(mesh: Mesh, browser: Any, size: tuple[int, int]) -> None:
+    width, height = size
+    tag = f"{width}x{height}"
+    SHOTS.mkdir(parents=True, exist_ok=True)
+    page, _context, session = spider_tab(mesh, browser, {"width": width, "height": height})
+    dismiss_notifications(page)
+    q0 = session.snapshot().initial
+    page.get_by_role("tab", name="Tasks").click()
+
+    # move_joints taught at the arm's pose, then edited; a wait after it: a task, stored and planned
+    press(page, "Teach")
+    q_field = field(page, "q [rad]")
+    wait_until(lambda: q_field.input_value() != "", what="Teach fills q")
+    assert [float(x) for x in q_field.input_value().split(",")] == pytest.approx(q0, abs=1e-6)
+    target = [0.3, *q0[1:]]
+    type_text(page, "q [rad]", ", ".join(f"{x:g}" for x in target))
+    type_text(page, "Label", "turn")
+    press(page, "Add")
+    text_appears(page, "turn: move_joints")
+    pick(page, "Primitive", "wait")
+    type_text(page, "duration [s]", "0.3")
+    press(page, "Add")
+    task = wait_until(
+        lambda: c if isinstance(c := session.snapshot().command, m.Task) and len(c.actions) == 2 else None,
+        what="the task stored",
+    )
+    assert task.actions[0] == m.Action("move_joints", {"q": pytest.approx(target)}, "turn")
+    text_appears(page, "Task duration")
+    view_is_clear(page, 300 if width < 1400 else 500)
+
+    # kept in the library, under a name the user typed
+    page.get_by_text("Library", exact=True).locator("visible=true").first.click()
+    type_text(page, "Save as", "turn_wait")
+    press(page, "task")
+    wait_until(lambda: m.ProgramEntry("task", "turn_wait") in session.command(m.ListPrograms()), what="saved")
+    wait_until(lambda: field(page, "Saved").input_value() == "task · turn_wait", what="the saved one picked")
+
+    # a second task: the composition becomes a mission
+    type_text(page, "Task name", "back")
+    press(page, "New")
+    pick(page, "Primitive", "home")
+    type_text(page, "speed_pct [%]", "250")
+    press(page, "Add")
+    text_appears(page, "The server refused back, action 1 (speed_pct)")
+    reason = page.get_by_text("is outside").locator("visible=true").first.bounding_box()
+    assert reason is not None and 0 <= reason["y"] < height - 10, f"the reason is out of sight: {reason}"
+    assert session.snapshot().command == task
+    page.screenshot(path=str(SHOTS / f"tasks_refused_{tag}.png"))
+    type_text(page, "speed_pct [%]", "80")
+    press(page, "Update")
+    mission = wait_until(
+        lambda: c if isinstance(c := session.snapshot().command, m.Mission) else None, what="a mission"
+    )
+    assert [t.name for t in mission.tasks] == ["task1", "back"]
+    page.get_by_text("The server refused").wait_for(state="hidden")
+    page.screenshot(path=str(SHOTS / f"tasks_{tag}.png"))
+    if width < 1400:
+        return
+    # it runs, each step marked while it runs
+    session.set_settings(stop_time=8.0, output_interval=0.01, pacing="realtime")
+    page.get_by_role("button", name="Run", exact=True).click()
+    marked = page.locator("td", has_text="⏵")
+    wait_until(lambda: marked.count() == 1, timeout=30, interval=0.05, what="a step marked as running")
+    page.screenshot(path=str(SHOTS / f"tasks_running_{tag}.png"))
+    text_appears(page, "finished run", timeout=60)
+    wait_until(lambda: marked.count() == 0, what="no step marked once the run is done")
