@@ -1761,6 +1761,20 @@ def test_runs_compared_on_every_plot_with_a_time_cursor_that_poses_the_arm(serve
         assert page.view_state()["angles"] == "deg"
         page.plots.set_angles("grad")  # a reload's memory is the browser's: only known choices are taken
         assert page.plots.angles == "deg"
+        # a variable on the X axis: remembered over a reload, drawn against it again
+        other = next(v.name for v in ctl.model.variables if v.name != "joint1.q")
+        plot.x_axis.value = other
+        plot._x_axis_changed(Event(plot.x_axis))
+        view = page.view_state()
+        assert view["plots"] == [["joint1.q"]] and view["x_axes"] == [other]
+        page.plots.close(plot)
+        page.restore({**view, "x_axes": [other, "joint1.q"]})  # a second entry for no plot: ignored
+        (again,) = page.plots.plots.values()
+        assert again.x_var == other and again.x_axis.value == other and again.xy.visible
+        page.plots.close(again)
+        page.restore({**view, "x_axes": ["no.such"]})  # a name the model lacks: over time
+        (plot,) = page.plots.plots.values()
+        assert plot.x_var == "time" and plot.chart.visible
         # a new run takes the arm back: the cursor goes
         sc.watched["on_state"](state(sc, "running", "r4", seq=20))
         assert cmp.cursor_on.disabled and not cmp.cursor_on.value and plot.cursor is None

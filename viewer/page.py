@@ -190,6 +190,7 @@ class ModelPage:
             "session": self.c.session.id if self.c.session is not None else "",
             "camera": pose.to_obj() if pose is not None else None,
             "plots": [list(p.variables) for p in self.plots.plots.values()],
+            "x_axes": [p.x_var for p in self.plots.plots.values()],  # each plot's, in the same order
             "component": self.params.tree.picked,
             "angles": self.plots.angles,
         }
@@ -201,13 +202,17 @@ class ModelPage:
         if pose is not None:
             camera.apply(self.client.camera, pose)
         known = {v.name for v in self.c.model.variables} if self.c.model is not None else set()
-        plots = view.get("plots")
-        for names in plots[:MAX_RESTORED_PLOTS] if isinstance(plots, list) else []:
+        plots, x_axes = view.get("plots"), view.get("x_axes")
+        x_axes = x_axes if isinstance(x_axes, list) else []
+        for k, names in enumerate(plots[:MAX_RESTORED_PLOTS] if isinstance(plots, list) else []):
             names = [n for n in names if isinstance(n, str) and n in known] if isinstance(names, list) else []
             if names:
                 plot = self.open_plot(names[0])
                 for name in names[1:]:
                     plot.add(name)
+                x = x_axes[k] if k < len(x_axes) else None
+                if isinstance(x, str) and x in known and x not in names:
+                    plot.set_x(x)
         if isinstance(view.get("angles"), str):
             self.plots.set_angles(view["angles"])  # checked against units.ANGLES there
         if isinstance(view.get("component"), str):

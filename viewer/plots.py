@@ -164,9 +164,18 @@ class Plot:
         return self.variables + ([self.x_var] if self.x_var != TIME_AXIS else [])
 
     def _x_axis_changed(self, event: Any) -> None:
-        if event.client is None or str(event.target.value) == self.x_var:
+        if event.client is not None:
+            self.set_x(str(event.target.value))
+
+    def set_x(self, name: str) -> None:
+        """Draw the variables against `name` (TIME_AXIS: over time)."""
+        if name == self.x_var:
             return
-        self.x_var = str(event.target.value)
+        self.x_var = name
+        if self.x_axis.value != name:
+            if name not in self.x_axis.options:
+                self.x_axis.options = (*self.x_axis.options, name)
+            self.x_axis.value = name
         self.chart.visible = self.x_var == TIME_AXIS
         self.xy.visible = self.x_var != TIME_AXIS
         if self.x_var != TIME_AXIS:

@@ -321,9 +321,10 @@ class ProgramPanel:
     def show_plan(self, plan: m.CommandPlan | None, stop_time: float, current: bool = True) -> None:
         """Each action's planned start and end (`current`: the composition is the session's command)."""
         self.refusal.content = ""
+        if not current:
+            plan = None  # another pendant's
         if not current and not self.editor.empty:
             self.planned.content = "_Not the session's command: edit the tasks to make it so._"
-            plan = None
         else:
             self.planned.content = plan_text(plan, stop_time, self.editor.kind)
         steps = plan.steps if plan is not None else []
