@@ -106,6 +106,30 @@ def set_field(page: Any, locator: Any, value: str) -> None:
     locator.press("Enter")
 
 
+def labelled_input(page: Any, label: str) -> Any:
+    """The visible input of the viser field labelled `label` (text, number or dropdown): a text
+    input's label is not tied to it, and viser breaks a label after each '_' with a <wbr>."""
+    return (
+        page.locator(
+            f"xpath=//label[normalize-space(.)='{label}']/ancestor::div[contains(@class,'mantine-Flex-root')][1]"
+            "//input"
+        )
+        .locator("visible=true")
+        .first
+    )
+
+
+def type_into(page: Any, label: str, value: str) -> None:
+    """Type `value` into the visible viser field labelled `label` and commit it (Enter)."""
+    set_field(page, labelled_input(page, label), value)
+
+
+def pick_option(page: Any, label: str, option: str) -> None:
+    """Choose `option` in the visible viser dropdown labelled `label`, as a user does."""
+    labelled_input(page, label).click()
+    page.get_by_role("option", name=option, exact=True).click()
+
+
 def vector_input(page: Any, label: str, index: int) -> Any:
     """Box `index` (0: x) of the viser vector input labelled `label`."""
     return page.locator(

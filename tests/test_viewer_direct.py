@@ -100,15 +100,6 @@ def previews(page: Any) -> list[dict[str, Any]]:
     )
 
 
-def pick(page: Any, label: str, option: str) -> None:
-    page.get_by_label(label, exact=True).locator("visible=true").first.click()
-    page.get_by_role("option", name=option, exact=True).click()
-
-
-def type_number(page: Any, label: str, value: str) -> None:
-    chromium.set_field(page, page.get_by_label(label, exact=True).locator("visible=true").first, value)
-
-
 def preview_of(page: Any, label: str) -> tuple[float, float]:
     chart = wait_until(
         lambda: next((c for c in previews(page) if label in c["labels"]), None), what=f"{label} previewed"
@@ -133,12 +124,12 @@ def direct_walk(mesh: Mesh, browser: Any, size: tuple[int, int]) -> None:
     page.get_by_role("tab", name="Direct input").click()
 
     # a slow position sine about joint2's initial position: stored, and previewed as expanded
-    pick(page, "Mode", "Position set point (closed loop)")
-    pick(page, "Joint", "joint2")
-    pick(page, "Signal", "sine")
-    type_number(page, "Amplitude [rad]", "0.05")
-    type_number(page, "Frequency [Hz]", "0.5")
-    type_number(page, "Offset [rad]", f"{q2:.6g}")
+    chromium.pick_option(page, "Mode", "Position set point (closed loop)")
+    chromium.pick_option(page, "Joint", "joint2")
+    chromium.pick_option(page, "Signal", "sine")
+    chromium.type_into(page, "Amplitude [rad]", "0.05")
+    chromium.type_into(page, "Frequency [Hz]", "0.5")
+    chromium.type_into(page, "Offset [rad]", f"{q2:.6g}")
     page.get_by_role("button", name="Apply signal").click()
     command = wait_until(
         lambda: c if isinstance(c := session.snapshot().command, m.DirectInput) else None,
@@ -155,15 +146,15 @@ def direct_walk(mesh: Mesh, browser: Any, size: tuple[int, int]) -> None:
     page.screenshot(path=str(SHOTS / f"direct_{tag}.png"))
 
     # the mode is a choice, not a draft: the same sine at once as a current (0.05 A about 0 A)
-    pick(page, "Mode", "Motor current (open loop)")
+    chromium.pick_option(page, "Mode", "Motor current (open loop)")
     command = wait_until(
         lambda: c if (c := session.snapshot().command).mode == "open_loop" else None,
         what="the signals stored as currents",
     )
     preview_of(page, "joint2 [A]")
     # 9 A is beyond joint2's i_max: refused beside the signals, nothing stored
-    type_number(page, "Amplitude [A]", "9")
-    type_number(page, "Offset [A]", "0")
+    chromium.type_into(page, "Amplitude [A]", "9")
+    chromium.type_into(page, "Offset [A]", "0")
     page.get_by_role("button", name="Apply signal").click()
     text_appears(page, "The server refused joint2")
     text_appears(page, "motor.i_max")
@@ -173,8 +164,8 @@ def direct_walk(mesh: Mesh, browser: Any, size: tuple[int, int]) -> None:
     page.screenshot(path=str(SHOTS / f"direct_refused_{tag}.png"))
 
     # 0.5 A: taken, the refusal gone and the preview in amperes
-    type_number(page, "Amplitude [A]", "0.5")
-    type_number(page, "Frequency [Hz]", "2")
+    chromium.type_into(page, "Amplitude [A]", "0.5")
+    chromium.type_into(page, "Frequency [Hz]", "2")
     page.get_by_role("button", name="Apply signal").click()
     page.get_by_text("The server refused").wait_for(state="hidden")
     low, high = preview_of(page, "joint2 [A]")

@@ -84,28 +84,6 @@ def test_the_composition_is_what_the_protocol_takes_and_steps_are_named_as_the_s
     )
 
 
-def field(page: Any, label: str) -> Any:
-    """A viser text or number input by its label (a text input's label is not tied to it, and viser
-    breaks a label after each '_' with a <wbr>)."""
-    return (
-        page.locator(
-            f"xpath=//label[normalize-space(.)='{label}']/ancestor::div[contains(@class,'mantine-Flex-root')][1]"
-            "//input"
-        )
-        .locator("visible=true")
-        .first
-    )
-
-
-def type_text(page: Any, label: str, value: str) -> None:
-    chromium.set_field(page, field(page, label), value)
-
-
-def pick(page: Any, label: str, option: str) -> None:
-    page.get_by_label(label, exact=True).locator("visible=true").first.click()
-    page.get_by_role("option", name=option, exact=True).click()
-
-
 def press(page: Any, button: str, nth: int = 0) -> None:
     page.get_by_role("button", name=button, exact=True).locator("visible=true").nth(nth).click()
 
@@ -129,16 +107,16 @@ def tasks_walk(mesh: Mesh, browser: Any, size: tuple[int, int]) -> None:
 
     # move_joints taught at the arm's pose, then edited; a wait after it: a task, stored and planned
     press(page, "Teach")
-    q_field = field(page, "q [rad]")
+    q_field = chromium.labelled_input(page, "q [rad]")
     wait_until(lambda: q_field.input_value() != "", what="Teach fills q")
     assert [float(x) for x in q_field.input_value().split(",")] == pytest.approx(q0, abs=1e-6)
     target = [0.3, *q0[1:]]
-    type_text(page, "q [rad]", ", ".join(f"{x:g}" for x in target))
-    type_text(page, "Label", "turn")
+    chromium.type_into(page, "q [rad]", ", ".join(f"{x:g}" for x in target))
+    chromium.type_into(page, "Label", "turn")
     press(page, "Add")
     text_appears(page, "turn: move_joints")
-    pick(page, "Primitive", "wait")
-    type_text(page, "duration [s]", "0.3")
+    chromium.pick_option(page, "Primitive", "wait")
+    chromium.type_into(page, "duration [s]", "0.3")
     press(page, "Add")
     task = wait_until(
         lambda: c if isinstance(c := session.snapshot().command, m.Task) and len(c.actions) == 2 else None,
@@ -150,23 +128,26 @@ def tasks_walk(mesh: Mesh, browser: Any, size: tuple[int, int]) -> None:
 
     # kept in the library, under a name the user typed
     page.get_by_text("Library", exact=True).locator("visible=true").first.click()
-    type_text(page, "Save as", "turn_wait")
+    chromium.type_into(page, "Save as", "turn_wait")
     press(page, "task")
     wait_until(lambda: m.ProgramEntry("task", "turn_wait") in session.command(m.ListPrograms()), what="saved")
-    wait_until(lambda: field(page, "Saved").input_value() == "task · turn_wait", what="the saved one picked")
+    wait_until(
+        lambda: chromium.labelled_input(page, "Saved").input_value() == "task · turn_wait",
+        what="the saved one picked",
+    )
 
     # a second task: the composition becomes a mission
-    type_text(page, "Task name", "back")
+    chromium.type_into(page, "Task name", "back")
     press(page, "New")
-    pick(page, "Primitive", "home")
-    type_text(page, "speed_pct [%]", "250")
+    chromium.pick_option(page, "Primitive", "home")
+    chromium.type_into(page, "speed_pct [%]", "250")
     press(page, "Add")
     text_appears(page, "The server refused back, action 1 (speed_pct)")
     reason = page.get_by_text("is outside").locator("visible=true").first.bounding_box()
     assert reason is not None and 0 <= reason["y"] < height - 10, f"the reason is out of sight: {reason}"
     assert session.snapshot().command == task
     page.screenshot(path=str(SHOTS / f"tasks_refused_{tag}.png"))
-    type_text(page, "speed_pct [%]", "80")
+    chromium.type_into(page, "speed_pct [%]", "80")
     press(page, "Update")
     mission = wait_until(
         lambda: c if isinstance(c := session.snapshot().command, m.Mission) else None, what="a mission"
