@@ -337,6 +337,7 @@ class SessionClient:
         on_layout: Callable[[m.RunLayout], None] | None = None,
         on_params: Callable[[m.ParamValues], None] | None = None,
         on_obstacles: Callable[[m.ObstacleValues], None] | None = None,
+        on_command: Callable[[m.CommandValue], None] | None = None,
     ) -> Watch:
         watch = Watch()
         z = self.client.z
@@ -369,6 +370,8 @@ class SessionClient:
                 lambda b: codec.loads(m.ObstacleValues, b),
                 True,
             )
+        if on_command:
+            add(keys.command(self.user, self.id), on_command, lambda b: codec.loads(m.CommandValue, b), True)
         if on_layout:
             add(keys.layout(self.user, self.id), on_layout, lambda b: codec.loads(m.RunLayout, b), True)
         if on_live:

@@ -203,6 +203,15 @@ _TABLE = (
         meaning="the session's obstacles, after each set_obstacles (what every client of it draws)",
     ),
     KeySpec(
+        name="command",
+        pattern="simecs/u/<user>/sessions/<session>/command",
+        kind="cached put",
+        writer="proxy",
+        payload="CommandValue",
+        meaning="the session's command and its plan, after each set_command (what every client's pendants "
+        "show)",
+    ),
+    KeySpec(
         name="state",
         pattern="simecs/u/<user>/sessions/<session>/state",
         kind="cached put",
@@ -511,6 +520,10 @@ def params(user: str, session: str) -> str:
 
 def obstacles(user: str, session: str) -> str:
     return build("obstacles", user=user, session=session)
+
+
+def command(user: str, session: str) -> str:
+    return build("command", user=user, session=session)
 
 
 def state(user: str, session: str) -> str:

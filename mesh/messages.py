@@ -432,6 +432,17 @@ class ObstacleValues(Message, tag="obstacles"):
     obstacles: ObstacleList
 
 
+class CommandValue(Message, tag="command"):
+    """The command of a session and its plan, published on <session>/command after each set_command
+    (what every client of the session shows in its pendants)."""
+
+    session: SessionId
+    command: Annotated[RobotCommand | None, Meta(description="null: no command set yet")] = None
+    plan: Annotated[
+        CommandPlan | None, Meta(description="the reply set_command gave; null after a proxy restart")
+    ] = None
+
+
 class RunInfo(Record):
     """One run of a session, as its list of runs shows it."""
 

@@ -47,7 +47,7 @@ GROUPS: list[tuple[str, list[str]]] = [
     (
         "sessions",
         ["CreateSession", "ListSessions", "SessionRequest", "SessionEntry", "SessionSnapshot", "SessionState"]
-        + ["HilStats", "ParamValues", "ObstacleValues", "RunInfo", "RunList", "Notice"],
+        + ["HilStats", "ParamValues", "ObstacleValues", "CommandValue", "RunInfo", "RunList", "Notice"],
     ),
     (
         "runs",

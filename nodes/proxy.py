@@ -332,7 +332,9 @@ class Proxy(Node):
     def _set_command(self, rec: SessionRecord, cmd: m.SetCommand, plan: Any) -> m.CommandPlan:
         rec.command = cmd.command
         self.store.edited(rec)
-        return plan.summary(rec.settings.stop_time)
+        summary = plan.summary(rec.settings.stop_time)
+        self.store.publish_command(rec, summary)
+        return summary
 
     def _set_settings(self, rec: SessionRecord, cmd: m.SetSettings) -> m.RunSettings:
         desc = self._model(rec)

@@ -140,6 +140,7 @@ class SessionStore:
                 active_at=active_at,
             )
             self._add(rec)
+            self.publish_command(rec, None)  # what every client's pendants show (plans are not kept)
         log.info("restored %d sessions from %s", len(self.records), self.folder)
 
     # -- lifecycle -----------------------------------------------------------------------------------
@@ -148,6 +149,7 @@ class SessionStore:
         rec.pubs["state"] = self._publisher(keys.state(rec.user, rec.id))
         rec.pubs["params"] = self._publisher(keys.params(rec.user, rec.id))
         rec.pubs["obstacles"] = self._publisher(keys.obstacles(rec.user, rec.id))
+        rec.pubs["command"] = self._publisher(keys.command(rec.user, rec.id))
 
     def create(self, user: str, desc: ModelDescription) -> SessionRecord:
         sid = keys.new_session_id()
@@ -166,6 +168,7 @@ class SessionStore:
         self.publish_state(rec)
         self.publish_params(rec, [])
         self.publish_obstacles(rec)
+        self.publish_command(rec, None)
         return rec
 
     def get(self, key: str) -> SessionRecord:
@@ -217,6 +220,10 @@ class SessionStore:
 
     def publish_obstacles(self, rec: SessionRecord) -> None:
         rec.pubs["obstacles"].put(codec.dumps(m.ObstacleValues(session=rec.id, obstacles=rec.obstacles)))
+
+    def publish_command(self, rec: SessionRecord, plan: m.CommandPlan | None) -> None:
+        msg = m.CommandValue(session=rec.id, command=rec.command, plan=plan)
+        rec.pubs["command"].put(codec.dumps(msg))
 
     def move(self, rec: SessionRecord, event: str, persist: bool = True, **fields: Any) -> None:
         """Apply a lifecycle event (mesh.phases) and publish the new state."""

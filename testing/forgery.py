@@ -58,6 +58,10 @@ def forged_messages(
         (keys.params(user, session), codec.dumps(params)),
         (keys.obstacles(user, session), codec.dumps(m.ObstacleValues(session, []))),
         (
+            keys.command(user, session),
+            codec.dumps(m.CommandValue(session, m.JointPath([m.PathNode([3.0] * 7)]))),
+        ),
+        (
             keys.notices(user, session),
             codec.dumps(m.Notice(session, run_id, "recorder", "re-login at http://evil.example")),
         ),

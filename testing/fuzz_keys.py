@@ -54,6 +54,7 @@ class ServiceKeyPuts:
                 keys.state(u, s),
                 keys.params(u, s),
                 keys.obstacles(u, s),
+                keys.command(u, s),
                 keys.notices(u, s),
                 keys.control(u, s),
                 keys.jog(u, s),

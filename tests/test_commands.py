@@ -18,7 +18,7 @@ from simecs.mesh.kinematics import matrix_from_quat, rot_rpy, rpy_of
 from simecs.models.ik import ArmKinematics
 from simecs.nodes import mcapread
 
-from tests.conftest import Mesh, Service, restart_every_node, start_service
+from tests.conftest import Mesh, Service, restart_every_node, start_service, wait_until
 from tests.test_recorder_support import wait_file_closed
 from tests.test_service import Recorder
 
@@ -338,3 +338,26 @@ def test_a_level_the_model_does_not_list_is_unsupported() -> None:
         library.plan("puma560", desc.default_values(), PUMA_Q0, mission, 1.0)
     assert (err.value.code, err.value.field) == ("unsupported", "command.kind")
     assert "accepts joint_path commands, not mission" in err.value.message
+
+
+def test_the_command_is_published_for_every_client_of_the_session(service: Service) -> None:
+    """<session>/command carries the command with its plan after each set_command (cached: a late
+    subscriber gets the latest); a refused command publishes nothing."""
+    s = service.client.create_session("ann", "spider")
+    seen: list[m.CommandValue] = []
+    with s.watch(on_command=seen.append):
+        wait_until(lambda: seen, what="a new session's publication")
+        assert seen[-1] == m.CommandValue(s.id, None, None)
+        path = m.JointPath([m.PathNode([0.2, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0], 50.0)])
+        plan = s.set_command(path)
+        wait_until(lambda: seen[-1].command == path, what="the command published")
+        assert seen[-1].plan == plan and plan.duration > 0.0
+        published = len(seen)
+        with pytest.raises(RemoteError, match="joint1"):
+            s.set_command(m.JointPath([m.PathNode([9.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0])]))
+        assert s.snapshot().command == path
+    assert len(seen) == published
+    late: list[m.CommandValue] = []
+    with s.watch(on_command=late.append):
+        wait_until(lambda: late, what="the latest, for a late subscriber")
+        assert late[-1].command == path and late[-1].plan == plan

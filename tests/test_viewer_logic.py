@@ -1198,7 +1198,7 @@ def test_controller_starts_with_the_library_then_attaches_a_new_session() -> Non
     sc = mesh.sessions[ctl.session.id]
     assert got.of(events.SessionRemembered)[-1].session == sc.id
     assert got.of(events.ModelLoaded)[-1].model.id == "arm3" and got.of(events.LibraryClosed)
-    assert set(sc.watched) == {"on_state", "on_params", "on_obstacles", "on_layout", "on_live"}
+    assert set(sc.watched) == {"on_state", "on_params", "on_obstacles", "on_command", "on_layout", "on_live"}
     assert ctl.values == arm().default_values() and ctl.streamed == {v.name for v in arm().variables}
     assert got.of(events.ParamSetsChanged)[-1].names == ["light"]
     assert got.of(events.StateShown)[-1].state.phase == "created"
@@ -2064,6 +2064,49 @@ def test_the_page_draws_the_sessions_obstacles_and_a_runs_grasps_and_contacts(se
         panel.remove()
         ctl.drain()
         assert [ob.name for ob in ctl.obstacles] == ["box1", "ball"] and len(page.scene._obstacles) == 2
+    finally:
+        tab.close()
+        page.remove()
+
+
+def test_a_command_another_client_set_shows_in_its_pendant_and_an_echo_changes_nothing(server: Any) -> None:
+    model = msgspec.structs.replace(arm(), command_levels=["joint_path", "direct_input"])
+    tab, client, page, sc = loaded_tab(server, model)
+    ctl = tab.controller
+    commands = page.commands
+    assert commands.pendant is not None and commands.direct is not None and ctl.path is not None
+    try:
+        # another client's joint path: the pendant shows its nodes and the plan that came with it
+        path = m.JointPath([m.PathNode([0.1, 0.2, 0.3], 50.0, 100.0), m.PathNode([0.0, 0.0, 0.0])])
+        plan = m.CommandPlan("joint_path", 2.5, [], [0.0, 0.0, 0.0])
+        sc.watched["on_command"](m.CommandValue(sc.id, path, plan))
+        assert ctl.path.to_command() == path and ctl.command_kind == "joint_path"
+        assert "| 5.7 | 11.5 | 17.2 | 50 | 100 |" in commands.pendant.table.content
+        assert "Path duration **2.50 s**" in commands.pendant.duration.content
+        # then a direct input: its pendant takes it, the joint path says it is not the command
+        signals = m.DirectInput("closed_loop", {"joint2": m.StepSignal(0.2)}, "speed")
+        preview = m.SignalPreview("rad/s", [0.0, 1.0], {"joint2": [0.2, 0.2]})
+        planned = m.CommandPlan("direct_input", 1.0, [], [0.0, 0.0, 0.0], signals=preview)
+        sc.watched["on_command"](m.CommandValue(sc.id, signals, planned))
+        assert ctl.command_kind == "direct_input" and ctl.direct is not None
+        assert ctl.direct.to_command() == signals
+        assert commands.direct.mode.value == "Speed set point (closed loop)"
+        assert "step 0 → 0.2 rad/s" in commands.direct.table.content
+        assert "Not the session's command" in commands.pendant.duration.content
+        # this tab's own send comes back while the user edits on: the newer edit stays
+        ctl.path.teach([0.2, 0.2, 0.2])
+        ctl.edits.command_changed()
+        ctl.edits.flush()
+        ctl.drain()
+        sent = sc.of(m.SetCommand)[-1].command
+        ctl.path.set_q([0.3, 0.3, 0.3])
+        sc.watched["on_command"](m.CommandValue(sc.id, sent, plan))
+        assert ctl.path.nodes[ctl.path.selected].q == [0.3, 0.3, 0.3]
+        # another session's publication, and a session without a command: nothing changes
+        sc.watched["on_command"](m.CommandValue("x" * 22, path, plan))
+        sc.watched["on_command"](m.CommandValue(sc.id, None, None))
+        assert ctl.path.nodes[ctl.path.selected].q == [0.3, 0.3, 0.3] and ctl.command_kind == "joint_path"
+        assert not client.notes
     finally:
         tab.close()
         page.remove()

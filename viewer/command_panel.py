@@ -122,6 +122,18 @@ class CommandPanel:
             self.program.show_plan(plan, stop, current and kind in LEVELS)
         self.scene.show_tool_path(plan.tool_path if current and plan is not None else [])
 
+    def show_replaced(self, event: ev.CommandReplaced) -> None:
+        """Another client set the session's command: its pendant shows it, and the plan with it."""
+        if event.kind == "joint_path" and self.pendant is not None:
+            self.pendant.refresh()
+        elif event.kind == "cartesian_path" and self.cartesian is not None:
+            self.cartesian.refresh()
+        elif event.kind == "direct_input" and self.direct is not None:
+            self.direct.show_joint(self.direct.joint.value)
+        elif event.kind in LEVELS and self.program is not None:
+            self.program.refresh()
+        self.show_plan()
+
     def show_refusal(self, event: ev.CommandRefused) -> None:
         """The server refused the path being edited: the reason beside it, no tool path drawn."""
         if event.kind == "cartesian_path" and self.cartesian is not None:

@@ -12,11 +12,12 @@ from __future__ import annotations
 
 import threading
 import time
+from collections import deque
 from functools import partial
 from typing import TYPE_CHECKING, Any
 
 import msgspec
-from simecs.mesh import columns
+from simecs.mesh import codec, columns
 from simecs.mesh import messages as m
 from simecs.mesh.client import NoReply, RemoteError
 from simecs.mesh.shapes import appearance_parameters
@@ -51,6 +52,8 @@ class Edits:
         self._lock = threading.Lock()
         self.plan: m.CommandPlan | None = None  # the server's plan of the command last sent
         self.refused = ""  # why the server refused the path last sent ('' when it took it)
+        #: The commands this tab sent lately (encoded): their publication is not another client's.
+        self._sent: deque[bytes] = deque(maxlen=32)
         self._in_flight = False  # a dragged command is being sent
         self._again = False  # and it moved since: send once more
         #: What the user's last changes of parameter values replaced (newest last): Undo puts it back.
@@ -335,8 +338,11 @@ class Edits:
         editor = c.editor(c.command_kind)
         if editor is None or editor.empty:
             return
+        command = editor.to_command()
+        with self._lock:
+            self._sent.append(codec.dumps(command))
         try:
-            plan = self.command(m.SetCommand(editor.to_command()))
+            plan = self.command(m.SetCommand(command))
         except RemoteError as exc:
             if not exc.field.startswith("command"):
                 raise
@@ -345,3 +351,26 @@ class Edits:
             return
         self.plan, self.refused = plan, ""
         c.emit(ev.PlanChanged(plan, c.command_kind))
+
+    def on_command(self, published: m.CommandValue) -> None:
+        """The session's command as the proxy published it: one another client set (not one this
+        tab sent, nor the one its pendant holds) goes into its pendant, with its plan."""
+        c = self.c
+        session, command = c.session, published.command
+        if session is None or published.session != session.id or command is None:
+            return
+        encoded = codec.dumps(command)
+        kind = "task" if command.kind == "action" else command.kind  # the task pendant sends tasks
+        editor = c.editor(kind)
+        with self._lock:
+            if encoded in self._sent or editor is None:
+                return
+        try:
+            if not editor.empty and codec.dumps(editor.to_command()) == encoded:
+                return
+        except ValueError:
+            pass  # a composition that cannot be sent differs from any published command
+        editor.load(command)  # type: ignore[arg-type]
+        c.command_kind = kind
+        self.plan, self.refused = published.plan, ""
+        c.emit(ev.CommandReplaced(kind))

@@ -161,6 +161,13 @@ class LiveSamples:
 
 
 @dataclass
+class CommandReplaced:
+    """Another client set the session's command: the pendant of `kind` shows it (with its plan)."""
+
+    kind: str
+
+
+@dataclass
 class ObstaclesChanged:
     """The session's obstacles (the user's edit, or another client's): draw them."""
 
@@ -240,6 +247,7 @@ Event = (
     | LayoutChanged
     | LiveSamples
     | ObstaclesChanged
+    | CommandReplaced
     | PosePreview
     | TransientLoaded
     | ComparedLoaded

@@ -122,6 +122,7 @@ class ModelPage:
             ev.SettingsChanged: self._settings_applied,
             ev.PlanChanged: self.commands.show_plan,
             ev.CommandRefused: self.commands.show_refusal,
+            ev.CommandReplaced: self.commands.show_replaced,
             ev.StateShown: self._state_shown,
         }
         self.show_editable()

@@ -234,6 +234,7 @@ class SessionController(Dispatcher):
             on_state=self.on_state,
             on_params=self.on_params,
             on_obstacles=self.edits.on_obstacles,
+            on_command=self.edits.on_command,
             on_layout=self.on_layout,
             on_live=partial(self._on_live_of, sid),
         )
