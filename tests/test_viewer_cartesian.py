@@ -142,7 +142,7 @@ def test_the_pendant_sends_a_dragged_pose_and_shows_the_nodes_arm_or_the_refusal
         assert ctl.shown_q == pytest.approx([0.25, 0.0, 0.0])  # the arm stays where it could go
         ctl.control.run_action("run")  # Run with the refused path: not the old one, the reason
         ctl.drain()
-        assert not sc.of(m.Run) and "server refused the path (out of reach" in client.notes[-1][1]
+        assert not sc.of(m.Run) and "server refused the command (out of reach" in client.notes[-1][1]
         client.notes.clear()
         # typed back within reach: accepted, marks cleared
         cart.position.value = (450.0, 50.0, 300.0)

@@ -23,6 +23,7 @@ from simecs.mesh.client import NoReply, RemoteError
 from simecs.mesh.shapes import appearance_parameters
 
 from . import events as ev
+from .program import pendant_level
 
 if TYPE_CHECKING:
     from .session import SessionController
@@ -360,7 +361,7 @@ class Edits:
         if session is None or published.session != session.id or command is None:
             return
         encoded = codec.dumps(command)
-        kind = "task" if command.kind == "action" else command.kind  # the task pendant sends tasks
+        kind = pendant_level(command.kind)
         editor = c.editor(kind)
         with self._lock:
             if encoded in self._sent or editor is None:

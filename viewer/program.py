@@ -31,6 +31,11 @@ _SPLIT = re.compile(r"[\s,;]+")
 LEVELS = ("task", "mission")
 
 
+def pendant_level(kind: str) -> str:
+    """The level a pendant edits a command of `kind` as: an action is taken as a task of one."""
+    return "task" if kind == "action" else kind
+
+
 def arg_label(name: str, spec: ArgSpec) -> str:
     return f"{name} [{spec.unit}]" if spec.unit else name
 

@@ -68,7 +68,7 @@ class RunControl:
             editor.to_command()  # raises PathError: what the empty command lacks
         c.edits.flush(also=("command",))  # the run takes what the user sees, paused or not
         if editor is not None and c.edits.refused:
-            raise PathError(f"the server refused the path ({c.edits.refused}): change it, then Run")
+            raise PathError(f"the server refused the command ({c.edits.refused}): change it, then Run")
         t0 = time.monotonic()
         started: m.RunStarted = sc.command(m.Run())
         self._timing = started.run_id

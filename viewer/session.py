@@ -36,7 +36,7 @@ from .identity import Identity, new_user_name
 from .jog import JogControl
 from .opening import Opening
 from .path import JointPathEditor, clamp_to_limits
-from .program import ProgramEditor
+from .program import LEVELS, ProgramEditor, pendant_level
 from .results_io import ResultsIO
 from .runs import RunControl
 from .stream import LIVE_BEHIND, RunStream
@@ -275,9 +275,7 @@ class SessionController(Dispatcher):
             self.direct.load(snap.command)
         elif isinstance(snap.command, m.Action | m.Task | m.Mission) and self.program is not None:
             self.program.load(snap.command)
-        self.command_kind = snap.command.kind if snap.command is not None else "joint_path"
-        if self.command_kind == "action":
-            self.command_kind = "task"  # the task pendant sends an action as a task of one
+        self.command_kind = pendant_level(snap.command.kind) if snap.command is not None else "joint_path"
         self.stream = RunStream(model)
         self.replaying = None
         self.edits.forget()
@@ -286,8 +284,10 @@ class SessionController(Dispatcher):
         self, kind: str
     ) -> JointPathEditor | CartesianPathEditor | DirectInputEditor | ProgramEditor | None:
         """The pendant's command of level `kind` (None: this viewer does not edit that level)."""
+        if kind in LEVELS:
+            return self.program
         editors = {"joint_path": self.path, "cartesian_path": self.cart, "direct_input": self.direct}
-        return editors.get(kind) or (self.program if kind in ("task", "mission") else None)
+        return editors.get(kind)
 
     def tool_pose(self, q: list[float]) -> Pose:
         """The tool pose at joint positions `q` with the session's values (what Teach records)."""
