@@ -38,7 +38,7 @@ def test_sessions_leave_nothing_behind(service: Service) -> None:
             # 20 users (one user may hold only sessions_per_user sessions)
             sessions = [service.client.create_session(f"u{i}", "spider") for i in range(20)]
             wait_until(lambda: seen[-1].detail["sessions"] == 20, timeout=10, what="20 sessions")
-            assert seen[-1].detail["declared"] == base + 3 * 20  # state, params and obstacles per session
+            assert seen[-1].detail["declared"] == base + 4 * 20  # state, params, obstacles, command each
             for s in sessions:
                 s.close()
             wait_until(lambda: seen[-1].detail["sessions"] == 0, timeout=10, what="sessions closed")
