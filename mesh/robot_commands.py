@@ -12,13 +12,14 @@ the refusal names the field (`command.tasks[1].actions[2].args.speed_pct`).
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass
 from typing import Annotated, Literal
 
 import msgspec
 from msgspec import Meta
 
-from .primitives import FieldProblem, Name, Record
+from .primitives import NAME_PATTERN, FieldProblem, Name, Record
 
 Percent = Annotated[float, Meta(gt=0.0, le=100.0, description="percent of the maxima, (0, 100]")]
 Seconds = Annotated[float, Meta(ge=0.0, le=1e9)]
@@ -187,9 +188,15 @@ class DirectInput(RobotCommandBase, tag="direct_input"):
 Primitive = Literal[
     "move_joints", "move_linear", "move_to_pose", "wait", "home", "set_payload", "grasp", "release"
 ]
+#: A plain `str`, not `Name`, in this union: msgspec 0.22 corrupts memory when a number out of range
+#: (1e999) meets a union of a float and a pattern-constrained string (a hostile command crashed the
+#: proxy); `Action.__post_init__` checks the name instead.
 ArgValue = Annotated[
-    float | list[float] | Name,
-    Meta(description="a number, a vector (q, position, rpy) or a name (grasp's object)"),
+    float | list[float] | str,
+    Meta(
+        description="a number, a vector (q, position, rpy) or a name (grasp's object: 1-64 letters, "
+        "digits, '_', '-', '.')"
+    ),
 ]
 
 
@@ -199,6 +206,13 @@ class Action(RobotCommandBase, tag="action"):
     primitive: Primitive
     args: Annotated[dict[Name, ArgValue], Meta(max_length=16)] = {}
     name: Label = ""
+
+    def __post_init__(self) -> None:
+        for key, value in self.args.items():
+            if isinstance(value, str) and not re.match(NAME_PATTERN, value):
+                raise FieldProblem(
+                    f"args.{key}", f"a name is 1-64 letters, digits, '_', '-', '.', not {value[:64]!r}"
+                )
 
 
 class Task(RobotCommandBase, tag="task"):

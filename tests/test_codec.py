@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import json
+import subprocess
+import sys
 import typing
 
 import msgspec
@@ -213,3 +215,35 @@ def test_random_bytes_decode_or_raise_decode_error(blob: bytes) -> None:
         codec.loads(messages.SessionCommand, blob)
     except codec.DecodeError:
         pass
+
+
+def test_a_number_out_of_range_in_an_action_argument_is_refused_again_and_again() -> None:
+    """msgspec 0.22 corrupted memory decoding 1e999 into a union of a float and a pattern-constrained
+    string (an action's argument): a hostile command crashed the proxy on its next message. The
+    decode runs in a child process so that a crash fails this test instead of the test runner."""
+    script = """
+import gc
+from simecs.mesh import codec, messages as m
+p = b'{"op":"save_program","v":1,"name":"x","program":{"kind":"task","name":"t","actions":['
+p += b'{"kind":"action","primitive":"wait","args":{"duration":1e999}}]}}'
+for _ in range(3000):
+    try:
+        codec.loads(m.SessionCommand, p)
+    except codec.DecodeError as exc:
+        assert exc.field == "program.actions[0].args.duration", exc.field
+    else:
+        raise AssertionError("1e999 was taken")
+gc.collect()
+print("refused 3000 times")
+"""
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert "refused 3000 times" in done.stdout
+
+
+def test_an_action_argument_that_is_a_name_is_checked_as_one() -> None:
+    good = codec.loads(messages.Action, b'{"kind":"action","primitive":"grasp","args":{"object":"box1"}}')
+    assert good.args == {"object": "box1"}
+    with pytest.raises(codec.DecodeError) as refused:
+        codec.loads(messages.Action, b'{"kind":"action","primitive":"grasp","args":{"object":"two words"}}')
+    assert refused.value.field == "args.object" and "not 'two words'" in str(refused.value)
