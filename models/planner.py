@@ -90,7 +90,8 @@ class Plan:
     tool_path: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     start_pose: list[float] = field(default_factory=list)  # the tool: x, y, z, roll, pitch, yaw
     end_pose: list[float] = field(default_factory=list)
-    preview: m.SignalPreview | None = None  # direct input: its signals as expanded
+    signalled: list[tuple[str, int]] = field(default_factory=list)  # direct input: (joint, index)
+    signal_unit: m.SignalUnit = "A"
 
     def apply(self, sim: Any) -> None:
         """Hand the plan to a `Simulation` for its next run."""
@@ -143,7 +144,20 @@ class Plan:
             final_q=[float(x) for x in self.final_q],
             tool_path=[[float(x) for x in p] for p in self.tool_path],
             stop_time_cuts=self.duration > stop_time + 1e-9,
-            signals=self.preview,
+            signals=self._preview(),
+        )
+
+    def _preview(self) -> m.SignalPreview | None:
+        """A direct input's signals as expanded, sampled for a client (only a reply needs it: a run
+        does not pay for it)."""
+        if not self.signalled or self.tab is None or self.jmode is None:
+            return None
+        joints = [j for _name, j in self.signalled]
+        t, values = signals.preview(self.tab, self.jmode, joints, m.PREVIEW_POINTS)
+        return m.SignalPreview(
+            self.signal_unit,
+            _floats(t),
+            {name: _floats(values[:, k]) for k, (name, _j) in enumerate(self.signalled)},
         )
 
 
@@ -411,11 +425,6 @@ class Planner:
             cmd, self.names, bounds, self.q0, self.stop_time, self.max_rows
         )
         what = cmd.mode if cmd.mode == "open_loop" else f"closed_loop {cmd.reference}"
-        joints = [self.names.index(name) for name in cmd.signals]
-        t, values = signals.preview(tab, jmode, joints, m.PREVIEW_POINTS)
-        preview = m.SignalPreview(
-            cmd.unit, _floats(t), {self.names[j]: _floats(values[:, k]) for k, j in enumerate(joints)}
-        )
         # Where the joints are meant to be is known before the run unless a current drives one.
         known = cmd.mode == "closed_loop"
         qs = tab[:, 1 : 1 + self.n]
@@ -428,7 +437,8 @@ class Planner:
             tab=tab,
             jmode=jmode,
             tool_path=self._tool_path(qs) if known else np.zeros((0, 3)),
-            preview=preview,
+            signalled=[(name, self.names.index(name)) for name in cmd.signals],
+            signal_unit=cmd.unit,
         )
 
     # ---- moves ----

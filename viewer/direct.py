@@ -12,7 +12,7 @@ No GUI here: `direct_pendant.py` draws it, the session controller owns it, tests
 
 from __future__ import annotations
 
-import re
+import functools
 import typing
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -24,7 +24,7 @@ from simecs.mesh import messages as m
 from simecs.mesh.robot_commands import SIGNAL_TYPES, SignalUnit
 
 from .path import PathError
-from .tree import fmt
+from .tree import fmt, numbers_text, parse_numbers
 
 #: The pendant's Mode dropdown: its labels and the (mode, reference) each stands for.
 MODES: dict[str, tuple[str, str]] = {
@@ -53,7 +53,6 @@ _FIELD_TEXT = {
 #: signal applied as it comes moves the arm a little.
 _FIRST = {"amplitude": 0.1, "slope": 0.1, "frequency_hz": 1.0, "f0_hz": 0.5, "f1_hz": 5.0, "duration": 2.0}
 FIRST_TABLE = "0, 0\n1, 0.1"  # what a new table starts as: one line per point
-_SPLIT = re.compile(r"[\s,;]+")
 
 
 @dataclass(frozen=True)
@@ -73,8 +72,10 @@ def _hint(cls: Any, name: str) -> str:
     return str(extra.get("description", ""))
 
 
-def signal_fields(kind: str) -> list[SignalField]:
-    """The numbers of a generator (`step`, `ramp`, `sine`, `chirp`) in the protocol's order."""
+@functools.cache
+def signal_fields(kind: str) -> tuple[SignalField, ...]:
+    """The numbers of a generator (`step`, `ramp`, `sine`, `chirp`) in the protocol's order (read
+    from the protocol's structs once: the pendant asks on every joint picked)."""
     cls = _CLASSES[kind]
     out = []
     for f in msgspec.structs.fields(cls):
@@ -82,7 +83,7 @@ def signal_fields(kind: str) -> list[SignalField]:
         first = f.default if f.default is not msgspec.NODEFAULT else _FIRST.get(f.name, 0.0)
         hint = _hint(cls, f.name) or " ".join((cls.__doc__ or "").split())
         out.append(SignalField(f.name, f"{label} [{unit}]", float(first), hint))
-    return out
+    return tuple(out)
 
 
 def unit_of(mode: str, reference: str) -> SignalUnit:
@@ -97,20 +98,20 @@ def parse_points(text: str) -> list[list[float]]:
         line = line.strip()
         if not line or line.startswith("#"):
             continue
-        parts = [p for p in _SPLIT.split(line) if p]
         try:
-            if len(parts) != 2:
-                raise ValueError
-            points.append([float(parts[0]), float(parts[1])])
+            point = parse_numbers(line)
         except ValueError:
-            raise PathError(f"table line {k}: {line!r} is not two numbers (t in s, value)") from None
+            point = []
+        if len(point) != 2:
+            raise PathError(f"table line {k}: {line!r} is not two numbers (t in s, value)")
+        points.append(point)
     if not points:
         raise PathError("the table is empty: one point per line, t in s and the value")
     return points
 
 
 def points_text(points: Sequence[Sequence[float]]) -> str:
-    return "\n".join(f"{fmt(float(t))}, {fmt(float(v))}" for t, v in points)
+    return "\n".join(numbers_text(point) for point in points)
 
 
 class DirectInputEditor:

@@ -13,7 +13,6 @@ No GUI here: `program_pendant.py` draws it, the session controller owns it, test
 from __future__ import annotations
 
 import math
-import re
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
@@ -22,11 +21,10 @@ from simecs.mesh import messages as m
 from simecs.mesh.robot_commands import ACTION_ARGS, NAME_ARG, ArgSpec
 
 from .path import PathError
-from .tree import fmt
+from .tree import fmt, numbers_text, parse_numbers
 
 PRIMITIVES = tuple(ACTION_ARGS)
 MAX_ACTIONS = 1000  # the protocol's limit per task, and of tasks per mission
-_SPLIT = re.compile(r"[\s,;]+")
 #: The levels this editor sends: one task alone, several as a mission (an action alone is a task of one).
 LEVELS = ("task", "mission")
 
@@ -63,7 +61,7 @@ def arg_text(value: float | list[float] | str | None) -> str:
     if isinstance(value, str):
         return value
     if isinstance(value, list):
-        return ", ".join(fmt(float(x)) for x in value)
+        return numbers_text(value)
     return fmt(float(value))
 
 
@@ -77,7 +75,7 @@ def parse_arg(name: str, spec: ArgSpec, text: str, joints: int) -> float | list[
     if spec.size == NAME_ARG:
         return text
     try:
-        values = [float(p) for p in _SPLIT.split(text) if p]
+        values = parse_numbers(text)
     except ValueError:
         raise PathError(f"{name}: {text!r} is not {'a number' if spec.size == 0 else 'numbers'}") from None
     if not all(math.isfinite(x) for x in values):

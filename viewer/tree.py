@@ -6,6 +6,7 @@ Pure data: the GUI panels in params.py draw these; tests check them without a br
 
 from __future__ import annotations
 
+import re
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -85,6 +86,20 @@ def fmt(value: float) -> str:
         return str(int(value))
     text = f"{value:.6g}"
     return text
+
+
+#: What may stand between typed numbers: commas, spaces, semicolons.
+_BETWEEN_NUMBERS = re.compile(r"[\s,;]+")
+
+
+def parse_numbers(text: str) -> list[float]:
+    """Numbers as people type them in a field ("0.1, 0.2 0.3"); ValueError when one is not a number."""
+    return [float(part) for part in _BETWEEN_NUMBERS.split(text.strip()) if part]
+
+
+def numbers_text(values: Sequence[float]) -> str:
+    """Numbers as `parse_numbers` reads them back."""
+    return ", ".join(fmt(float(x)) for x in values)
 
 
 def param_label(p: Parameter) -> str:
