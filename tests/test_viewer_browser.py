@@ -15,6 +15,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from typing import Any
 
+import pytest
 from simecs.mesh import keys
 from simecs.mesh.client import MeshClient, SessionClient
 from simecs.testing import browser as chromium
@@ -77,6 +78,20 @@ def spider_tab(
     client = service.client
     sid = wait_until(lambda: next(iter(sessions_of(client)), None), timeout=20, what="a session")
     return page, context, client.session(USER, sid)
+
+
+#: The viewports every pendant and layout walk runs at: the smallest supported, and a common laptop's.
+BOTH_SIZES = pytest.mark.parametrize("size", [(1024, 768), (1600, 900)], ids=["1024x768", "1600x900"])
+
+
+def sized_spider_tab(mesh: Mesh, browser: Any, size: tuple[int, int]) -> tuple[Any, SessionClient, str]:
+    """`spider_tab` at viewport `size`, its notices closed: (page, session, the size as a tag for
+    screenshot names, which go to SHOTS)."""
+    width, height = size
+    SHOTS.mkdir(parents=True, exist_ok=True)
+    page, _context, session = spider_tab(mesh, browser, {"width": width, "height": height})
+    dismiss_notifications(page)
+    return page, session, f"{width}x{height}"
 
 
 def sessions_of(client: MeshClient) -> set[str]:

@@ -24,10 +24,10 @@ from simecs.viewer.path import PathError
 
 from .conftest import Mesh, wait_until
 from .test_viewer_browser import (
+    BOTH_SIZES,
     SHOTS,
-    dismiss_notifications,
     logs_on_failure,
-    spider_tab,
+    sized_spider_tab,
     text_appears,
 )
 from .test_viewer_layout import view_is_clear
@@ -108,18 +108,15 @@ def preview_of(page: Any, label: str) -> tuple[float, float]:
     return chart["lows"][k], chart["highs"][k]
 
 
-@pytest.mark.parametrize("size", [(1024, 768), (1600, 900)], ids=["1024x768", "1600x900"])
+@BOTH_SIZES
 def test_the_signal_editor_previews_refuses_and_runs(mesh: Mesh, browser: Any, size: tuple[int, int]) -> None:
     with logs_on_failure(mesh, "viewer", "proxy"):
         direct_walk(mesh, browser, size)
 
 
 def direct_walk(mesh: Mesh, browser: Any, size: tuple[int, int]) -> None:
+    page, session, tag = sized_spider_tab(mesh, browser, size)
     width, height = size
-    tag = f"{width}x{height}"
-    SHOTS.mkdir(parents=True, exist_ok=True)
-    page, _context, session = spider_tab(mesh, browser, {"width": width, "height": height})
-    dismiss_notifications(page)
     q2 = session.snapshot().initial[1]
     page.get_by_role("tab", name="Direct input").click()
 

@@ -10,11 +10,11 @@ from __future__ import annotations
 
 from typing import Any
 
-import pytest
 from simecs.testing import browser as chromium
 
 from .conftest import Mesh, free_port, start_service, wait_until
 from .test_viewer_browser import (
+    BOTH_SIZES,
     SHOTS,
     SPIDER,
     dismiss_notifications,
@@ -64,7 +64,7 @@ def view_is_clear(page: Any, min_free_px: int) -> None:
     assert found["free"] >= min_free_px, f"the 3D view is {found['free']} px wide"
 
 
-@pytest.mark.parametrize("size", [(1024, 768), (1600, 900)], ids=["1024x768", "1600x900"])
+@BOTH_SIZES
 def test_no_region_covers_the_arm_and_a_reload_keeps_the_view(
     mesh: Mesh, browser: Any, size: tuple[int, int]
 ) -> None:

@@ -18,6 +18,7 @@ from simecs.viewer.cartesian_pendant import GIZMO
 
 from .conftest import Mesh, start_service, wait_until
 from .test_viewer_browser import (
+    BOTH_SIZES,
     SHOTS,
     SPIDER,
     dismiss_notifications,
@@ -42,7 +43,7 @@ def set_position(page: Any, mm: list[float]) -> None:
     page.get_by_role("button", name="Set pose").click()
 
 
-@pytest.mark.parametrize("size", [(1024, 768), (1600, 900)], ids=["1024x768", "1600x900"])
+@BOTH_SIZES
 def test_the_cartesian_pendant_plans_refuses_and_follows_the_gizmo(
     mesh: Mesh, browser: Any, size: tuple[int, int]
 ) -> None:

@@ -23,7 +23,13 @@ from simecs.viewer.path import PathError
 from simecs.viewer.program_pendant import refusal_text
 
 from .conftest import Mesh, wait_until
-from .test_viewer_browser import SHOTS, dismiss_notifications, logs_on_failure, spider_tab, text_appears
+from .test_viewer_browser import (
+    BOTH_SIZES,
+    SHOTS,
+    logs_on_failure,
+    sized_spider_tab,
+    text_appears,
+)
 from .test_viewer_layout import view_is_clear
 
 JOINTS = ["joint1", "joint2", "joint3"]
@@ -88,7 +94,7 @@ def press(page: Any, button: str, nth: int = 0) -> None:
     page.get_by_role("button", name=button, exact=True).locator("visible=true").nth(nth).click()
 
 
-@pytest.mark.parametrize("size", [(1024, 768), (1600, 900)], ids=["1024x768", "1600x900"])
+@BOTH_SIZES
 def test_the_task_pendant_composes_saves_refuses_and_runs(
     mesh: Mesh, browser: Any, size: tuple[int, int]
 ) -> None:
@@ -97,11 +103,8 @@ def test_the_task_pendant_composes_saves_refuses_and_runs(
 
 
 def tasks_walk(mesh: Mesh, browser: Any, size: tuple[int, int]) -> None:
+    page, session, tag = sized_spider_tab(mesh, browser, size)
     width, height = size
-    tag = f"{width}x{height}"
-    SHOTS.mkdir(parents=True, exist_ok=True)
-    page, _context, session = spider_tab(mesh, browser, {"width": width, "height": height})
-    dismiss_notifications(page)
     q0 = session.snapshot().initial
     page.get_by_role("tab", name="Tasks").click()
 
