@@ -22,6 +22,7 @@ initial pose, command, settings, replayed recording), `simecs.end` (how the file
 from __future__ import annotations
 
 import base64
+import bisect
 import functools
 import json
 import re
@@ -395,30 +396,46 @@ CONTACT_COLOR = {"r": 0.86, "g": 0.12, "b": 0.12, "a": 1.0}
 class WorldScene:
     """The /scene updates that follow a run's rows (mesh/scene_state.py): obstacles moved by a grasp
     or a release, and the contact arrows at the /tf rate. The first /scene (scene_update) drew the
-    obstacles where the run's list puts them."""
+    obstacles where the run's list puts them.
+
+    Rows come in time order, except the ones that fill a gap after the run (`backfill`): those start
+    from what the tool held at their own time, so a late gap never redraws an old grasp as the last
+    word (readers order /scene by log time)."""
 
     def __init__(self, names: Sequence[str], obstacles: Sequence[Obstacle], model_id: str) -> None:
         self.world = scene_state.WorldColumns(names)
         self.obstacles = list(obstacles)
         self.model_id = model_id
-        self.state = (0, 0)  # (object, held) of the last row seen
-        self.moved: dict[int, np.ndarray] = {}
-        self._arrows = 0  # arrows drawn by the last contact update
+        # (log time, (object, held), moved obstacles) from each grasp change on, in time order
+        self._timeline: list[tuple[int, tuple[int, int], dict[int, np.ndarray]]] = [(-1, (0, 0), {})]
+        self._arrows = 0  # arrows drawn by the last contact update in time order
 
-    def grasp_updates(self, rows: np.ndarray, log_ns: Sequence[int]) -> list[tuple[int, dict[str, Any]]]:
+    def grasp_updates(
+        self, rows: np.ndarray, log_ns: Sequence[int], backfill: bool = False
+    ) -> list[tuple[int, dict[str, Any]]]:
         """(log time, SceneUpdate) at each row where what the tool holds changes."""
         out: list[tuple[int, dict[str, Any]]] = []
-        if not self.obstacles:
+        if not self.obstacles or rows.shape[0] == 0:
             return out
-        for k, state in self.world.grasp_changes(rows, self.state):
-            self.state = state
-            self.world.moved(rows[k : k + 1], self.moved)
-            out.append((int(log_ns[k]), self._obstacles_update(int(log_ns[k]))))
+        before = self._at(int(log_ns[0])) if backfill else len(self._timeline) - 1
+        _, state_before, moved_before = self._timeline[before]
+        moved = dict(moved_before)
+        for k, state in self.world.grasp_changes(rows, state_before):
+            ns = int(log_ns[k])
+            self.world.moved(rows[k : k + 1], moved)
+            out.append((ns, self._obstacles_update(state, moved, ns)))
+            bisect.insort(self._timeline, (ns, state, dict(moved)), key=lambda entry: entry[0])
         return out
 
-    def _obstacles_update(self, ns: int) -> dict[str, Any]:
-        number, held = self.state
-        here = scene_state.placed(self.obstacles, self.moved)
+    def _at(self, ns: int) -> int:
+        """The index of the timeline's entry in force just before log time `ns`."""
+        return bisect.bisect_left(self._timeline, ns, key=lambda entry: entry[0]) - 1
+
+    def _obstacles_update(
+        self, state: tuple[int, int], moved: dict[int, np.ndarray], ns: int
+    ) -> dict[str, Any]:
+        number, held = state
+        here = scene_state.placed(self.obstacles, moved)
         carried = number - 1 if held else -1
         world = _entity(OBSTACLES_ENTITY, WORLD_FRAME, ns, self.model_id)
         _draw_obstacles(world, [ob for k, ob in enumerate(here) if k != carried])
@@ -431,12 +448,27 @@ class WorldScene:
             update["deletions"].append({"timestamp": stamp(ns), "type": 0, "id": HELD_ENTITY})
         return update
 
-    def contacts_update(self, row: np.ndarray, ns: int) -> dict[str, Any] | None:
-        """The contact arrows of a row as a SceneUpdate; None when there were none and are none."""
-        arrows = self.world.arrows(row)
-        if arrows.shape[0] == 0 and self._arrows == 0:
-            return None
-        self._arrows = arrows.shape[0]
+    def contacts_updates(
+        self, rows: np.ndarray, log_ns: Sequence[int], backfill: bool = False
+    ) -> list[tuple[int, dict[str, Any]]]:
+        """(log time, SceneUpdate) of the contact arrows at each of `rows` (the /tf samples), where they
+        change from nothing to nothing are left out. A backfilled piece clears its arrows at its end:
+        the live rows after the gap drew theirs, or none, on their own."""
+        out: list[tuple[int, dict[str, Any]]] = []
+        drawn = 0 if backfill else self._arrows
+        for row, ns in zip(rows, log_ns, strict=True):
+            arrows = self.world.arrows(row)
+            if arrows.shape[0] == 0 and drawn == 0:
+                continue
+            drawn = arrows.shape[0]
+            out.append((int(ns), self._contacts_entity(arrows, int(ns))))
+        if backfill and drawn and len(log_ns):
+            out.append((int(log_ns[-1]) + 1, self._contacts_entity(np.zeros((0, 2, 3)), int(log_ns[-1]) + 1)))
+        elif not backfill:
+            self._arrows = drawn
+        return out
+
+    def _contacts_entity(self, arrows: np.ndarray, ns: int) -> dict[str, Any]:
         entity = _entity(CONTACTS_ENTITY, WORLD_FRAME, ns, self.model_id)
         for start, end in arrows:
             entity["arrows"].append(_arrow(start, end))

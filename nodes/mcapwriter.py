@@ -270,9 +270,12 @@ class RunWriter:
         if backfill:
             resume_viz, self._next_viz = self._next_viz, -math.inf
             try:
-                return self.write_frame(frame)
+                return self._write_rows(frame, backfill=True)
             finally:
                 self._next_viz = resume_viz
+        return self._write_rows(frame, backfill=False)
+
+    def _write_rows(self, frame: frames.Frame, backfill: bool) -> int:
         rows = frame.rows
         if rows.ndim != 2 or (rows.shape[0] and rows.shape[1] != len(self.layout.columns)):
             raise FormatError(
@@ -292,7 +295,7 @@ class RunWriter:
         )
         log_ns = log_arr.tolist()
         written = n
-        for ns, update in self.world.grasp_updates(rows, log_ns):
+        for ns, update in self.world.grasp_updates(rows, log_ns, backfill):
             self.write_json(self.ch_scene, update, ns)
         if self.poses or self.joints:
             tl = times.tolist()
@@ -318,9 +321,9 @@ class RunWriter:
                             self.ch_joints, [log_ns[i]], [self.joints.encode(jv[k], ts)], frame.wall_ns, seq
                         )
                         written += 1
-                    contacts = self.world.contacts_update(sel[k], log_ns[i]) if finite else None
-                    if contacts is not None:
-                        self.write_json(self.ch_scene, contacts, log_ns[i])
+                if finite:
+                    for ns, update in self.world.contacts_updates(sel, [log_ns[i] for i in pick], backfill):
+                        self.write_json(self.ch_scene, update, ns)
         self.rows += n
         self.messages += written
         self.dirty = True

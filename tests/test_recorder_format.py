@@ -15,7 +15,8 @@ import jsonschema
 import numpy as np
 import pytest
 from mcap.writer import Writer
-from simecs.mesh import frames
+from simecs.mesh import columns, frames
+from simecs.mesh import messages as m
 from simecs.nodes import export, mcapread, mcaprepair
 from simecs.nodes import mcapfmt as fmt
 from simecs.nodes.mcapwriter import RunWriter
@@ -139,6 +140,67 @@ def test_foxglove_scene_draws_the_shape_geometry_the_viewer_draws(changes: dict[
         default = fmt.scene_update(model, model.default_values(), 1)
         base = next(e for e in default["entities"] if e["id"] == "link3")["cylinders"][0]
         assert housing["size"]["x"] == pytest.approx(base["size"]["x"] * scale)
+
+
+def _grasp_rows() -> tuple[list[str], np.ndarray]:
+    """Ten rows of a box carried from x = 0.5 to x = 0.6: taken at row 2, let go at row 6."""
+    names = ["t", columns.GRASP_OBJECT, columns.GRASP_HELD]
+    names += [columns.pose_column(columns.GRASPED_FRAME, f) for f in columns.POSE_FIELDS]
+    rows = np.zeros((10, len(names)))
+    rows[:, 0] = np.arange(10) * 0.01
+    rows[2:, 1] = 1.0
+    rows[2:6, 2] = 1.0
+    rows[:, 3] = np.clip(0.5 + (np.arange(10) - 2) * 0.025, 0.5, 0.6)  # the grasped frame's x
+    rows[:, 5] = 0.2
+    rows[:, 6] = 1.0  # qw
+    return names, rows
+
+
+def _box_x(update: dict) -> float | None:
+    """Where the world draws the box in a /scene update (None: it is not in the world, it is held)."""
+    world = [e for e in update["entities"] if e["id"] == fmt.OBSTACLES_ENTITY][0]
+    return world["cubes"][0]["pose"]["position"]["x"] if world["cubes"] else None
+
+
+@pytest.mark.parametrize("gap", [(0, 4), (3, 8), (5, 10)])
+def test_a_gap_filled_late_draws_the_grasp_as_it_was_at_its_time(gap: tuple[int, int]) -> None:
+    # The recorder writes the rows of a lost stretch after the run: their /scene updates must start
+    # from what the tool held then, not from the run's end, and leave the later updates the last word.
+    names, rows = _grasp_rows()
+    box = m.Obstacle("box1", "box", [0.5, 0.0, 0.2], size=[0.05] * 3, mass=2.0)
+    ns = [int(t * 1e9) + 1_000 for t in rows[:, 0]]
+    a, b = gap
+    whole = fmt.WorldScene(names, [box], "arm").grasp_updates(rows, ns)
+    scene = fmt.WorldScene(names, [box], "arm")
+    late = scene.grasp_updates(rows[:a], ns[:a]) + scene.grasp_updates(rows[b:], ns[b:])
+    late += scene.grasp_updates(rows[a:b], ns[a:b], backfill=True)
+    timeline = sorted(late, key=lambda u: u[0])
+    # Every update in time order says what the rows said at its time; the last one puts the box down.
+    held = {t: bool(rows[k, 2]) for k, t in enumerate(ns)}
+    for t, update in timeline:
+        carried = any(e["id"] == fmt.HELD_ENTITY for e in update["entities"])
+        assert carried == held[t], (t, update)
+        x = _box_x(update)
+        assert carried or x == pytest.approx(rows[ns.index(t), 3] if rows[ns.index(t), 1] else 0.5)
+    assert [t for t, _ in whole] == [ns[2], ns[6]]
+    assert timeline[-1][1]["deletions"] and _box_x(timeline[-1][1]) == pytest.approx(0.6)
+
+
+def test_contact_arrows_of_a_filled_gap_end_with_it() -> None:
+    # A touch inside a lost stretch is drawn when the stretch is filled, and cleared where it ends:
+    # the live updates after the gap had no arrows, so nothing else would take it down.
+    names = ["t"] + [columns.contact_column(1, f) for f in (*columns.CONTACT_VECTOR, *columns.CONTACT_POINT)]
+    rows = np.zeros((8, len(names)))
+    rows[:, 0] = np.arange(8) * 0.02
+    rows[3:5, 3] = 20.0  # 20 N up at rows 3 and 4
+    ns = [int(t * 1e9) for t in rows[:, 0]]
+    scene = fmt.WorldScene(names, [], "arm")
+    live = scene.contacts_updates(rows[:2], ns[:2]) + scene.contacts_updates(rows[6:], ns[6:])
+    assert live == []  # nothing touched on either side of the gap
+    filled = scene.contacts_updates(rows[2:6], ns[2:6], backfill=True)
+    arrows = [(t, len(u["entities"][0]["arrows"])) for t, u in filled]
+    assert arrows == [(ns[3], 1), (ns[4], 1), (ns[5], 0)]
+    assert scene.contacts_updates(rows[6:7], ns[6:7]) == []  # the live side's state is its own
 
 
 def test_vars_schema_is_ros2_and_fields_map_to_columns() -> None:
