@@ -204,7 +204,7 @@ class Admission:
             if rec is not None:
                 rec.starting = False
             if not accepted:
-                self.hosts.release(host, request)
+                self.hosts.release(host, request.session, request.run_id)
                 if rec is not None and rec.state.run_id == request.run_id:
                     rec.state.host = ""
             waiting = rec is not None and rec.phase == "queued" and rec.abort_run != request.run_id

@@ -75,10 +75,12 @@ class Hosts:
             need = load.request_demand(request, view.load)
             view.reserved[(request.session, request.run_id)] = (need, time.monotonic())
 
-    def release(self, node_id: str, request: m.RunRequest) -> None:
+    def release(self, node_id: str, session: str, run_id: str) -> None:
+        """The run is no longer on its way to `node_id`: refused there, or already over (a short run
+        can end before the host's next status lists it)."""
         view = self.views.get(node_id)
         if view is not None:
-            view.reserved.pop((request.session, request.run_id), None)
+            view.reserved.pop((session, run_id), None)
 
     def refused(self, node_id: str) -> None:
         view = self.views.get(node_id)

@@ -147,6 +147,7 @@ class RunTracker:
 
     def end_run(self, rec: SessionRecord, phase: str, reason: str = "") -> None:
         self.going.pop(rec.id, None)
+        self.admission.hosts.release(rec.state.host, rec.id, rec.state.run_id)
         rec.active_at = time.time()  # a run that ends is activity: idle expiry counts from here
         self.run_info(rec, rec.state.run_id, phase=phase, reason=reason, sim_time=rec.state.sim_time)
         self.store.move(rec, phase, reason=reason, queue_position=0)

@@ -88,3 +88,16 @@ def test_a_host_that_does_not_offer_the_model_is_never_chosen() -> None:
     h = hosts(a=host_load(1.9, models=["puma560"]))
     host, why = h.choose(request(1))
     assert host == "" and "spider" in why
+
+
+def test_a_run_over_before_the_hosts_status_lists_it_gives_its_core_back() -> None:
+    """One core for fast runs: a run handed over holds it (its host has not listed it yet); once it
+    ended (a short run can end between two statuses) the next one takes the core at once."""
+    h = hosts(a=host_load(1.0))
+    first, second = request(1), request(2)
+    h.reserve("a", first)
+    assert h.choose(second)[0] == ""
+    h.status("a", host_load(1.0))  # the host's next status does not list it: it is still on its way
+    assert h.choose(second)[0] == ""
+    h.release("a", first.session, first.run_id)
+    assert h.choose(second) == ("a", "")
