@@ -20,6 +20,7 @@ from . import messages as m
 from . import seal as seals
 from .config import MeshConfig, open_session
 from .model import DocPage, ModelDescription, ModelSummary
+from .results import selector_query
 from .seal import Seal
 from .workers import BoundedWorker
 
@@ -158,6 +159,20 @@ class MeshClient:
 
     def upload_recording(self, user: str, name: str, data: bytes, timeout: float = 60.0) -> m.RecordingInfo:
         return self.request(keys.recording(user, name), data, timeout, reply=m.RecordingInfo)
+
+    def recording_results(
+        self,
+        user: str,
+        name: str,
+        variables: Sequence[str] | None = None,
+        t0: float | None = None,
+        t1: float | None = None,
+        every: int = 1,
+    ) -> tuple[m.ResultsAttachment, np.ndarray]:
+        """A recording's samples as a run's results (`SessionClient.results_of`), without replaying it."""
+        key = keys.recording_results(user, name) + selector_query(variables, t0, t1, every)
+        payload, att = self.request_binary(key, m.ResultsAttachment)
+        return att, frames.decode(payload).rows
 
     def delete_recording(self, user: str, name: str) -> m.RecordingInfo:
         return self.request(keys.recording_delete(user, name), reply=m.RecordingInfo)
@@ -316,16 +331,7 @@ class SessionClient:
     ) -> tuple[m.ResultsAttachment, np.ndarray]:
         """As `results`, with what the reply says of the run: its columns, units, RunInfo and the
         context it ran with (what a comparison of runs needs)."""
-        params = []
-        if variables:
-            params.append("vars=" + ",".join(variables))
-        if t0 is not None:
-            params.append(f"t0={t0!r}")
-        if t1 is not None:
-            params.append(f"t1={t1!r}")
-        if every != 1:
-            params.append(f"every={int(every)}")
-        key = keys.results(self.user, self.id, run_id) + ("?" + ";".join(params) if params else "")
+        key = keys.results(self.user, self.id, run_id) + selector_query(variables, t0, t1, every)
         payload, att = self.client.request_binary(key, m.ResultsAttachment)
         return att, frames.decode(payload).rows
 

@@ -138,6 +138,16 @@ _TABLE = (
         meaning="what one recording holds",
     ),
     KeySpec(
+        name="recording_results",
+        pattern="simecs/u/<user>/recordings/<name>/results",
+        kind="query",
+        writer="client",
+        answerer="recorder",
+        reply="frame",
+        meaning="the recorded run's samples, as a run's results (§6.2: the same selector, binary reply, "
+        "attachment ResultsAttachment): runs compared without replaying them",
+    ),
+    KeySpec(
         name="recording_delete",
         pattern="simecs/u/<user>/recordings/<name>/delete",
         kind="query",
@@ -362,6 +372,7 @@ ALL_RECORDING_LISTS = wildcard("recordings")
 ALL_RECORDINGS = wildcard("recording")
 ALL_RECORDING_INFOS = wildcard("recording_info")
 ALL_RECORDING_DELETES = wildcard("recording_delete")
+ALL_RECORDING_RESULTS = wildcard("recording_results")
 
 
 def user_space(user: str) -> str:
@@ -453,6 +464,10 @@ def recording(user: str, name: str) -> str:
 
 def recording_info(user: str, name: str) -> str:
     return build("recording_info", user=user, name=name)
+
+
+def recording_results(user: str, name: str) -> str:
+    return build("recording_results", user=user, name=name)
 
 
 def recording_delete(user: str, name: str) -> str:

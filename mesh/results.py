@@ -30,6 +30,25 @@ class Selector:
     every: int = 1
 
 
+def selector_query(
+    variables: Sequence[str] | None = None,
+    t0: float | None = None,
+    t1: float | None = None,
+    every: int = 1,
+) -> str:
+    """The `?vars=..;t0=..` tail a client adds to a results key ('' when it asks for everything)."""
+    params = []
+    if variables:
+        params.append("vars=" + ",".join(variables))
+    if t0 is not None:
+        params.append(f"t0={t0!r}")
+    if t1 is not None:
+        params.append(f"t1={t1!r}")
+    if every != 1:
+        params.append(f"every={int(every)}")
+    return "?" + ";".join(params) if params else ""
+
+
 def parse_selector(parameters: Mapping[str, str]) -> Selector:
     """Read a selector strictly: unknown parameters, non-numbers and non-finite times are refused."""
     for name in parameters:

@@ -110,6 +110,7 @@ class Recorder(Node):
         self.serve(keys.ALL_RECORDINGS, self._on_file, threaded=True)
         self.serve(keys.ALL_RECORDING_INFOS, self._on_info, threaded=True)
         self.serve(keys.ALL_RECORDING_DELETES, self._on_delete, threaded=True)
+        self.serve(keys.ALL_RECORDING_RESULTS, self._on_results, threaded=True)
 
     def _on_list(self, req: Request) -> Any:
         return self.library.listing(keys.parse("recordings", req.key)["user"])
@@ -127,6 +128,10 @@ class Recorder(Node):
     def _on_delete(self, req: Request) -> Any:
         where = keys.parse("recording_delete", req.key)
         return self.library.delete(where["user"], where["name"])
+
+    def _on_results(self, req: Request) -> Any:
+        where = keys.parse("recording_results", req.key)
+        return self.library.results(where["user"], where["name"], req.parameters)
 
     def stop(self) -> None:
         self.pipeline.stop()

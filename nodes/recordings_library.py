@@ -13,19 +13,24 @@ import logging
 import os
 import threading
 import time
+from collections.abc import Mapping
 from pathlib import Path
 
 import msgspec
-from simecs.mesh import files, keys, limits
+from simecs.mesh import files, keys, limits, phases
 from simecs.mesh import messages as m
+from simecs.mesh.results import results_reply
 from simecs.mesh.runtime import Binary, RequestError
 
+from . import mcapfmt as fmt
 from . import mcapread, mcaprepair
 
 log = logging.getLogger("simecs.recorder")
 
 DOWNLOAD_WAIT_S = 3.0  # a download of a run that is just ending waits this long for its file
 MAX_FILE_BYTES = limits.limit("upload_bytes")  # largest recording served or accepted over the mesh
+LOADED_KEPT = 2  # recordings kept read for their results (each holds its rows in memory)
+_INCOMPLETE = "the recording ends before its run did (the recorder stopped, or the file was torn)"
 
 
 class RecordingsLibrary:
@@ -36,9 +41,10 @@ class RecordingsLibrary:
     ) -> None:
         self.dir = Path(folder).resolve()
         self.quota_bytes = quota_bytes
-        self.lock = threading.Condition()  # guards open_files and info_cache
+        self.lock = threading.Condition()  # guards open_files, info_cache and loaded
         self.open_files: dict[Path, m.RecordingInfo] = {}
         self.info_cache: dict[Path, tuple[tuple[int, int], m.RecordingInfo | None]] = {}
+        self.loaded: dict[Path, tuple[tuple[int, int], mcapread.Recording]] = {}  # oldest first
         self.recovered = 0
 
     # -- files being written --------------------------------------------------------------------------
@@ -148,6 +154,7 @@ class RecordingsLibrary:
             info = self._info(path) or m.RecordingInfo(name, "", "", "", path.stat().st_size)
             path.unlink()
             self.info_cache.pop(path, None)
+            self.loaded.pop(path, None)
         log.info("deleted recording %s of %s", name, user)
         return info
 
@@ -173,7 +180,9 @@ class RecordingsLibrary:
             raise RequestError("bad_request", f"{name} is not a readable simecs recording", "name")
         return info
 
-    def download(self, user: str, name: str) -> Binary:
+    def _closed(self, user: str, name: str, doing: str) -> Path:
+        """The path of a recording that is not being written (a run just ending gets DOWNLOAD_WAIT_S
+        to close its file): refused as `conflict` while its run goes on, `not_found` without it."""
         path = self.path_of(user, name)
         end = time.monotonic() + DOWNLOAD_WAIT_S
         with self.lock:
@@ -183,11 +192,15 @@ class RecordingsLibrary:
                 raise RequestError(
                     "conflict",
                     f"recording {name} is still being written (its run is going on): "
-                    "download it when the run has ended",
+                    f"{doing} it when the run has ended",
                     "name",
                 )
         if not path.is_file():
             raise RequestError("not_found", f"{user} has no recording {name!r}", "name")
+        return path
+
+    def download(self, user: str, name: str) -> Binary:
+        path = self._closed(user, name, "download")
         size = path.stat().st_size
         if size > MAX_FILE_BYTES:
             raise RequestError(
@@ -195,6 +208,57 @@ class RecordingsLibrary:
             )
         info = self._info(path)
         return Binary(path.read_bytes(), attachment=info)
+
+    def results(self, user: str, name: str, parameters: Mapping[str, str]) -> Binary:
+        """The recorded run's samples as a run's results (mesh/results.py: the same selector and
+        reply), so runs are compared with recordings without replaying them."""
+        path = self._closed(user, name, "compare")
+        rec = self._loaded(path, name)
+        end = rec.metadata.get(fmt.META_END, {})
+        phase = end.get("phase", "")
+        reason = end.get("reason", "")
+        if phase not in phases.ENDED:  # "ended" without its last rows, "incomplete", or torn
+            phase, reason = ("finished", reason) if phase == "ended" else ("failed", _INCOMPLETE)
+        rows = rec.rows
+        info = m.RunInfo(
+            rec.layout.run_id,
+            phase,  # type: ignore[arg-type]
+            rec.layout.stop_time,
+            float(rows[-1, 0]) if rows.shape[0] else 0.0,
+            int(rows.shape[0]),
+            reason,
+            recording=name,
+        )
+        layout = rec.layout
+        return results_reply(
+            rows, layout.columns, layout.units, parameters, layout.run_index, info, rec.context()
+        )
+
+    def _loaded(self, path: Path, name: str) -> mcapread.Recording:
+        """`path` read whole, from the last LOADED_KEPT read while the file is unchanged (a comparison
+        asks for each plot and each zoom)."""
+        st = path.stat()
+        stamp = (st.st_mtime_ns, st.st_size)
+        with self.lock:
+            kept = self.loaded.get(path)
+        if kept is not None and kept[0] == stamp:
+            return kept[1]
+        if st.st_size > MAX_FILE_BYTES:
+            raise RequestError(
+                "unsupported",
+                f"recording {name} is {st.st_size} bytes, more than the {MAX_FILE_BYTES} served",
+            )
+        try:
+            rec = mcapread.load(path)
+        except (mcapread.RecordingError, OSError) as exc:
+            raise RequestError(
+                "bad_request", f"{name} is not a readable simecs recording: {exc}", "name"
+            ) from None
+        with self.lock:
+            self.loaded[path] = (stamp, rec)
+            while len(self.loaded) > LOADED_KEPT:
+                self.loaded.pop(next(iter(self.loaded)))
+        return rec
 
     def upload(self, user: str, name: str, data: bytes) -> m.RecordingInfo:
         path = self.path_of(user, name)

@@ -57,6 +57,9 @@ class OtherQueries:
                 [rec_name, self.draw.pick(UPLOAD_NAMES[:8]), "nope", self.draw.weird_chunk()]
             )
             key = f"simecs/u/{user}/recordings/{name}/info"
+            if self.draw.chance(0.5):  # its samples, as a run's results, with a selector good or bad
+                selector = self.draw.pick(["", "?t0=-1;t1=-1", "?vars=nope", "?every=0", "?t0=nan", "?x=1"])
+                key = f"simecs/u/{user}/recordings/{name}/results{selector}"
         elif r < 0.45:  # download (no payload)
             name = self.draw.pick(
                 [rec_name, self.draw.pick(UPLOAD_NAMES[:8]), "nope", self.draw.weird_chunk()]

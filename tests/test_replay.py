@@ -1,5 +1,6 @@
 """Replays: a recording played back as a run of a session, owned by the proxy like any run, frames and
-results equal to the recorded ones, with pause, seek, abort and the recorded end."""
+results equal to the recorded ones, with pause, seek, abort and the recorded end. And a recording's
+samples served as a run's results without replaying it (to compare runs with it)."""
 
 from __future__ import annotations
 
@@ -136,6 +137,8 @@ def test_a_replay_ends_as_its_recording_did_and_can_be_aborted(recording_service
     client = mesh.client()
     s, path = record_a_run(mesh, client, stop_time=4.0, abort_at=0.3)
     assert mcapread.load(path).metadata["simecs.end"]["phase"] == "aborted"
+    att, rows = client.recording_results(s.user, path.stem, t0=0.0, t1=0.1)
+    assert att.run.phase == "aborted" and "aborted by the user" in att.run.reason and rows[-1, 0] <= 0.1
     run_id = s.replay(path.stem, speed=0)
     end = s.wait_for(["finished", "aborted", "failed"], 30, run_id)
     assert (
@@ -154,6 +157,36 @@ def test_a_replay_ends_as_its_recording_did_and_can_be_aborted(recording_service
         assert live.live[-1].rows.shape[0] == 0  # an aborted run ends with no sample
     finally:
         live.close()
+
+
+def test_a_recordings_samples_are_served_as_its_runs_results(recording_service: Mesh) -> None:
+    mesh = recording_service
+    client = mesh.client()
+    s, path = record_a_run(mesh, client)
+    run_id, name = s.snapshot().state.run_id, path.stem
+    ran, ran_rows = s.results_of(run_id)
+    att, rows = client.recording_results(s.user, name)
+    # Every sample, bit for bit, with the run's columns, units and context, and what the file holds.
+    assert np.array_equal(rows, ran_rows) and att.columns == ran.columns and att.units == ran.units
+    assert att.context == ran.context and att.context is not None
+    assert (att.run.run_id, att.run.phase, att.run.recording) == (run_id, "finished", name)
+    assert att.run.samples == rows.shape[0] and att.run.sim_time == rows[-1, 0] == ran.run.sim_time
+    # The same selector as a run's results, with the same answers.
+    pick = [ran.columns[3], ran.columns[1]]
+    sel_att, sel_rows = client.recording_results(s.user, name, pick, t0=0.2, t1=0.5, every=3)
+    assert sel_att.columns == ["time", *pick]
+    assert np.array_equal(sel_rows, s.results_of(run_id, pick, t0=0.2, t1=0.5, every=3)[1])
+    # Refusals name what was wrong; the file is untouched by them.
+    for key, code, field in (
+        (keys.recording_results(s.user, name) + "?evry=2", "bad_request", "evry"),
+        (keys.recording_results(s.user, name) + "?vars=nope", "bad_request", "vars"),
+        (keys.recording_results(s.user, "nosuch"), "not_found", "name"),
+        (keys.recording_results("bob", name), "not_found", "name"),
+    ):
+        with pytest.raises(RemoteError) as err:
+            client.request_binary(key, m.ResultsAttachment)
+        assert (err.value.code, err.value.error.field) == (code, field), key
+    assert np.array_equal(client.recording_results(s.user, name)[1], ran_rows)
 
 
 def test_replays_are_refused_before_they_start(recording_service: Mesh) -> None:
