@@ -2,7 +2,8 @@
 compared for real): two runs of one session that differ in one gain; the later one's transient in a
 plot with the earlier one ticked beside it, what they differ in listed, and the time cursor posing
 the arm as the picked run was at that instant; an aborted run ticked too is drawn to where its data
-end, and the chart still draws (uPlot fits no axis over a gap).
+end, and the chart still draws (uPlot fits no axis over a gap); a recording of another session's
+longer run, ticked, is drawn to its own end without being replayed.
 
 A screenshot goes to `artifacts/viewer/compare_*.png`.
 """
@@ -12,9 +13,12 @@ from __future__ import annotations
 import math
 from typing import Any
 
+from simecs.mesh import keys
 from simecs.testing import browser as chromium
+from simecs.viewer import compare
 
 from .conftest import Mesh, wait_until
+from .test_recorder_support import wait_file_closed
 from .test_viewer_browser import (
     SHOTS,
     dismiss_notifications,
@@ -52,6 +56,15 @@ def test_two_runs_compared_with_a_time_cursor(mesh: Mesh, browser: Any) -> None:
 def compare_walk(mesh: Mesh, browser: Any) -> None:
     SHOTS.mkdir(parents=True, exist_ok=True)
     page, _context, session = spider_tab(mesh, browser, {"width": 1600, "height": 900})
+    # A recording of another session's run (2 s, stiffer), kept by the recorder: compared, not replayed
+    mesh.start("recorder", "--dir", str(mesh.folder / "rec"))
+    elsewhere = mesh.client().create_session(session.user, "spider")
+    elsewhere.set_settings(stop_time=2.0, output_interval=0.002, pacing="fast")
+    elsewhere.set_joint_path([([0.8, 0.6, -0.7, 1.0, 0.9, -0.8, 1.2], 100.0, 100.0)])
+    other_run = elsewhere.run()
+    elsewhere.wait_for(["finished"], 120, other_run)
+    recorded = keys.recording_name(elsewhere.id, other_run)
+    wait_file_closed(mesh.folder / "rec" / session.user / f"{recorded}.mcap")
     # Two short runs of the same path; the second with a softer joint1 gain (the user's other client)
     session.set_settings(stop_time=1.0, output_interval=0.002, pacing="fast")
     session.set_joint_path([([0.8, 0.6, -0.7, 1.0, 0.9, -0.8, 1.2], 100.0, 100.0)])
@@ -86,6 +99,15 @@ def compare_walk(mesh: Mesh, browser: Any) -> None:
     ends = dict(zip(chart["labels"], chart["ends"], strict=True))
     assert ends["joint1.q (r2)"] == ends["joint1.q [rad]"] == 1.0
     assert abs(ends["joint1.q (r1)"] - aborted) < 0.01, (ends, aborted)  # not held flat to 1 s
+    page.get_by_text("Recordings to compare", exact=True).locator("visible=true").first.click()
+    mark = compare.recording_key(recorded)
+    page.get_by_label(mark, exact=True).check()
+    label = f"joint1.q ({mark})"
+    chart = wait_until(lambda: next((c for c in charts(page) if label in c["labels"]), None), what=label)
+    assert dict(zip(chart["labels"], chart["ends"], strict=True))[label] == 2.0  # to its own end
+    page.screenshot(path=str(SHOTS / "compare_recording_1600x900.png"))
+    page.get_by_label(mark, exact=True).uncheck()
+    wait_until(lambda: not [c for c in charts(page) if label in c["labels"]], what="the recording taken off")
 
     # the time cursor: the arm is posed as r2 was at 0.5 s, and the values there are read
     page.get_by_label("Time cursor").check()

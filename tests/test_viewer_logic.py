@@ -266,6 +266,10 @@ class FakeMesh:
         self.sessions: dict[str, FakeSession] = {}
         self.uploaded: list[str] = []
         self.upload_model = ""
+        self.kept: list[m.RecordingInfo] = []  # the user's recordings on the server
+        self.read: list[tuple[str, Any]] = []  # recording results asked for: (name, variables)
+        self.recorded_context: m.RunContext | None = None
+        self.no_recorder = False
 
     def list_models(self) -> list[Any]:
         return [d.summary_entry() for d in self.models.values()]
@@ -308,6 +312,27 @@ class FakeMesh:
 
     def download_recording(self, user: str, name: str) -> bytes:
         return b"\x89MCAP0\r\n" + name.encode()
+
+    def recordings(self, user: str) -> list[m.RecordingInfo]:
+        if self.no_recorder:
+            raise NoReply("no node answered simecs/u/tester/recordings within 10.0 s")
+        return list(self.kept)
+
+    def recording_results(
+        self, user: str, name: str, variables: Any = None, t0: Any = None, t1: Any = None, every: int = 1
+    ) -> tuple[m.ResultsAttachment, np.ndarray]:
+        """A recording read on the server: 21 samples over 2 s, each variable k+1 times the time."""
+        info = next((r for r in self.kept if r.name == name), None)
+        if info is None:
+            raise RemoteError(m.Error("not_found", f"{user} has no recording {name!r}", "name"))
+        self.read.append((name, variables))
+        names = ["time", *(variables or ["joint1.q", "joint2.q"])]
+        t = np.linspace(0.0, 2.0, 21)
+        if t0 is not None and t1 is not None and t1 < t0:
+            t = t[:0]
+        rows = np.column_stack([t] + [t * (k + 1) for k in range(len(names) - 1)])
+        run = m.RunInfo(info.run_id, "finished", info.stop_time, 2.0, 21, recording=name)
+        return m.ResultsAttachment(names, [""] * len(names), run, self.recorded_context), rows
 
     def upload_recording(self, user: str, name: str, data: bytes) -> m.RecordingInfo:
         self.uploaded.append(name)
@@ -1699,6 +1724,43 @@ def test_the_tab_applies_controller_events_to_its_panels(server: Any) -> None:
         page.remove()
 
 
+def test_recordings_are_listed_and_compared_without_replaying_them() -> None:
+    ctl, sc, got = attached()
+    mesh = ctl.host.mc
+    sc.run_list = [m.RunInfo("r1", "finished", 1.0, 1.0, 11)]
+    ctl.refresh_runs()
+    ctx = m.RunContext("tester", {"joint1.ctrl.kp_pos": 7.0}, [0.0, 0.0, 0.0], None, m.RunSettings())
+    mesh.recorded_context = ctx
+    mesh.kept = [
+        m.RecordingInfo("old_r4", "sOld", "r4", "arm3", 2000, stop_time=2.0),
+        m.RecordingInfo("puma_r1", "sP", "r1", "puma560", 3000, stop_time=1.0),
+    ]
+    ctl.results.list_recordings()
+    ctl.drain()
+    assert [r.name for r in got.of(events.RecordingsListed)[-1].recordings] == ["old_r4"]  # this model's
+    old = compare.recording_key("old_r4")
+    assert compare.recording_of_key(old) == "old_r4" and compare.recording_of_key("r1") == ""
+    # compared beside a run: read on the server (not replayed), each to its own end, with its context
+    ctl.results.load_full(5, ["joint1.q"], None, None, run_id="r1", compare=[old])
+    ctl.drain()
+    loaded = got.of(events.TransientLoaded)[-1]
+    (other,) = loaded.others
+    assert other.run_id == old and other.context == ctx and other.t[-1] == 2.0
+    assert mesh.read[-1] == ("old_r4", ["joint1.q"]) and not sc.of(m.Replay)
+    ctl.results.load_track(old)
+    ctl.drain()
+    track = got.of(events.TrackLoaded)[-1].track
+    assert track.run_id == old and track.end == 2.0 and track.poses.shape == (21, 3, 7)
+    # a recording deleted meanwhile, or no recorder: said, not silent
+    ctl.results.load_compared(5, ["joint1.q"], [compare.recording_key("gone")])
+    ctl.drain()
+    assert "no recording 'gone'" in got.of(events.Notice)[-1].body
+    mesh.no_recorder = True
+    ctl.results.list_recordings()
+    ctl.drain()
+    assert got.of(events.RecordingsListed)[-1].available is False
+
+
 def test_runs_compared_on_every_plot_with_a_time_cursor_that_poses_the_arm(server: Any) -> None:
     model = arm()
     tab, client, page, sc = loaded_tab(server, model)
@@ -1738,6 +1800,24 @@ def test_runs_compared_on_every_plot_with_a_time_cursor_that_poses_the_arm(serve
         labels = [s["label"] for s in plot.chart.series]
         assert labels[2:] == ["joint1.q (r1)", "joint1.q (r3)"]
         assert f"| {kp} |" in cmp.diff.content and "1.5" in cmp.diff.content
+        # a recording of another session's run: listed, ticked, drawn beside them to its own end; the
+        # recording of a run the session still keeps is not listed twice
+        ctl.host.mc.kept = [
+            m.RecordingInfo(keys.recording_name(sc.id, "r1"), sc.id, "r1", model.id, 100, stop_time=1.0),
+            m.RecordingInfo("old_r4", "sOld", "r4", model.id, 2000, stop_time=2.0),
+        ]
+        ctl.results.list_recordings()
+        ctl.drain()
+        old = compare.recording_key("old_r4")
+        assert list(cmp.recording_boxes) == [old] and "not replayed" in cmp.recordings_note.content
+        cmp.recording_boxes[old].value = True
+        cmp._ticked(Event(cmp.recording_boxes[old]))
+        ctl.drain()
+        assert [o.run_id for o in plot.others] == ["r1", "r3", old] and plot.others[-1].t[-1] == 2.0
+        cmp.recording_boxes[old].value = False
+        cmp._ticked(Event(cmp.recording_boxes[old]))
+        ctl.drain()
+        assert [o.run_id for o in plot.others] == ["r1", "r3"]
         # the cursor: every plot marks it, the arm takes r2's pose there, values are read per run
         assert cmp.cursor.disabled
         cmp.cursor_on.value = True

@@ -20,6 +20,11 @@ from .markup import escape_html
 from .series import value_at
 from .units import labelled
 
+#: A recording compared with the session's runs goes by its name behind this mark: the key the panel,
+#: the plots' legends and the tracks know it by (a run id never holds a space; plain text, because an
+#: emoji needs a font not every browser's machine has).
+RECORDING_MARK = "rec "
+
 TRACK_POINTS = 4000  # samples of a run's poses kept for scrubbing (about 1 ms apart over 5 s)
 MAX_DIFF_ROWS = 40  # parameters listed as differing at most (the rest are counted)
 
@@ -46,6 +51,15 @@ class RunTrack:
         if k >= len(self.t) or (k > 0 and time - self.t[k - 1] <= self.t[k] - time):
             k -= 1
         return np.asarray(self.poses[max(k, 0)])
+
+
+def recording_key(name: str) -> str:
+    return RECORDING_MARK + name
+
+
+def recording_of_key(key: str) -> str:
+    """The recording a compared key names ('' for a run of the session)."""
+    return key[len(RECORDING_MARK) :] if key.startswith(RECORDING_MARK) else ""
 
 
 def track_columns(model: ModelDescription) -> list[str]:

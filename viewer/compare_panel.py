@@ -1,7 +1,8 @@
 """The "Compare runs" folder of the Results tab (issue 12, runs compared for real): tick any kept runs
-of the session (replays of recordings are runs too) to draw them in every plot, each to its own end;
-move one time cursor across every plot while the arm shows the chosen run at that instant; read the
-values at the cursor and what the runs differ in.
+of the session (replays of recordings are runs too), and any of the user's recordings of the model
+(read on the server, not replayed), to draw them in every plot, each to its own end; move one time
+cursor across every plot while the arm shows the chosen run at that instant; read the values at the
+cursor and what the runs differ in.
 
 The run compared against is the one the Results tab has picked (what "Full resolution" loads).
 Requests go through the session controller (`results_io.py`); their answers come back as
@@ -18,7 +19,7 @@ from simecs.mesh import messages as m
 from simecs.mesh import phases
 
 from . import events as ev
-from .compare import RunTrack, differences, values_table
+from .compare import RunTrack, differences, recording_key, values_table
 from .plot_dock import PlotDock
 from .results import run_label
 from .scene import ArmScene
@@ -46,7 +47,9 @@ class ComparePanel:
         self.shown = shown  # the run the Results tab picked ('' before any run)
         self.tracks: dict[str, RunTrack] = {}
         self.asked: set[str] = set()  # tracks asked for (once each: a few MB)
-        self.boxes: dict[str, Any] = {}
+        self.boxes: dict[str, Any] = {}  # run id -> its box
+        self.recording_boxes: dict[str, Any] = {}  # recording_key(name) -> its box
+        self._ended: set[str] = set()  # the ended runs last shown (a change lists the recordings again)
         self.folder = gui.add_folder("Compare runs")
         with self.folder:
             gui.add_markdown(
@@ -54,6 +57,13 @@ class ComparePanel:
                 "The **time cursor** moves across every plot and poses the arm as the chosen run was then."
             )
             self.box_folder = gui.add_folder("Runs to compare")
+            self.recording_folder = gui.add_folder("Recordings to compare", expand_by_default=False)
+            with self.recording_folder:
+                self.recordings_note = gui.add_markdown("_Listing your recordings…_")
+                self.relist = gui.add_button(
+                    "List recordings again", hint="recordings of this model, other sessions' runs included"
+                )
+            self.relist.on_click(lambda _e: self.c.results.list_recordings())
             self.cursor_on = gui.add_checkbox(
                 "Time cursor", False, hint="a finished run only: the arm shows that run at the cursor"
             )
@@ -70,9 +80,12 @@ class ComparePanel:
 
     # -- which runs ----------------------------------------------------------------------------------
     def compared(self) -> list[str]:
-        """The ticked runs other than the shown one, oldest first."""
+        """The ticked runs other than the shown one, oldest first, then the ticked recordings."""
         shown = self.shown()
-        return [r for r, box in self.boxes.items() if box.value and r != shown][:MAX_COMPARED]
+        return [r for r, box in self._all_boxes().items() if box.value and r != shown][:MAX_COMPARED]
+
+    def _all_boxes(self) -> dict[str, Any]:
+        return {**self.boxes, **self.recording_boxes}
 
     def show_runs(self, runs: Sequence[m.RunInfo]) -> None:
         """Boxes for the ended runs the server keeps (a run going on is compared once it ends)."""
@@ -91,12 +104,44 @@ class ComparePanel:
             self.boxes[run_id] = box
         if not ended:
             self.values.content = "_No finished run yet: runs are compared once they end._"
+        if set(ended) != self._ended:  # a run ended, or one left the kept ten: its recording may show
+            self._ended = set(ended)
+            self.c.results.list_recordings()
+        self.refresh()
+
+    def show_recordings(self, event: ev.RecordingsListed) -> None:
+        """Boxes for the user's recordings of this model, but those of runs the session still keeps
+        (ticked as runs already)."""
+        sc = self.c.session
+        kept = {r.run_id for r in self.c.runs}
+        shown = [r for r in event.recordings if sc is None or r.session != sc.id or r.run_id not in kept]
+        wanted = {recording_key(r.name): r for r in shown}
+        for key in [k for k in self.recording_boxes if k not in wanted]:
+            self.recording_boxes.pop(key).remove()
+            self.tracks.pop(key, None)
+            self.asked.discard(key)
+        for key, info in wanted.items():
+            if key in self.recording_boxes:
+                continue
+            size = f"{info.stop_time:g} s, {info.bytes / 1e6:.1f} MB"
+            hint = f"run {info.run_id} of session {info.session}, {size}"
+            with self.recording_folder:
+                box = self.gui.add_checkbox(key, False, hint=hint)
+            box.on_update(self._ticked)
+            self.recording_boxes[key] = box
+        if not event.available:
+            note = "_No recorder on the server: runs are not recorded, so there are none to compare._"
+        elif not wanted:
+            note = "_None yet besides the runs above: the recordings of this model's runs show here._"
+        else:
+            note = "Tick one to draw it beside the picked run: it is read on the server, not replayed."
+        self.recordings_note.content = note
         self.refresh()
 
     def _ticked(self, event: Any) -> None:
         if event.client is None:
             return
-        if len([b for b in self.boxes.values() if b.value]) > MAX_COMPARED + 1:
+        if len([b for b in self._all_boxes().values() if b.value]) > MAX_COMPARED + 1:
             event.target.value = False
             self.c.notify("Compare", f"At most {MAX_COMPARED} runs beside the picked one.", "warning")
             return
@@ -118,7 +163,7 @@ class ComparePanel:
                 self.c.results.load_compared(plot.number, plot.names(), compare)
         if compare or self.cursor_on.value:  # a track is a few MB: fetched when it is used
             for run_id in [self.shown(), *compare]:
-                if run_id and run_id in self.boxes and run_id not in {*self.tracks, *self.asked}:
+                if run_id and run_id in self._all_boxes() and run_id not in {*self.tracks, *self.asked}:
                     self.asked.add(run_id)
                     self.c.results.load_track(run_id)
         self._show_cursor_widgets()
@@ -177,7 +222,7 @@ class ComparePanel:
     def _cursor_toggled(self, event: Any) -> None:
         if event.client is None:
             return
-        if self.cursor_on.value and not [r for r in self._runs_in_view() if r in self.boxes]:
+        if self.cursor_on.value and not [r for r in self._runs_in_view() if r in self._all_boxes()]:
             self.c.notify("Time cursor", "No finished run to scrub yet: run a simulation first.", "warning")
         self.asked &= set(self.tracks)  # a track that never came (a failed request) is asked again
         self.refresh()

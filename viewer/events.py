@@ -206,6 +206,15 @@ class ComparedLoaded:
 
 
 @dataclass
+class RecordingsListed:
+    """The user's recordings of the session's model, to compare runs with; `available` False when no
+    recorder answered (the server keeps no recordings)."""
+
+    recordings: list[m.RecordingInfo]
+    available: bool = True
+
+
+@dataclass
 class TrackLoaded:
     """What the time cursor needs of a run: its link poses over time and what produced it."""
 
@@ -253,6 +262,7 @@ Event = (
     | ComparedLoaded
     | UndoChanged
     | TrackLoaded
+    | RecordingsListed
     | DocFetched
     | Download
 )

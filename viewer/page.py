@@ -118,6 +118,7 @@ class ModelPage:
             ev.TransientLoaded: self._show_transient,
             ev.ComparedLoaded: self.compare.apply,
             ev.TrackLoaded: self.compare.apply,
+            ev.RecordingsListed: self.compare.show_recordings,
             ev.DocFetched: self._show_doc,
             ev.SettingsChanged: self._settings_applied,
             ev.PlanChanged: self.commands.show_plan,

@@ -8,20 +8,25 @@ controller's data worker; what it gets reaches the listeners as events.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+import functools
+from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING
 
+import numpy as np
 from simecs.mesh import keys, phases
 from simecs.mesh import messages as m
 from simecs.mesh.client import NoReply
 
 from . import events as ev
-from .compare import track_columns, track_every, track_of
+from .compare import recording_of_key, track_columns, track_every, track_of
 from .export import csv_name, to_csv, upload_name
 from .series import Transient, every_for, transient
 
 if TYPE_CHECKING:
     from .session import SessionController
+
+#: Asks for a run's (or a recording's) samples: (variables, t0, t1, every) -> the results reply.
+Fetch = Callable[..., tuple[m.ResultsAttachment, np.ndarray]]
 
 
 class ResultsIO:
@@ -68,7 +73,9 @@ class ResultsIO:
             st = self.c.state
             if st is not None and st.run_id == run.run_id and st.phase in phases.UNDER_WAY:
                 raise ValueError("the run is still going on: full resolution is available once it ends")
-            full = self._fetch(run, names, t0, t1)
+            sc = self.c.session
+            assert sc is not None
+            full = self._fetch(run.run_id, run, functools.partial(sc.results_of, run.run_id), names, t0, t1)
             others = self._compared([r for r in compare if r != run.run_id], names, t0, t1)
             self.c.emit(ev.TransientLoaded(plot, full, others))
 
@@ -89,15 +96,16 @@ class ResultsIO:
 
         self.c.submit("Compare", job, "io")
 
-    def load_track(self, run_id: str) -> None:
-        """What the time cursor needs of run `run_id`: its link poses and its context."""
+    def load_track(self, key: str) -> None:
+        """What the time cursor needs of a run (or a recording: `compare.recording_key`): its link
+        poses and its context."""
 
         def job() -> None:
-            run = self._ended(run_id)
-            sc, model = self.c.session, self.c.model
-            assert sc is not None and model is not None
-            att, rows = sc.results_of(run.run_id, track_columns(model), every=track_every(run.samples))
-            self.c.emit(ev.TrackLoaded(track_of(run.run_id, list(att.columns), rows, att.context)))
+            run, fetch = self._source(key)
+            model = self.c.model
+            assert model is not None
+            att, rows = fetch(track_columns(model), every=track_every(run.samples))
+            self.c.emit(ev.TrackLoaded(track_of(key, list(att.columns), rows, att.context)))
 
         self.c.submit("Time cursor", job, "io")
 
@@ -112,18 +120,49 @@ class ResultsIO:
     def _compared(
         self, compare: Sequence[str], names: list[str], t0: float | None, t1: float | None
     ) -> list[Transient]:
-        return [self._fetch(self._ended(r), names, t0, t1) for r in compare]
+        return [self._fetch(key, *self._source(key), names, t0, t1) for key in compare]
 
-    def _fetch(self, run: m.RunInfo, names: list[str], t0: float | None, t1: float | None) -> Transient:
+    def _source(self, key: str) -> tuple[m.RunInfo, Fetch]:
+        """What a compared key holds (an ended run of the session, or one of the user's recordings)
+        and how to ask for its samples: the run's results, or the recorder's answer for the file."""
+        name = recording_of_key(key)
+        if name:
+            mc, user = self.c.mc, self.c.user
+            try:
+                about, _ = mc.recording_results(user, name, t0=-1.0, t1=-1.0)  # no rows: what it holds
+            except NoReply:
+                raise ValueError(f"no recorder answered: recording {name} cannot be compared now") from None
+            return about.run, functools.partial(mc.recording_results, user, name)
         sc = self.c.session
         assert sc is not None
+        run = self._ended(key)
+        return run, functools.partial(sc.results_of, run.run_id)
+
+    def list_recordings(self) -> None:
+        """The user's recordings of the session's model, as `RecordingsListed`."""
+
+        def job() -> None:
+            model = self.c.model
+            try:
+                listed = self.c.mc.recordings(self.c.user)
+            except NoReply:
+                self.c.emit(ev.RecordingsListed([], available=False))
+                return
+            kept = [r for r in listed if model is not None and r.model_id == model.id]
+            self.c.emit(ev.RecordingsListed(kept))
+
+        self.c.submit("Recordings", job, "io")
+
+    def _fetch(
+        self, key: str, run: m.RunInfo, fetch: Fetch, names: list[str], t0: float | None, t1: float | None
+    ) -> Transient:
         every = every_for(run.samples, t0, t1, run.stop_time)
-        att, rows = sc.results_of(run.run_id, names, t0, t1, every)
+        att, rows = fetch(names, t0, t1, every)
         if every > 1:
             self.c.notify(
-                "Long run", f"Showing every {every}th sample of {run.run_id}; zoom in for full resolution."
+                "Long run", f"Showing every {every}th sample of {key}; zoom in for full resolution."
             )
-        return transient(run.run_id, list(att.columns), rows, t0, t1, every, att.context)
+        return transient(key, list(att.columns), rows, t0, t1, every, att.context)
 
     # -- files -------------------------------------------------------------------------------------
     def download_csv(self, run_id: str, names: list[str] | None) -> None:
