@@ -51,6 +51,18 @@ class Gap:
     before: float = math.inf
 
 
+@dataclass
+class Fill:
+    """The answer to a run's gaps: the samples of each (from the run's results), why some could not be
+    had, and how the run ended when its results say it has (what the stream may have lost too)."""
+
+    owner: Owner
+    run_id: str
+    pieces: list[tuple[Gap, np.ndarray]]
+    problem: str = ""
+    ended: m.RunInfo | None = None
+
+
 class RecorderMesh(Protocol):
     """What the run files ask of the mesh; recording_pipeline.py answers (from its own threads, the
     answers come back as items of the writer's queue)."""
@@ -395,9 +407,16 @@ class RunFiles:
                 )
                 self._finish(rec, rec.closing_by)
 
+    def _inactive(self, rec: Active) -> None:
+        """`rec` no longer takes its session's frames: a run that ended, or failed. Its session's
+        next run may be active already (a superseded run is finished after its gaps are filled)."""
+        owner = (rec.user, rec.layout.session)
+        if self.active.get(owner) is rec:
+            del self.active[owner]
+
     def close(self, rec: Active, closed_by: str) -> None:
         """The run is over: fill its gaps from its results first (they come back through `on_fill`)."""
-        self.active.pop((rec.user, rec.layout.session), None)
+        self._inactive(rec)
         if not rec.final_seen and rec.next_seq is not None:  # the end of the stream was lost too
             rec.gaps.append(Gap(rec.next_seq, rec.sim_time if rec.writer.rows else -math.inf))
         if not rec.gaps:
@@ -408,14 +427,19 @@ class RunFiles:
         self.filling[((rec.user, rec.layout.session), rec.layout.run_id)] = rec
         self.mesh.fill((rec.user, rec.layout.session), rec.layout.run_id, list(rec.gaps), rec.layout.columns)
 
-    def on_fill(self, key: str, answer: tuple[Owner, str, list[tuple[Gap, np.ndarray]], str]) -> None:
+    def on_fill(self, key: str, answer: Fill) -> None:
         """The samples of a run's gaps, fetched from its results (or why they could not be)."""
-        owner, run_id, pieces, problem = answer
-        rec = self.filling.pop((owner, run_id), None)
+        problem = answer.problem
+        rec = self.filling.pop((answer.owner, answer.run_id), None)
         if rec is None:
             return
-        for gap, rows in pieces:
+        ended = answer.ended
+        if ended is not None and not rec.end_phase:  # its end was lost on the way too (or came late)
+            rec.end_phase, rec.end_reason = ended.phase, ended.reason
+        for gap, rows in answer.pieces:
             if rows.shape[0] == 0:
+                if ended is not None and math.isinf(gap.before):  # only its end marker was lost
+                    rec.gaps.remove(gap)
                 continue
             try:
                 frame = frames.Frame(rec.layout.run_index, gap.seq, time.time_ns(), rows, 0)
@@ -441,7 +465,7 @@ class RunFiles:
         self._finish(rec, rec.closing_by)
 
     def _finish(self, rec: Active, closed_by: str) -> None:
-        self.active.pop((rec.user, rec.layout.session), None)
+        self._inactive(rec)
         self.filling.pop(((rec.user, rec.layout.session), rec.layout.run_id), None)
         phase = rec.end_phase or ("finished" if rec.final_seen and rec.final_rows else "")
         phase = phase or ("ended" if rec.final_seen else "incomplete")
@@ -479,7 +503,7 @@ class RunFiles:
 
     def _fail(self, rec: Active, exc: BaseException) -> None:
         """Writing failed (disk full, ...): keep what is on disk, repaired if possible."""
-        self.active.pop((rec.user, rec.layout.session), None)
+        self._inactive(rec)
         self.filling.pop(((rec.user, rec.layout.session), rec.layout.run_id), None)
         rec.writer.abandon()
         self.log.error("recording %s failed: %s; repairing what was written", rec.name, exc)

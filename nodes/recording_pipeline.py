@@ -24,13 +24,13 @@ from typing import Any
 import numpy as np
 import zenoh
 import zenoh.ext
-from simecs.mesh import codec, frames, keys
+from simecs.mesh import codec, frames, keys, phases
 from simecs.mesh import messages as m
 from simecs.mesh.client import MeshClient, NoReply, RemoteError
 from simecs.mesh.model import ModelDescription
 from simecs.mesh.seal import Seal
 
-from .recording_files import VIZ_RATE_HZ, Gap, Owner, RunFiles
+from .recording_files import VIZ_RATE_HZ, Fill, Gap, Owner, RunFiles
 from .recordings_library import RecordingsLibrary
 
 FILL_TRIES = 10  # a run's results are stored a moment after its last frame: ask again this often
@@ -262,8 +262,7 @@ class RecordingPipeline:
                         self.log.warning("model %s: %s", arg, exc)
                 self.ingest.put("model", "", (owner, run_id, arg))
             else:
-                pieces, problem = self._fetch_gaps(client, owner, run_id, *arg)
-                self.ingest.put("fill", "", (owner, run_id, pieces, problem))
+                self.ingest.put("fill", "", self._fetch_gaps(client, owner, run_id, *arg))
 
     def _fetch_meshes(self, client: MeshClient, desc: ModelDescription) -> dict[str, bytes]:
         """The GLB of each mesh shape of a model, for its recordings' /scene (a missing one is logged)."""
@@ -277,29 +276,34 @@ class RecordingPipeline:
 
     def _fetch_gaps(
         self, client: MeshClient, owner: Owner, run_id: str, gaps: list[Gap], columns: list[str]
-    ) -> tuple[list[tuple[Gap, np.ndarray]], str]:
+    ) -> Fill:
         """The samples of each gap, from the run's results (by whichever host holds them)."""
-        pieces: list[tuple[Gap, np.ndarray]] = []
+        fill = Fill(owner, run_id, [])
         session = client.session(*owner)
         for gap in gaps:
             t0 = gap.after if math.isfinite(gap.after) else None
             t1 = gap.before if math.isfinite(gap.before) else None
             for attempt in range(FILL_TRIES):
                 try:
-                    got, rows = session.results(run_id, t0=t0, t1=t1)
+                    att, rows = session.results_of(run_id, t0=t0, t1=t1)
                     break
                 except NoReply:
-                    problem = "no node holds the run's results"
+                    fill.problem = "no node holds the run's results"
                 except (RemoteError, codec.DecodeError, frames.FrameError, zenoh.ZError) as exc:
-                    return pieces, f"the run's results: {exc}"
+                    fill.problem = f"the run's results: {exc}"
+                    return fill
                 if attempt + 1 < FILL_TRIES and not self._stop.wait(FILL_RETRY_S):
                     continue
-                return pieces, problem
-            if got != columns:
-                return pieces, "the run's results have other columns than its stream"
+                return fill
+            if att.columns != columns:
+                fill.problem = "the run's results have other columns than its stream"
+                return fill
+            if att.run.phase in phases.ENDED:
+                fill.ended = att.run
             inside = (rows[:, 0] > gap.after) & (rows[:, 0] < gap.before)
-            pieces.append((gap, np.ascontiguousarray(rows[inside])))
-        return pieces, ""
+            fill.pieces.append((gap, np.ascontiguousarray(rows[inside])))
+        fill.problem = ""
+        return fill
 
     # -- what the run files ask of the mesh (recording_files.RecorderMesh) ------------------------------
     def lookup(self, owner: Owner, run_id: str, model_id: str) -> None:

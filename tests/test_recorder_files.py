@@ -1,0 +1,78 @@
+"""The recorder's bookkeeping of the runs it writes (nodes/recording_files.py), driven by injected
+messages in the order a mesh may deliver them, without a mesh: what a recording says of its run's end
+when the stream lost it. (The recorder node on a real mesh is tested in test_recorder_node and
+test_resilience.)"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from pathlib import Path
+
+import msgspec
+import numpy as np
+from simecs.mesh import codec, frames, keys
+from simecs.mesh import messages as m
+from simecs.nodes import mcapread
+from simecs.nodes.recording_files import Fill, Gap, Owner, RunFiles
+from simecs.nodes.recordings_library import RecordingsLibrary
+
+from .test_recorder_support import USER, arm_model, layout_for, make_rows
+
+SID = "AbCdEfGhIjKlMnOpQrStUv"
+
+
+class ResultsOnRequest:
+    """The mesh as the run files see it: the fills they ask for are kept for the test to answer."""
+
+    def __init__(self) -> None:
+        self.fills: list[tuple[Owner, str, list[Gap]]] = []
+
+    def lookup(self, owner: Owner, run_id: str, model_id: str) -> None:
+        pass
+
+    def fill(self, owner: Owner, run_id: str, gaps: list[Gap], columns: list[str]) -> None:
+        self.fills.append((owner, run_id, list(gaps)))
+
+    def notify(self, user: str, notice: m.Notice) -> None:
+        pass
+
+    def worker_alive(self, user: str, session: str, run_id: str) -> bool:
+        return True
+
+    def take_drops(self) -> dict[Owner, list[int]]:
+        return {}
+
+    def status_changed(self) -> None:
+        pass
+
+
+def test_a_run_whose_end_was_lost_ends_as_its_results_say(tmp_path: Path) -> None:
+    # Back-to-back runs: the next run's layout can reach the recorder before the last frame and the
+    # end state of the one before. That recording is closed then, and its results tell how it ended:
+    # it is not marked incomplete when it holds every sample.
+    library = RecordingsLibrary(tmp_path)
+    mesh = ResultsOnRequest()
+    files = RunFiles(library, "recorder-t", logging.getLogger("test"), mesh, idle_timeout_s=30.0)
+    first = layout_for(SID)
+    rows = make_rows(arm_model(), 20)
+    files.on_layout(keys.layout(USER, SID), codec.dumps(first))
+    files.on_full(keys.vars_full(USER, SID), frames.encode(frames.Frame(1, 0, time.time_ns(), rows)))
+    second = msgspec.structs.replace(first, run_id="r2", run_index=2)
+    files.on_layout(keys.layout(USER, SID), codec.dumps(second))
+    ((owner, run_id, gaps),) = mesh.fills
+    assert run_id == "r1" and len(gaps) == 1 and math.isinf(gaps[0].before)  # after its last sample
+    ended = m.RunInfo("r1", "finished", 1.0, float(rows[-1, 0]), rows.shape[0])
+    files.on_fill("", Fill(owner, "r1", [(gaps[0], rows[:0])], "", ended))
+    rec = mcapread.load(library.path_of(USER, keys.recording_name(SID, "r1")))
+    end = rec.metadata["simecs.end"]
+    assert (end["phase"], end["gaps"]) == ("finished", "0") and np.array_equal(rec.rows, rows)
+    # Without the results' word (no node holds them), the recording says it is incomplete.
+    third = msgspec.structs.replace(first, run_id="r3", run_index=3)
+    files.on_full(keys.vars_full(USER, SID), frames.encode(frames.Frame(2, 0, time.time_ns(), rows)))
+    files.on_layout(keys.layout(USER, SID), codec.dumps(third))
+    owner, run_id, gaps = mesh.fills[-1]
+    files.on_fill("", Fill(owner, run_id, [], "no node holds the run's results"))
+    end = mcapread.load(library.path_of(USER, keys.recording_name(SID, "r2"))).metadata["simecs.end"]
+    assert (end["phase"], end["gaps"]) == ("incomplete", "1")
