@@ -81,7 +81,8 @@ def spider_tab(
 
 
 #: The viewports every pendant and layout walk runs at: the smallest supported, and a common laptop's.
-BOTH_SIZES = pytest.mark.parametrize("size", [(1024, 768), (1600, 900)], ids=["1024x768", "1600x900"])
+SIZES = [(1024, 768), (1600, 900)]
+BOTH_SIZES = pytest.mark.parametrize("size", SIZES, ids=lambda size: f"{size[0]}x{size[1]}")
 
 
 def sized_spider_tab(mesh: Mesh, browser: Any, size: tuple[int, int]) -> tuple[Any, SessionClient, str]:

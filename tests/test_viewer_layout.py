@@ -1,4 +1,4 @@
-"""The viewer's layout in a real browser (Debian chromium + Playwright), at 1024×768 and 1600×900:
+"""The viewer's layout in a real browser (Debian chromium + Playwright), at 1024×768, 1600×900 and 1920×1080:
 no region covers the 3D view, the documentation's in-text links work and a new page opens at its
 top, a reload gets back the plots and the shown component, and a page survives a viewer restart
 (it says the server is gone, then reopens the same session by itself).
@@ -10,12 +10,13 @@ from __future__ import annotations
 
 from typing import Any
 
+import pytest
 from simecs.testing import browser as chromium
 
 from .conftest import Mesh, free_port, start_service, wait_until
 from .test_viewer_browser import (
-    BOTH_SIZES,
     SHOTS,
+    SIZES,
     SPIDER,
     dismiss_notifications,
     logs_on_failure,
@@ -64,7 +65,9 @@ def view_is_clear(page: Any, min_free_px: int) -> None:
     assert found["free"] >= min_free_px, f"the 3D view is {found['free']} px wide"
 
 
-@BOTH_SIZES
+@pytest.mark.parametrize(
+    "size", [*SIZES, (1920, 1080)], ids=lambda size: f"{size[0]}x{size[1]}"
+)  # and full HD
 def test_no_region_covers_the_arm_and_a_reload_keeps_the_view(
     mesh: Mesh, browser: Any, size: tuple[int, int]
 ) -> None:
