@@ -1766,6 +1766,8 @@ def test_runs_compared_on_every_plot_with_a_time_cursor_that_poses_the_arm(serve
     tab, client, page, sc = loaded_tab(server, model)
     ctl = tab.controller
     try:
+        ctl.drain()  # a fresh session has no run yet: its recordings are listed all the same
+        assert "None yet" in page.compare.recordings_note.content
         base = m.RunContext("tester", model.default_values(), [0.0, 0.0, 0.0], None, m.RunSettings())
         kp = model.parameters[0].name
         sc.contexts = {

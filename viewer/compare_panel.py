@@ -49,7 +49,7 @@ class ComparePanel:
         self.asked: set[str] = set()  # tracks asked for (once each: a few MB)
         self.boxes: dict[str, Any] = {}  # run id -> its box
         self.recording_boxes: dict[str, Any] = {}  # recording_key(name) -> its box
-        self._ended: set[str] = set()  # the ended runs last shown (a change lists the recordings again)
+        self._ended: set[str] | None = None  # the ended runs last shown (a change lists the recordings)
         self.folder = gui.add_folder("Compare runs")
         with self.folder:
             gui.add_markdown(
