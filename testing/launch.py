@@ -105,6 +105,14 @@ class LocalMesh:
         self.wait_node(role, node_id, timeout, name)
         return node_id
 
+    def start_together(self, nodes: dict[str, tuple[str, ...]], timeout: float = 60.0) -> None:
+        """Start several nodes (role -> arguments) at once, then wait until each is ready: their
+        start-ups overlap (each finds the others on the mesh, as after any node's restart)."""
+        for role, args in nodes.items():
+            self.spawn(role, f"simecs.nodes.{role}", *args, node_id=f"{role}-t")
+        for role in nodes:
+            self.wait_node(role, f"{role}-t", timeout, role)
+
     def wait_node(self, role: str, node_id: str, timeout: float = 60.0, name: str | None = None) -> None:
         client = self.client()
         proc = self.procs.get(name or role)
@@ -120,9 +128,13 @@ class LocalMesh:
     def start_service(self, max_running: int = 4, simulator_args: tuple[str, ...] = ()) -> Path:
         """Proxy, simulator and hot-feedback; returns the data folder."""
         data = self.folder / "data"
-        self.start("proxy", "--data-dir", str(data), "--max-running", str(max_running))
-        self.start("simulator", "--results-dir", str(data / "results"), *simulator_args)
-        self.start("hotfeedback")
+        self.start_together(
+            {
+                "simulator": ("--results-dir", str(data / "results"), *simulator_args),  # the slowest
+                "proxy": ("--data-dir", str(data), "--max-running", str(max_running)),
+                "hotfeedback": (),
+            }
+        )
         return data
 
     def log(self, name: str) -> str:
