@@ -20,7 +20,7 @@ from simecs.mesh import keys
 from simecs.mesh.client import MeshClient, SessionClient
 from simecs.testing import browser as chromium
 
-from .conftest import ARTIFACTS, Mesh, Secured, free_port, start_service, wait_until
+from .conftest import ARTIFACTS, Mesh, Secured, Service, free_port, start_service, wait_until
 
 SPIDER = "Load Spider arm (joint-independent control)"
 USER = "tester"
@@ -29,6 +29,13 @@ SHOTS = ARTIFACTS / "viewer"  # screenshots of what the browser tests saw
 
 def start_viewer(mesh: Mesh, *flags: str, port: int = 0) -> str:
     """The viewer node on `port` (a free one if 0), its URL once it is ready."""
+    url = spawn_viewer(mesh, *flags, port=port)
+    mesh.wait_node("viewer", "viewer-t", timeout=60)
+    return url
+
+
+def spawn_viewer(mesh: Mesh, *flags: str, port: int = 0) -> str:
+    """Start the viewer node on `port` (a free one if 0) without waiting for it; its URL."""
     port = port or free_port()
     mesh.spawn(
         "viewer",
@@ -42,8 +49,15 @@ def start_viewer(mesh: Mesh, *flags: str, port: int = 0) -> str:
         *flags,
         node_id="viewer-t",
     )
-    mesh.wait_node("viewer", "viewer-t", timeout=60)
     return f"http://127.0.0.1:{port}"
+
+
+def service_and_viewer(mesh: Mesh) -> tuple[Service, str]:
+    """The service and a viewer, their start-ups overlapping: (the service, the viewer's URL)."""
+    url = spawn_viewer(mesh)
+    service = start_service(mesh)
+    mesh.wait_node("viewer", "viewer-t", timeout=60)
+    return service, url
 
 
 def new_page(context: Any, url: str) -> Any:
@@ -69,8 +83,7 @@ def spider_tab(
 ) -> tuple[Any, Any, SessionClient]:
     """The service and a viewer on `mesh`, and a tab that loaded the Spider: (page, its browser
     context, the tab's session as its user's client sees it)."""
-    service = start_service(mesh)
-    url = start_viewer(mesh)
+    service, url = service_and_viewer(mesh)
     context = browser.new_context(viewport=viewport or chromium.VIEWPORT)
     page = new_page(context, url)
     page.get_by_role("button", name=SPIDER).click()
@@ -358,8 +371,7 @@ def test_an_imported_model_is_drawn_with_its_meshes(mesh: Mesh, browser: Any) ->
     """The Panda's links reach the browser as its URDF meshes: every mesh shape of its description,
     byte for byte what the proxy serves, and the page draws them without an error."""
     with logs_on_failure(mesh, "viewer", "proxy"):
-        service = start_service(mesh)
-        url = start_viewer(mesh)
+        service, url = service_and_viewer(mesh)
         client = service.client
         desc = client.describe("panda")
         names = desc.mesh_names()
@@ -391,8 +403,7 @@ def test_two_tabs_get_independent_sessions(mesh: Mesh, browser: Any) -> None:
 
 
 def two_tabs(mesh: Mesh, browser: Any) -> None:
-    service = start_service(mesh)
-    url = start_viewer(mesh)
+    service, url = service_and_viewer(mesh)
     client = service.client
     context = browser.new_context(viewport=chromium.VIEWPORT)  # one browser, one user, two tabs
     a = new_page(context, url)

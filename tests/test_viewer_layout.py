@@ -24,6 +24,7 @@ from .test_viewer_browser import (
     new_page,
     open_components,
     plot_joint1_q,
+    service_and_viewer,
     sessions_of,
     start_viewer,
     text_appears,
@@ -76,8 +77,7 @@ def test_no_region_covers_the_arm_and_a_reload_keeps_the_view(
 
 
 def layout_walk(mesh: Mesh, browser: Any, size: tuple[int, int]) -> None:
-    start_service(mesh)
-    url = start_viewer(mesh)
+    _service, url = service_and_viewer(mesh)
     width, height = size
     tag = f"{width}x{height}"
     SHOTS.mkdir(parents=True, exist_ok=True)

@@ -16,7 +16,7 @@ import pytest
 from simecs.testing import browser as chromium
 from simecs.viewer.cartesian_pendant import GIZMO
 
-from .conftest import Mesh, start_service, wait_until
+from .conftest import Mesh, wait_until
 from .test_viewer_browser import (
     BOTH_SIZES,
     SHOTS,
@@ -25,7 +25,7 @@ from .test_viewer_browser import (
     logs_on_failure,
     model_shown,
     new_page,
-    start_viewer,
+    service_and_viewer,
     text_appears,
 )
 from .test_viewer_layout import view_is_clear
@@ -52,8 +52,7 @@ def test_the_cartesian_pendant_plans_refuses_and_follows_the_gizmo(
 
 
 def cartesian_walk(mesh: Mesh, browser: Any, size: tuple[int, int]) -> None:
-    service = start_service(mesh)
-    url = start_viewer(mesh)
+    service, url = service_and_viewer(mesh)
     width, height = size
     tag = f"{width}x{height}"
     SHOTS.mkdir(parents=True, exist_ok=True)
