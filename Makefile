@@ -62,7 +62,7 @@ schema: $(STAMP)
 	$(BIN)/python -m simecs.mesh.schema
 
 test: lint $(CHROMIUM) warm
-	$(BIN)/python -m pytest -q -n 2 --dist loadfile
+	$(BIN)/python -m pytest -q -n 2 --dist loadfile --durations=20
 
 bench: $(STAMP) warm
 	$(BIN)/simecs bench model
