@@ -29,6 +29,7 @@ from simecs.testing.launch import wait_until
 from simecs.viewer import (
     browser,
     compare,
+    compare_panel,
     docs,
     events,
     export,
@@ -1816,6 +1817,18 @@ def test_runs_compared_on_every_plot_with_a_time_cursor_that_poses_the_arm(serve
         cmp._ticked(Event(cmp.recording_boxes[old]))
         ctl.drain()
         assert [o.run_id for o in plot.others] == ["r1", "r3", old] and plot.others[-1].t[-1] == 2.0
+        # many recordings: the newest are offered, and a ticked one stays even when it is no longer
+        many = [
+            m.RecordingInfo(f"new_r{k}", "sNew", f"r{k}", model.id, 100, stop_time=1.0) for k in range(25)
+        ]
+        ctl.host.mc.kept = [*many, *ctl.host.mc.kept]
+        ctl.results.list_recordings()
+        ctl.drain()
+        assert len(cmp.recording_boxes) == compare_panel.RECORDINGS_LISTED + 1 and old in cmp.recording_boxes
+        assert (
+            f"The {compare_panel.RECORDINGS_LISTED} newest of your 26 are listed"
+            in cmp.recordings_note.content
+        )
         cmp.recording_boxes[old].value = False
         cmp._ticked(Event(cmp.recording_boxes[old]))
         ctl.drain()

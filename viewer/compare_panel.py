@@ -26,6 +26,7 @@ from .scene import ArmScene
 from .session import SessionController
 
 MAX_COMPARED = 5  # runs drawn beside the shown one (each a dash pattern of its own)
+RECORDINGS_LISTED = 20  # the newest recordings offered (and any ticked one): a box each
 NO_RUN = "—"
 
 
@@ -115,7 +116,12 @@ class ComparePanel:
         sc = self.c.session
         kept = {r.run_id for r in self.c.runs}
         shown = [r for r in event.recordings if sc is None or r.session != sc.id or r.run_id not in kept]
-        wanted = {recording_key(r.name): r for r in shown}
+        ticked = {key for key, box in self.recording_boxes.items() if box.value}
+        wanted = {
+            recording_key(r.name): r
+            for k, r in enumerate(shown)  # newest first
+            if k < RECORDINGS_LISTED or recording_key(r.name) in ticked
+        }
         for key in [k for k in self.recording_boxes if k not in wanted]:
             self.recording_boxes.pop(key).remove()
             self.tracks.pop(key, None)
@@ -135,6 +141,8 @@ class ComparePanel:
             note = "_None yet besides the runs above: the recordings of this model's runs show here._"
         else:
             note = "Tick one to draw it beside the picked run: it is read on the server, not replayed."
+            if len(shown) > RECORDINGS_LISTED:
+                note += f" The {RECORDINGS_LISTED} newest of your {len(shown)} are listed."
         self.recordings_note.content = note
         self.refresh()
 
