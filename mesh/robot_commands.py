@@ -21,6 +21,8 @@ from msgspec import Meta
 
 from .primitives import NAME_PATTERN, FieldProblem, Name, Record
 
+#: The most nodes a path, actions a task and tasks a mission hold (the pendants refuse more first).
+MAX_ITEMS = 1000
 Percent = Annotated[float, Meta(gt=0.0, le=100.0, description="percent of the maxima, (0, 100]")]
 Seconds = Annotated[float, Meta(ge=0.0, le=1e9)]
 Vec3 = Annotated[list[float], Meta(min_length=3, max_length=3)]
@@ -52,7 +54,7 @@ class PathNode(Record):
 class JointPath(RobotCommandBase, tag="joint_path"):
     """Every node reached and stopped at, in order; each segment a synchronised trapezoidal move."""
 
-    nodes: Annotated[list[PathNode], Meta(min_length=1, max_length=1000)]
+    nodes: Annotated[list[PathNode], Meta(min_length=1, max_length=MAX_ITEMS)]
 
 
 # -- movement: Cartesian space ---------------------------------------------------------------------
@@ -92,7 +94,7 @@ class CartesianNode(Record):
 class CartesianPath(RobotCommandBase, tag="cartesian_path"):
     """Every node reached and stopped at, in order, starting from the initial pose's tool pose."""
 
-    nodes: Annotated[list[CartesianNode], Meta(min_length=1, max_length=1000)]
+    nodes: Annotated[list[CartesianNode], Meta(min_length=1, max_length=MAX_ITEMS)]
 
 
 # -- direct input: signals -------------------------------------------------------------------------
@@ -219,14 +221,14 @@ class Task(RobotCommandBase, tag="task"):
     """A named sequence of actions, run in order."""
 
     name: Name
-    actions: Annotated[list[Action], Meta(min_length=1, max_length=1000)]
+    actions: Annotated[list[Action], Meta(min_length=1, max_length=MAX_ITEMS)]
 
 
 class Mission(RobotCommandBase, tag="mission"):
     """A named sequence of tasks, run in order."""
 
     name: Name
-    tasks: Annotated[list[Task], Meta(min_length=1, max_length=1000)]
+    tasks: Annotated[list[Task], Meta(min_length=1, max_length=MAX_ITEMS)]
 
 
 RobotCommand = JointPath | CartesianPath | DirectInput | Action | Task | Mission

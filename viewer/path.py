@@ -14,6 +14,7 @@ from typing import Any, Generic, Protocol, TypeVar
 
 from simecs.mesh import messages as m
 from simecs.mesh.model import Link
+from simecs.mesh.robot_commands import MAX_ITEMS
 
 from .tree import fmt
 
@@ -25,7 +26,7 @@ def clamp_to_limits(q: Sequence[float], links: Sequence[Link]) -> list[float]:
     return [min(max(float(x), link.joint_min), link.joint_max) for x, link in zip(q, links, strict=True)]
 
 
-MAX_NODES = 1000  # the protocol's limit (messages.JointPath, CartesianPath)
+MAX_NODES = MAX_ITEMS  # the protocol's limit (messages.JointPath, CartesianPath)
 #: Why a pendant takes no edit while a run goes on (the server refuses a command then anyway).
 LOCKED = "the command cannot change while the run goes on: abort it or wait for its end"
 
@@ -225,6 +226,11 @@ class JointPathEditor(NodeList[Node]):
             qs = " | ".join(f"{x * DEG:.1f}" for x in node.q)
             rows.append(f"| {mark} | {qs} | {fmt(node.speed_pct)} | {fmt(node.acc_pct)} |")
         return "\n".join(rows) + "\n\nangles in degrees"
+
+
+def refused_text(where: str, reason: str) -> str:
+    """How every pendant shows the server's refusal of its command, beside it: what it blames, why."""
+    return f"**✗ The server refused {where}:** {reason}"
 
 
 def plan_text(plan: m.CommandPlan | None, stop_time: float, what: str = "path") -> str:

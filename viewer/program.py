@@ -18,13 +18,13 @@ from dataclasses import dataclass, field
 
 from simecs.mesh import codec, keys
 from simecs.mesh import messages as m
-from simecs.mesh.robot_commands import ACTION_ARGS, NAME_ARG, ArgSpec
+from simecs.mesh.robot_commands import ACTION_ARGS, MAX_ITEMS, NAME_ARG, ArgSpec
 
 from .path import PathError
 from .tree import fmt, numbers_text, parse_numbers
 
 PRIMITIVES = tuple(ACTION_ARGS)
-MAX_ACTIONS = 1000  # the protocol's limit per task, and of tasks per mission
+MAX_ACTIONS = MAX_ITEMS  # the protocol's limit per task, and of tasks per mission
 #: The levels this editor sends: one task alone, several as a mission (an action alone is a task of one).
 LEVELS = ("task", "mission")
 
