@@ -19,7 +19,7 @@ from simecs.mesh import messages as m
 from simecs.mesh.kinematics import link_frames, matrix_from_quat, quat_from_matrix, rot_rpy, rpy_of
 from simecs.mesh.model import ModelDescription
 
-from .path import DEG, NodeList, PathError
+from .path import DEG, NodeList, PathError, refused_text
 from .tree import fmt
 
 MOVES = ("lin", "ptp")  # messages.CartesianNode.move
@@ -172,7 +172,7 @@ def refusal_text(editor: CartesianPathEditor) -> str:
         return ""
     node, reason = editor.refused
     where = f"node {node + 1}" if node >= 0 else "the path"
-    return f"**✗ The server refused {where}:** {reason}"
+    return refused_text(where, reason)
 
 
 def node_target(plan: m.CommandPlan | None, node: int) -> list[float] | None:

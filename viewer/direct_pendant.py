@@ -20,7 +20,7 @@ from simecs.mesh import messages as m
 
 from .direct import GENERATORS, MODES, NO_SIGNAL, SIGNAL_TYPES, TABLE, DirectInputEditor, signal_fields
 from .params import APPLY_GRACE_S
-from .path import LOCKED, PathError
+from .path import LOCKED, PathError, refused_text
 from .plots import COLORS, scales
 
 SIGNAL_FIELD = re.compile(r"^command\.signals\.([A-Za-z0-9_.-]+?)(?:\.(.+))?$")
@@ -31,10 +31,10 @@ def refusal_text(field: str, reason: str) -> str:
     """The server's refusal of a direct input, naming the joint and the number it blames."""
     found = SIGNAL_FIELD.match(field or "")
     if found is None:
-        return f"**✗ The server refused the signals:** {reason}"
+        return refused_text("the signals", reason)
     joint, sub = found.group(1), found.group(2)
     where = f"{joint}'s {sub}" if sub else joint
-    return f"**✗ The server refused {where}:** {reason}"
+    return refused_text(where, reason)
 
 
 def plan_text(plan: m.CommandPlan | None, stop_time: float) -> str:

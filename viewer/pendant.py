@@ -12,7 +12,17 @@ from simecs.mesh import messages as m
 
 from .cartesian import NODE_FIELD
 from .joints import JointSliders
-from .path import LOCKED, PATH_BUTTONS, JointPathEditor, PathError, pick, plan_text, press, take_pct
+from .path import (
+    LOCKED,
+    PATH_BUTTONS,
+    JointPathEditor,
+    PathError,
+    pick,
+    plan_text,
+    press,
+    refused_text,
+    take_pct,
+)
 
 
 class PendantPanel:
@@ -130,7 +140,7 @@ class PendantPanel:
         """The server refused the path: its reason beside the table, naming the node."""
         found = NODE_FIELD.match(field or "")
         where = f"node {int(found.group(1)) + 1}" if found else "the path"
-        self.refusal.content = f"**✗ The server refused {where}:** {reason}"
+        self.refusal.content = refused_text(where, reason)
         self.duration.content = "_Not planned: the session keeps the last path the server took._"
 
     def set_disabled(self, disabled: bool) -> None:

@@ -20,7 +20,7 @@ from simecs.mesh.robot_commands import ACTION_ARGS, ACTION_DOC
 
 from .cartesian import Pose
 from .params import APPLY_GRACE_S
-from .path import LOCKED, PathError, plan_text
+from .path import LOCKED, PathError, plan_text, refused_text
 from .program import PRIMITIVES, ProgramEditor, arg_hint, arg_label, arg_text
 
 ACTION_FIELD = re.compile(r"^command\.(?:tasks\[(\d+)\]\.)?actions\[(\d+)\](?:\.(.+))?$")
@@ -36,11 +36,11 @@ def refusal_text(editor: ProgramEditor, field: str, reason: str) -> str:
     """The server's refusal, naming the task and the action it blames."""
     found = ACTION_FIELD.match(field or "")
     if found is None:
-        return f"**✗ The server refused the {editor.kind}:** {reason}"
+        return refused_text(f"the {editor.kind}", reason)
     task = int(found.group(1) or 0)
     name = editor.tasks[task].name if task < len(editor.tasks) else f"task {task + 1}"
     arg = f" ({found.group(3).removeprefix('args.')})" if found.group(3) else ""
-    return f"**✗ The server refused {name}, action {int(found.group(2)) + 1}{arg}:** {reason}"
+    return refused_text(f"{name}, action {int(found.group(2)) + 1}{arg}", reason)
 
 
 def saved_label(entry: m.ProgramEntry) -> str:
