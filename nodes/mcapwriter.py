@@ -46,13 +46,12 @@ from .mcapfmt import (
     FormatError,
     JointEncoder,
     PoseEncoder,
-    WorldScene,
     build_vars_codec,
     foxglove_schema,
-    scene_update,
     stamp,
     ts_json,
 )
+from .mcapscene import WorldScene, scene_update
 
 
 class _FastZstd(threading.local):

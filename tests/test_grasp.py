@@ -23,7 +23,7 @@ from simecs.mesh import columns, keys
 from simecs.mesh import messages as m
 from simecs.mesh.client import RemoteError, SessionClient
 from simecs.mesh.kinematics import rpy_of
-from simecs.nodes import mcapfmt, mcapread
+from simecs.nodes import mcapfmt, mcapread, mcapscene
 
 from tests.conftest import Service
 from tests.test_commands import SPIDER_Q0, kinematics, run_to_end
@@ -100,11 +100,11 @@ def test_a_pick_and_place_task_moves_the_box_and_its_recording_shows_it(service:
     path = service.mesh.folder / "rec" / s.user / f"{keys.recording_name(s.id, run_id)}.mcap"
     wait_file_closed(path, timeout=40.0)
     scenes = _messages(path, mcapfmt.TOPIC_SCENE)
-    held_on = [u for u in scenes if any(e["id"] == mcapfmt.HELD_ENTITY for e in u["entities"])]
+    held_on = [u for u in scenes if any(e["id"] == mcapscene.HELD_ENTITY for e in u["entities"])]
     assert held_on and held_on[0]["entities"][1]["frame_id"] == columns.GRASPED_FRAME
     placed = scenes[-1]
-    assert placed["deletions"][0]["id"] == mcapfmt.HELD_ENTITY
-    cubes = [e for e in placed["entities"] if e["id"] == mcapfmt.OBSTACLES_ENTITY][0]["cubes"]
+    assert placed["deletions"][0]["id"] == mcapscene.HELD_ENTITY
+    cubes = [e for e in placed["entities"] if e["id"] == mcapscene.OBSTACLES_ENTITY][0]["cubes"]
     put = [q["pose"]["position"] for q in cubes if abs(q["size"]["x"] - EDGE) < 1e-9]
     assert len(put) == 1 and np.allclose([put[0][a] for a in "xyz"], obj[-1, :3], atol=1e-9)
     tf = _messages(path, mcapfmt.TOPIC_TF)

@@ -17,7 +17,7 @@ import pytest
 from mcap.writer import Writer
 from simecs.mesh import columns, frames
 from simecs.mesh import messages as m
-from simecs.nodes import export, mcapread, mcaprepair
+from simecs.nodes import export, mcapread, mcaprepair, mcapscene
 from simecs.nodes import mcapfmt as fmt
 from simecs.nodes.mcapwriter import RunWriter
 
@@ -72,7 +72,7 @@ def test_written_run_reads_back_exactly_with_valid_schemas(tmp_path: Path) -> No
 def test_scene_uses_link_frames_and_resized_lengths() -> None:
     model = arm_model()
     values = dict(model.default_values(), **{"link1.length": 0.7})
-    scene = fmt.scene_update(model, values, 1_000_000_123)
+    scene = mcapscene.scene_update(model, values, 1_000_000_123)
     jsonschema.Draft202012Validator(json.loads(fmt.foxglove_schema("foxglove.SceneUpdate"))).validate(scene)
     ents = {e["id"]: e for e in scene["entities"]}
     assert set(ents) == {"link1", "link2", "environment"}
@@ -100,7 +100,7 @@ def test_foxglove_scene_draws_the_shape_geometry_the_viewer_draws(changes: dict[
 
     model = models.get_model("spider").describe()
     values = {**model.default_values(), **changes}
-    scene = fmt.scene_update(model, values, 1)
+    scene = mcapscene.scene_update(model, values, 1)
     prims: dict[str, list[dict]] = {}
     for entity in scene["entities"]:
         for kind in ("cylinders", "cubes", "spheres"):
@@ -137,7 +137,7 @@ def test_foxglove_scene_draws_the_shape_geometry_the_viewer_draws(changes: dict[
     if "link3.radius" in changes:
         scale = changes["link3.radius"] / model.default_values()["link3.radius"]
         housing = [p for k, p in prims["link3"] if k == "cylinders"][0]
-        default = fmt.scene_update(model, model.default_values(), 1)
+        default = mcapscene.scene_update(model, model.default_values(), 1)
         base = next(e for e in default["entities"] if e["id"] == "link3")["cylinders"][0]
         assert housing["size"]["x"] == pytest.approx(base["size"]["x"] * scale)
 
@@ -158,7 +158,7 @@ def _grasp_rows() -> tuple[list[str], np.ndarray]:
 
 def _box_x(update: dict) -> float | None:
     """Where the world draws the box in a /scene update (None: it is not in the world, it is held)."""
-    world = [e for e in update["entities"] if e["id"] == fmt.OBSTACLES_ENTITY][0]
+    world = [e for e in update["entities"] if e["id"] == mcapscene.OBSTACLES_ENTITY][0]
     return world["cubes"][0]["pose"]["position"]["x"] if world["cubes"] else None
 
 
@@ -170,15 +170,15 @@ def test_a_gap_filled_late_draws_the_grasp_as_it_was_at_its_time(gap: tuple[int,
     box = m.Obstacle("box1", "box", [0.5, 0.0, 0.2], size=[0.05] * 3, mass=2.0)
     ns = [int(t * 1e9) + 1_000 for t in rows[:, 0]]
     a, b = gap
-    whole = fmt.WorldScene(names, [box], "arm").grasp_updates(rows, ns)
-    scene = fmt.WorldScene(names, [box], "arm")
+    whole = mcapscene.WorldScene(names, [box], "arm").grasp_updates(rows, ns)
+    scene = mcapscene.WorldScene(names, [box], "arm")
     late = scene.grasp_updates(rows[:a], ns[:a]) + scene.grasp_updates(rows[b:], ns[b:])
     late += scene.grasp_updates(rows[a:b], ns[a:b], backfill=True)
     timeline = sorted(late, key=lambda u: u[0])
     # Every update in time order says what the rows said at its time; the last one puts the box down.
     held = {t: bool(rows[k, 2]) for k, t in enumerate(ns)}
     for t, update in timeline:
-        carried = any(e["id"] == fmt.HELD_ENTITY for e in update["entities"])
+        carried = any(e["id"] == mcapscene.HELD_ENTITY for e in update["entities"])
         assert carried == held[t], (t, update)
         x = _box_x(update)
         assert carried or x == pytest.approx(rows[ns.index(t), 3] if rows[ns.index(t), 1] else 0.5)
@@ -194,7 +194,7 @@ def test_contact_arrows_of_a_filled_gap_end_with_it() -> None:
     rows[:, 0] = np.arange(8) * 0.02
     rows[3:5, 3] = 20.0  # 20 N up at rows 3 and 4
     ns = [int(t * 1e9) for t in rows[:, 0]]
-    scene = fmt.WorldScene(names, [], "arm")
+    scene = mcapscene.WorldScene(names, [], "arm")
     live = scene.contacts_updates(rows[:2], ns[:2]) + scene.contacts_updates(rows[6:], ns[6:])
     assert live == []  # nothing touched on either side of the gap
     filled = scene.contacts_updates(rows[2:6], ns[2:6], backfill=True)

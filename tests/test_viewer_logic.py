@@ -1914,7 +1914,7 @@ def test_the_browser_and_the_recordings_scene_draw_every_solid_alike(
     """The 3D arm and Foxglove's /scene come from one rule: after a change of link lengths, radii or
     the payload's size, every solid sits and measures the same in both."""
     from simecs.models import get_model
-    from simecs.nodes import mcapfmt
+    from simecs.nodes import mcapscene
 
     desc = get_model("spider").describe()
     values = {**desc.default_values(), **changes}
@@ -1922,7 +1922,7 @@ def test_the_browser_and_the_recordings_scene_draw_every_solid_alike(
     arm_scene.build()
     try:
         assert arm_scene.set_values(values)
-        entities = {e["id"]: e for e in mcapfmt.scene_update(desc, values, 1)["entities"]}
+        entities = {e["id"]: e for e in mcapscene.scene_update(desc, values, 1)["entities"]}
         taken: dict[tuple[str, str], int] = {}
         for solid in shapes.solids(desc, values):
             if solid.frame == shapes.WORLD or not solid.geometry.visible:
@@ -2019,7 +2019,7 @@ def test_an_imported_models_meshes_are_drawn_where_its_description_puts_them(ser
 
     import jsonschema
     from simecs.models import get_model
-    from simecs.nodes import mcapfmt
+    from simecs.nodes import mcapfmt, mcapscene
 
     pkg = get_model("ur5")
     desc = pkg.describe()
@@ -2036,7 +2036,7 @@ def test_an_imported_models_meshes_are_drawn_where_its_description_puts_them(ser
         for i, shape in mesh_shapes.items():
             geom = shapes.shape_geometry(shape)
             assert np.allclose(drawn[i].position, geom.position) and np.allclose(drawn[i].wxyz, geom.wxyz)
-        update = mcapfmt.scene_update(desc, values, 1, meshes)
+        update = mcapscene.scene_update(desc, values, 1, meshes)
         schema = json.loads(mcapfmt.foxglove_schema("foxglove.SceneUpdate"))
         jsonschema.Draft202012Validator(schema).validate(update)
         entities = {e["id"]: e for e in update["entities"]}
@@ -2045,7 +2045,7 @@ def test_an_imported_models_meshes_are_drawn_where_its_description_puts_them(ser
             assert len(models) == 1 and models[0]["media_type"] == "model/gltf-binary"
             assert base64.b64decode(models[0]["data"])[:4] == b"glTF"
         # without the meshes: nothing drawn, nothing embedded, nothing broken
-        assert not any(e["models"] for e in mcapfmt.scene_update(desc, values, 1)["entities"])
+        assert not any(e["models"] for e in mcapscene.scene_update(desc, values, 1)["entities"])
     finally:
         arm_scene.remove()
     bare = scene.ArmScene(server.scene, desc, values, root="/t_bare")
