@@ -122,13 +122,14 @@ class ComparePanel:
             for k, r in enumerate(shown)  # newest first
             if k < RECORDINGS_LISTED or recording_key(r.name) in ticked
         }
-        for key in [k for k in self.recording_boxes if k not in wanted]:
+        gone = [k for k in self.recording_boxes if k not in wanted]
+        for key in gone:
             self.recording_boxes.pop(key).remove()
             self.tracks.pop(key, None)
             self.asked.discard(key)
-        for key, info in wanted.items():
-            if key in self.recording_boxes:
-                continue
+        new = [key for key in wanted if key not in self.recording_boxes]
+        for key in new:
+            info = wanted[key]
             size = f"{info.stop_time:g} s, {info.bytes / 1e6:.1f} MB"
             hint = f"run {info.run_id} of session {info.session}, {size}"
             with self.recording_folder:
@@ -143,8 +144,10 @@ class ComparePanel:
             note = "Tick one to draw it beside the picked run: it is read on the server, not replayed."
             if len(shown) > RECORDINGS_LISTED:
                 note += f" The {RECORDINGS_LISTED} newest of your {len(shown)} are listed."
-        self.recordings_note.content = note
-        self.refresh()
+        if self.recordings_note.content != note:
+            self.recordings_note.content = note
+        if gone or new:  # a listing that changed nothing leaves the page as it is
+            self.refresh()
 
     def _ticked(self, event: Any) -> None:
         if event.client is None:
