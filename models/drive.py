@@ -31,6 +31,7 @@ from .contact import (
 from .grasp import GRASP_OUTPUTS, grasp_outputs
 from .jit import CACHE as _CACHE
 from .jit import FAST as _FAST
+from .jit import NO_REFCOUNTS as _NO_REFCOUNTS
 
 # ---- per-joint parameter layout -------------------------------------------------------------------
 DRIVE_PARAMS = (
@@ -538,6 +539,81 @@ def substeps_for(P, X, h, nsub):
     return max(nsub, min(int(math.ceil(rate * h / FRICTION_RATE_STEP)), nsub * MAX_SUBSTEP_FACTOR))
 
 
+# Compiled without numba's reference counting (jit.NO_REFCOUNTS, and the kernels it calls with it): every
+# array view and every array handed to an inlined helper cost an atomic increment and decrement, and in
+# this loop (20 right-hand sides of 7 joints a step) they were 37 % of a real-time run's CPU (perf).
+# numba then refuses to make an array here: the scratch comes from drive_step.
+@njit(cache=_CACHE, error_model="numpy", fastmath=_FAST, **_NO_REFCOUNTS)
+def rk4_substeps(
+    P,
+    seg,
+    hold,
+    tab,
+    jmode,
+    live,
+    Minv,
+    bias,
+    X,
+    work,
+    contact,
+    npairs,
+    cw,
+    cimp,
+    sig,
+    rows,
+    refs,
+    t,
+    hs,
+    nsub,
+):
+    """drive_step's nsub RK4 substeps of hs from t, X advanced in place: STEP_OK, or STEP_FRICTION.
+    `work`: the 4 stages' derivatives and the stage state; `cw`, `cimp`: contact_stage's; `sig`: the
+    joint signals; `rows`: the set points and gear torques (qr, qdr, tau) of drive_rhs; `refs`: some
+    joint reads the set points."""
+    n = X.shape[0]
+    Xt = work[4]
+    tc, qr, qdr, tau = cw[2], rows[0], rows[1], rows[2]
+    w = hs / 6.0
+    for s in range(nsub):
+        ts = t + s * hs
+        for stage in range(4):  # classical RK4: stage k at X + RK4_AT[k] hs k_(k-1), into work[k]
+            Xs = X
+            if stage > 0:
+                for j in range(n):
+                    for k in range(NL):
+                        Xt[j, k] = X[j, k] + RK4_AT[stage] * hs * work[stage - 1, j, k]
+                Xs = Xt
+            if npairs > 0:
+                contact_stage(contact, Xs, cw, cimp, RK4_WEIGHT[stage] * w)
+            ref_due = refs and stage != 2  # stage 2 has stage 1's time
+            drive_rhs(
+                P,
+                seg,
+                hold,
+                tab,
+                jmode,
+                live,
+                Minv,
+                bias,
+                tc,
+                ts + RK4_AT[stage] * hs,
+                Xs,
+                work[stage],
+                sig,
+                qr,
+                qdr,
+                tau,
+                ref_due,
+            )
+        k1, k2, k3, k4 = work[0], work[1], work[2], work[3]
+        for j in range(n):
+            for k in range(NL):
+                X[j, k] += hs / 6.0 * (k1[j, k] + 2.0 * k2[j, k] + 2.0 * k3[j, k] + k4[j, k])
+            if abs(X[j, S_Z]) > friction_bound(P, j):  # caught before it overflows
+                return STEP_FRICTION
+    return STEP_OK
+
+
 @njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
 def drive_step(
     P,
@@ -592,53 +668,37 @@ def drive_step(
         X[j, S_QL] = q[j]
         X[j, S_QDL] = qd[j]
         X[j, S_IMP] = 0.0
-    Xt = work[4]
     sig = np.empty(NO + 10)
     rows = np.zeros((3, n))
-    qr, qdr, tau = rows[0], rows[1], rows[2]
     # Joints all under an external controller read no set point: the reference is not evaluated.
     refs = False
     for j in range(n):
         if live[j, LV_EXTERNAL] <= 0.5:
             refs = True
-    w = hs / 6.0
-    for s in range(nsub):
-        ts = t + s * hs
-        for stage in range(4):  # classical RK4: stage k at X + RK4_AT[k] hs k_(k-1), into work[k]
-            Xs = X
-            if stage > 0:
-                for j in range(n):
-                    for k in range(NL):
-                        Xt[j, k] = X[j, k] + RK4_AT[stage] * hs * work[stage - 1, j, k]
-                Xs = Xt
-            if npairs > 0:
-                contact_stage(contact, Xs, cw, cimp, RK4_WEIGHT[stage] * w)
-            ref_due = refs and stage != 2  # stage 2 has stage 1's time
-            drive_rhs(
-                P,
-                seg,
-                hold,
-                tab,
-                jmode,
-                live,
-                Minv,
-                bias,
-                tc,
-                ts + RK4_AT[stage] * hs,
-                Xs,
-                work[stage],
-                sig,
-                qr,
-                qdr,
-                tau,
-                ref_due,
-            )
-        k1, k2, k3, k4 = work[0], work[1], work[2], work[3]
-        for j in range(n):
-            for k in range(NL):
-                X[j, k] += hs / 6.0 * (k1[j, k] + 2.0 * k2[j, k] + 2.0 * k3[j, k] + k4[j, k])
-            if abs(X[j, S_Z]) > friction_bound(P, j):  # caught before it overflows
-                return STEP_FRICTION
+    status = rk4_substeps(
+        P,
+        seg,
+        hold,
+        tab,
+        jmode,
+        live,
+        Minv,
+        bias,
+        X,
+        work,
+        contact,
+        npairs,
+        cw,
+        cimp,
+        sig,
+        rows,
+        refs,
+        t,
+        hs,
+        nsub,
+    )
+    if status != STEP_OK:
+        return status
     for j in range(n):
         tau_out[j] = (X[j, S_IMP] + cimp[j]) / h
         for k in range(NS):

@@ -10,6 +10,7 @@ from __future__ import annotations
 import hashlib
 import os
 from pathlib import Path
+from typing import Any
 
 import numba
 
@@ -36,3 +37,8 @@ def _cache_dir() -> str:
 if CACHE:
     # read by numba when each kernel is decorated: every module here imports this one first
     numba.config.CACHE_DIR = _cache_dir()  # type: ignore[attr-defined]
+
+#: numba's private option that compiles a kernel (and what it calls) without reference counting: for a
+#: hot loop that makes no array (numba then refuses to compile one there). Spelled as a mapping because
+#: numba's type stubs do not list it.
+NO_REFCOUNTS: dict[str, Any] = {"_nrt": False}
