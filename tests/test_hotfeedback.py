@@ -1,5 +1,6 @@
 """The hot-feedback node's decimation, by injecting samples (no mesh): the rate limit from a run's
-first frame, the final frame always forwarded, zero rows for an aborted run, frames before layouts."""
+first frame, the final frame always forwarded, zero rows for an aborted run, frames before layouts,
+nothing forwarded for a session nobody watches."""
 
 from __future__ import annotations
 
@@ -36,8 +37,15 @@ class Sample:
 
 
 class Publisher:
+    """A live publisher; `watched`: what zenoh's matching status says (a subscriber on the key)."""
+
     def __init__(self) -> None:
         self.sent: list[tuple[float, frames.Frame]] = []
+        self.watched = True
+
+    @property
+    def matching_status(self) -> Any:
+        return type("MatchingStatus", (), {"matching": self.watched})()
 
     def put(self, payload: bytes) -> None:
         self.sent.append((time.monotonic(), frames.decode(payload)))
@@ -96,3 +104,20 @@ def test_an_aborted_run_ends_with_an_empty_final_frame_not_a_stale_sample() -> N
     last = pub.sent[-1][1]
     assert last.final and last.rows.shape[0] == 0
     assert COLS[0] == columns.TIME
+
+
+def test_a_session_nobody_watches_live_gets_no_frames_until_someone_does() -> None:
+    hf, pub, layout = node(rate_hz=100.0)
+    pub.watched = False
+    hf._on_layout(layout_sample(layout))  # type: ignore[arg-type]
+    for seq in range(3):
+        hf._on_full(frame_sample(seq, 0.025 * seq))  # type: ignore[arg-type]
+        time.sleep(0.011)
+    assert pub.sent == [] and hf.unwatched == 3
+    pub.watched = True  # a viewer subscribes mid-run: the next frame goes
+    hf._on_full(frame_sample(3, 0.075))  # type: ignore[arg-type]
+    assert len(pub.sent) == 1 and pub.sent[0][1].rows[0, 0] == pytest.approx(0.075)
+    pub.watched = False  # it leaves before the end: the stream still ends, and is freed later
+    hf._on_full(frame_sample(4, 0.1, final=True))  # type: ignore[arg-type]
+    stream = hf.streams[(USER, SID)]
+    assert len(pub.sent) == 1 and stream.ended_ns > 0 and stream.pending is None
