@@ -42,7 +42,7 @@ from .sources import RunSource, SimulationSource, open_source
 CHUNK_S = 0.025
 MAX_CHUNK_S = 0.1  # faster pacing: bigger chunks (fewer, larger frames), still a few ms of wall time
 # At most 5 progress reports per wall second: each costs a put here, a routing in the hub and a state
-# the proxy publishes in turn (about 0.1 ms of CPU a run, measured at 10 a second).
+# the proxy publishes in turn (the proxy's part alone about 0.09 ms of CPU, measured with 27 runs).
 STATUS_PERIOD_S = 0.2
 # Lines a worker writes on stdout for its simulator (nodes/host_load.py reads them):
 READY = "ready"  # warm: send the run
