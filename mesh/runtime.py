@@ -195,19 +195,28 @@ class Node:
         """`handle`, for samples that carry the service's seal; others are counted and logged."""
 
         def checked(sample: zenoh.Sample) -> None:
-            if self.seal.sample_valid(sample):
+            if self.sealed(sample):
                 handle(sample)
-                return
-            self.unsealed += 1
-            if self.unsealed <= 10 or self.unsealed % 1000 == 0:
-                self.log.warning(
-                    "ignored a sample on %s without a valid service seal (%d so far): only service "
-                    "nodes write this key",
-                    sample.key_expr,
-                    self.unsealed,
-                )
 
         return checked
+
+    def sealed(self, sample: zenoh.Sample, payload: bytes | None = None) -> bool:
+        """Whether `sample` (whose payload is `payload`, when already read) carries the service's
+        seal; one that does not is counted and logged (the first ten, then every thousandth)."""
+        if payload is None:
+            payload = sample.payload.to_bytes() if sample.payload is not None else b""
+        att = sample.attachment
+        if self.seal.valid(str(sample.key_expr), payload, att.to_bytes() if att is not None else None):
+            return True
+        self.unsealed += 1
+        if self.unsealed <= 10 or self.unsealed % 1000 == 0:
+            self.log.warning(
+                "ignored a sample on %s without a valid service seal (%d so far): only service "
+                "nodes write this key",
+                sample.key_expr,
+                self.unsealed,
+            )
+        return False
 
     def subscribe(
         self,

@@ -71,6 +71,11 @@ class SealedPublisher:
     def undeclare(self) -> None:
         self._pub.undeclare()
 
+    @property
+    def matching(self) -> bool:
+        """Whether some subscriber matches the key now (zenoh's matching status)."""
+        return bool(self._pub.matching_status.matching)
+
     def __getattr__(self, name: str) -> Any:  # matching_status and the like
         return getattr(self._pub, name)
 

@@ -13,6 +13,7 @@ import pytest
 from simecs.mesh import codec, columns, frames, keys
 from simecs.mesh import messages as m
 from simecs.mesh.config import MeshConfig
+from simecs.mesh.seal import Seal
 from simecs.nodes.hotfeedback import HotFeedback
 
 SID = keys.new_session_id()
@@ -20,10 +21,21 @@ USER = "ann"
 COLS = ["time", "joint1.q", "joint1.qd"]
 
 
+SEAL = Seal(bytes(range(32)))  # the service's, in these tests
+
+
 @dataclass
 class Sample:
+    """A zenoh sample as a worker puts it: sealed, unless `forged`."""
+
     key_expr: str
     data: bytes
+    forged: bool = False
+
+    @property
+    def attachment(self) -> Any:
+        mac = b"\0" * 16 if self.forged else SEAL.mac(self.key_expr, self.data)
+        return type("Attachment", (), {"to_bytes": lambda _self: mac})()
 
     @property
     def payload(self) -> Any:
@@ -44,8 +56,8 @@ class Publisher:
         self.watched = True
 
     @property
-    def matching_status(self) -> Any:
-        return type("MatchingStatus", (), {"matching": self.watched})()
+    def matching(self) -> bool:
+        return self.watched
 
     def put(self, payload: bytes) -> None:
         self.sent.append((time.monotonic(), frames.decode(payload)))
@@ -53,6 +65,7 @@ class Publisher:
 
 def node(rate_hz: float = 10.0) -> tuple[HotFeedback, Publisher, m.RunLayout]:
     hf = HotFeedback(MeshConfig())
+    hf.seal = SEAL
     pub = Publisher()
     hf.publisher = lambda key, **kw: pub  # type: ignore[method-assign]
     settings = m.RunSettings(stop_time=1.0, output_interval=0.01)
@@ -67,10 +80,10 @@ def layout_sample(layout: m.RunLayout) -> Sample:
     return Sample(keys.layout(USER, SID), codec.dumps(layout))
 
 
-def frame_sample(seq: int, t: float, final: bool = False, rows: int = 1) -> Sample:
+def frame_sample(seq: int, t: float, final: bool = False, rows: int = 1, forged: bool = False) -> Sample:
     data = np.array([[t - (rows - 1 - k) * 0.01, 0.1 * t, 1.0] for k in range(rows)]).reshape(rows, 3)
     fr = frames.Frame(1, seq, time.time_ns(), data, frames.FLAG_FINAL if final else 0)
-    return Sample(keys.vars_full(USER, SID), frames.encode(fr))
+    return Sample(keys.vars_full(USER, SID), frames.encode(fr), forged)
 
 
 def test_frames_that_come_before_their_layout_are_not_lost() -> None:
@@ -118,6 +131,17 @@ def test_a_session_nobody_watches_live_gets_no_frames_until_someone_does() -> No
     hf._on_full(frame_sample(3, 0.075))  # type: ignore[arg-type]
     assert len(pub.sent) == 1 and pub.sent[0][1].rows[0, 0] == pytest.approx(0.075)
     pub.watched = False  # it leaves before the end: the stream still ends, and is freed later
-    hf._on_full(frame_sample(4, 0.1, final=True))  # type: ignore[arg-type]
+    hf._on_full(frame_sample(4, 0.1, final=True, forged=True))  # type: ignore[arg-type]
     stream = hf.streams[(USER, SID)]
+    assert stream.ended_ns == 0 and hf.unsealed == 1  # a forged end changes nothing
+    hf._on_full(frame_sample(4, 0.1, final=True))  # type: ignore[arg-type]
     assert len(pub.sent) == 1 and stream.ended_ns > 0 and stream.pending is None
+
+
+def test_a_forged_frame_of_a_watched_session_is_not_forwarded() -> None:
+    hf, pub, layout = node(rate_hz=100.0)
+    hf._on_layout(layout_sample(layout))  # type: ignore[arg-type]
+    hf._on_full(frame_sample(0, 0.5, forged=True))  # type: ignore[arg-type]
+    assert pub.sent == [] and hf.unsealed == 1
+    hf._on_full(frame_sample(0, 0.025))  # type: ignore[arg-type]
+    assert len(pub.sent) == 1 and pub.sent[0][1].rows[0, 0] == pytest.approx(0.025)
