@@ -6,7 +6,7 @@
   jitters by about 1 % with the wake-ups' latency) or falls behind, the service stops admitting, or
   MAX_SESSIONS / the time limit is reached; the count of sessions held at RTF >= 0.99. Each count is
   measured once the simulator's spare workers are warm again: a run takes a warm worker and the host
-  warms another in its place (about 1.4 s of one core), a transient of starting a run, not what the
+  warms another in its place (about 1 s of one core), a transient of starting a run, not what the
   host holds;
 - `admitted_by_default`: how many of those the defaults admitted without queueing;
 - `queue_wait_estimate_error`: |estimated - actual| / actual wait of runs queued behind runs as fast
