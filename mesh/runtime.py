@@ -203,10 +203,7 @@ class Node:
     def sealed(self, sample: zenoh.Sample, payload: bytes | None = None) -> bool:
         """Whether `sample` (whose payload is `payload`, when already read) carries the service's
         seal; one that does not is counted and logged (the first ten, then every thousandth)."""
-        if payload is None:
-            payload = sample.payload.to_bytes() if sample.payload is not None else b""
-        att = sample.attachment
-        if self.seal.valid(str(sample.key_expr), payload, att.to_bytes() if att is not None else None):
+        if self.seal.sample_valid(sample, payload):
             return True
         self.unsealed += 1
         if self.unsealed <= 10 or self.unsealed % 1000 == 0:

@@ -50,10 +50,12 @@ class Seal:
     def valid(self, key: str, payload: bytes, attachment: bytes | None) -> bool:
         return attachment is not None and hmac.compare_digest(self.mac(key, payload), attachment)
 
-    def sample_valid(self, sample: Any) -> bool:
-        """A zenoh sample (or query) with a valid seal for its key and payload."""
+    def sample_valid(self, sample: Any, payload: bytes | None = None) -> bool:
+        """A zenoh sample (or query) with a valid seal for its key and payload (`payload`: the
+        sample's payload when the caller has read it already, to spare a copy)."""
         att = sample.attachment
-        payload = sample.payload.to_bytes() if sample.payload is not None else b""
+        if payload is None:
+            payload = sample.payload.to_bytes() if sample.payload is not None else b""
         return self.valid(str(sample.key_expr), payload, att.to_bytes() if att is not None else None)
 
 
