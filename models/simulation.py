@@ -28,6 +28,7 @@ from .errors import SimulationError
 from .exudyn_chain import GRAVITY, ExudynChain, exudyn
 from .mechanics import MECH_PREFIXES, chain_arrays, drive_array, init_states, tool_point, vec
 from .opspace import OpspaceController
+from .output_row import output_row
 from .sensors import sensor_row
 from .step import chain_step
 
@@ -551,7 +552,7 @@ class Simulation:
         if k >= self._rows.shape[0]:  # never with the size advance() reserves; kept safe anyway
             self._rows = np.concatenate([self._rows, np.empty((k + 8, self._rows.shape[1]))])
         m = self._mech_arrays
-        status = dr.output_row(
+        status = output_row(
             *self._command_state(),
             self.X,
             q,
