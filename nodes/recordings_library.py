@@ -199,13 +199,17 @@ class RecordingsLibrary:
             raise RequestError("not_found", f"{user} has no recording {name!r}", "name")
         return path
 
-    def download(self, user: str, name: str) -> Binary:
-        path = self._closed(user, name, "download")
-        size = path.stat().st_size
+    @staticmethod
+    def _servable(name: str, size: int) -> None:
+        """Refuse a recording too big to serve over the mesh (downloaded, or read for its results)."""
         if size > MAX_FILE_BYTES:
             raise RequestError(
                 "unsupported", f"recording {name} is {size} bytes, more than the {MAX_FILE_BYTES} served"
             )
+
+    def download(self, user: str, name: str) -> Binary:
+        path = self._closed(user, name, "download")
+        self._servable(name, path.stat().st_size)
         info = self._info(path)
         return Binary(path.read_bytes(), attachment=info)
 
@@ -243,11 +247,7 @@ class RecordingsLibrary:
             kept = self.loaded.get(path)
         if kept is not None and kept[0] == stamp:
             return kept[1]
-        if st.st_size > MAX_FILE_BYTES:
-            raise RequestError(
-                "unsupported",
-                f"recording {name} is {st.st_size} bytes, more than the {MAX_FILE_BYTES} served",
-            )
+        self._servable(name, st.st_size)
         try:
             rec = mcapread.load(path)
         except (mcapread.RecordingError, OSError) as exc:
