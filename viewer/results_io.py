@@ -34,6 +34,9 @@ class ResultsIO:
 
     def __init__(self, controller: SessionController) -> None:
         self.c = controller
+        #: What each recording compared holds (its RunInfo), asked once per listing: a closed file
+        #: does not change, and each plot and zoom would otherwise ask again before its samples.
+        self._recorded: dict[str, m.RunInfo] = {}
 
     def run(self, run_id: str = "") -> m.RunInfo | None:
         """Run `run_id` of the session, or the newest when it names none."""
@@ -128,11 +131,16 @@ class ResultsIO:
         name = recording_of_key(key)
         if name:
             mc, user = self.c.mc, self.c.user
-            try:
-                about, _ = mc.recording_results(user, name, t0=-1.0, t1=-1.0)  # no rows: what it holds
-            except NoReply:
-                raise ValueError(f"no recorder answered: recording {name} cannot be compared now") from None
-            return about.run, functools.partial(mc.recording_results, user, name)
+            held = self._recorded.get(name)
+            if held is None:
+                try:
+                    about, _ = mc.recording_results(user, name, t0=-1.0, t1=-1.0)  # no rows: what it holds
+                except NoReply:
+                    raise ValueError(
+                        f"no recorder answered: recording {name} cannot be compared now"
+                    ) from None
+                held = self._recorded[name] = about.run
+            return held, functools.partial(mc.recording_results, user, name)
         sc = self.c.session
         assert sc is not None
         run = self._ended(key)
@@ -143,6 +151,7 @@ class ResultsIO:
 
         def job() -> None:
             model = self.c.model
+            self._recorded.clear()  # a recording may have been deleted and uploaded again since
             try:
                 listed = self.c.mc.recordings(self.c.user)
             except NoReply:
