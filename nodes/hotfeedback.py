@@ -5,7 +5,8 @@ It takes every session's full-rate frames and forwards at most R frames per wall
 no one-second window holds more than R of them (plus the final frame, which always goes). Each carries
 the newest sample's live columns; a sample held back by the limit goes out the moment its turn comes.
 The final frame of a finished run holds its last sample; that of an aborted or failed run holds none.
-A session nobody subscribes to live gets nothing forwarded (zenoh's matching status of its publisher).
+A session nobody subscribes to live gets nothing forwarded but its final frame (zenoh's matching
+status of its publisher, once zenoh has had time to learn it).
 Its work per full frame is a few microseconds (header, one row, at most one put), done right in
 zenoh's callback to save a thread wake-up; slow consumers downstream have their own queues, so
 nothing stalls the simulator (a slow zenoh callback would stall the whole link: STACK-NOTES).
@@ -35,6 +36,10 @@ BURST = 1.0
 EARLY_SESSIONS = 64
 #: How long an ended stream keeps its publisher, in case the session runs again.
 STREAM_LINGER_NS = 60 * 10**9
+#: How long a new publisher forwards whatever zenoh's matching status says. The status is false until
+#: the hub has answered the publisher's declaration (about a millisecond; seconds on a loaded machine,
+#: while zenoh does send the puts): a viewer that subscribed before the run must not lose its start.
+MATCHING_SETTLE_NS = 2 * 10**9
 
 
 @dataclass
@@ -49,6 +54,11 @@ class Stream:
     sent: int = 0
     seq: int = 0
     publisher: Any = field(default=None)
+    declared_ns: int = 0  # when its publisher was declared
+
+    def watched(self, now: int) -> bool:
+        """Whether someone subscribes to the session's live key, or zenoh may not know yet."""
+        return now - self.declared_ns < MATCHING_SETTLE_NS or bool(self.publisher.matching)
 
 
 class HotFeedback(Node):
@@ -92,8 +102,13 @@ class HotFeedback(Node):
             return
         with self.lock:
             old = self.streams.get((user, session))
-            pub = old.publisher if old else self.publisher(keys.vars_live(user, session), express=True)
-            stream = Stream(layout, idx, int(1e9 / layout.live_rate_hz), publisher=pub)
+            if old is not None:
+                pub, declared_ns = old.publisher, old.declared_ns
+            else:
+                pub = self.publisher(keys.vars_live(user, session), express=True)
+                declared_ns = time.time_ns()
+            period_ns = int(1e9 / layout.live_rate_hz)
+            stream = Stream(layout, idx, period_ns, publisher=pub, declared_ns=declared_ns)
             self.streams[(user, session)] = stream
             early = self.early.pop((user, session), None)
             if early is not None and early.run_index == layout.run_index:
@@ -101,13 +116,12 @@ class HotFeedback(Node):
 
     def _take(self, stream: Stream, frame: frames.Frame) -> None:
         """A frame of the stream's run: its newest sample waits for its turn; the final one goes now.
-        A session nobody watches live (no subscriber on its live key: zenoh's matching status) gets no
-        frame at all: forwarding one costs this node and the hub a put each, 40 times a second a run."""
-        if not stream.publisher.matching:
+        A session nobody watches live (no subscriber on its live key: zenoh's matching status) gets
+        only its final frame: forwarding one costs this node and the hub a put each, 40 times a second
+        a run. The final one is one put a run, and ends the stream for a watcher zenoh was slow to see."""
+        if not frame.final and not stream.watched(time.time_ns()):
             stream.pending = None
             self.unwatched += 1
-            if frame.final:
-                stream.ended_ns = time.time_ns()
             return
         if frame.final and not frame.rows.shape[0]:
             stream.pending = frame  # aborted or failed: the run ends with no sample, not a stale one
@@ -164,7 +178,7 @@ class HotFeedback(Node):
             return False
         with self.lock:
             stream = self.streams.get(owner)
-            if stream is None or stream.layout.run_index != head.run_index or stream.publisher.matching:
+            if stream is None or stream.layout.run_index != head.run_index or stream.watched(time.time_ns()):
                 return False
             stream.pending = None
             self.unwatched += 1

@@ -1,6 +1,6 @@
 """The hot-feedback node's decimation, by injecting samples (no mesh): the rate limit from a run's
 first frame, the final frame always forwarded, zero rows for an aborted run, frames before layouts,
-nothing forwarded for a session nobody watches."""
+nothing but the final frame forwarded for a session nobody watches."""
 
 from __future__ import annotations
 
@@ -14,7 +14,7 @@ from simecs.mesh import codec, columns, frames, keys
 from simecs.mesh import messages as m
 from simecs.mesh.config import MeshConfig
 from simecs.mesh.seal import Seal
-from simecs.nodes.hotfeedback import HotFeedback
+from simecs.nodes.hotfeedback import MATCHING_SETTLE_NS, HotFeedback
 
 SID = keys.new_session_id()
 USER = "ann"
@@ -119,10 +119,16 @@ def test_an_aborted_run_ends_with_an_empty_final_frame_not_a_stale_sample() -> N
     assert COLS[0] == columns.TIME
 
 
+def settled(hf: HotFeedback) -> None:
+    """As if the session's live publisher were declared long enough ago for zenoh to know its match."""
+    hf.streams[(USER, SID)].declared_ns -= MATCHING_SETTLE_NS
+
+
 def test_a_session_nobody_watches_live_gets_no_frames_until_someone_does() -> None:
     hf, pub, layout = node(rate_hz=100.0)
     pub.watched = False
     hf._on_layout(layout_sample(layout))  # type: ignore[arg-type]
+    settled(hf)
     for seq in range(3):
         hf._on_full(frame_sample(seq, 0.025 * seq))  # type: ignore[arg-type]
         time.sleep(0.011)
@@ -135,7 +141,25 @@ def test_a_session_nobody_watches_live_gets_no_frames_until_someone_does() -> No
     stream = hf.streams[(USER, SID)]
     assert stream.ended_ns == 0 and hf.unsealed == 1  # a forged end changes nothing
     hf._on_full(frame_sample(4, 0.1, final=True))  # type: ignore[arg-type]
-    assert len(pub.sent) == 1 and stream.ended_ns > 0 and stream.pending is None
+    assert len(pub.sent) == 2 and pub.sent[-1][1].final and pub.sent[-1][1].rows[0, 0] == pytest.approx(0.1)
+    assert stream.ended_ns > 0 and stream.pending is None and hf.unwatched == 3
+
+
+def test_a_new_publisher_forwards_before_zenoh_reports_its_subscriber() -> None:
+    """zenoh's matching status is false until the hub answers the publisher's declaration (seconds on
+    a loaded machine), while the puts do reach a subscriber: a run's first frames must not be lost."""
+    hf, pub, layout = node(rate_hz=100.0)
+    pub.watched = False
+    hf._on_layout(layout_sample(layout))  # type: ignore[arg-type]
+    hf._on_full(frame_sample(0, 0.0))  # type: ignore[arg-type]
+    assert len(pub.sent) == 1 and hf.unwatched == 0
+    time.sleep(0.011)
+    settled(hf)  # still no subscriber once zenoh has had time to say: nothing more goes
+    hf._on_full(frame_sample(1, 0.025))  # type: ignore[arg-type]
+    assert len(pub.sent) == 1 and hf.unwatched == 1
+    hf._on_layout(layout_sample(layout))  # type: ignore[arg-type]  # the next run keeps the publisher
+    hf._on_full(frame_sample(2, 0.05))  # type: ignore[arg-type]
+    assert len(pub.sent) == 1 and hf.unwatched == 2
 
 
 def test_a_forged_frame_of_a_watched_session_is_not_forwarded() -> None:
