@@ -227,7 +227,7 @@ _TABLE = (
         kind="cached put",
         writer="proxy",
         payload="SessionState",
-        meaning="lifecycle and progress (progress at most 5 times a second, and on every phase change)",
+        meaning="lifecycle and progress (progress at most 5 per s, and on every phase or step change)",
     ),
     KeySpec(
         name="control",
@@ -243,7 +243,7 @@ _TABLE = (
         kind="put",
         writer="worker",
         payload="RunStatus",
-        meaning="a worker's report on its run (at most 5 per s, and on every phase change)",
+        meaning="a worker's report on its run (at most 5 per s, and at once on every phase or step change)",
     ),
     KeySpec(
         name="layout",
