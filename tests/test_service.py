@@ -214,6 +214,25 @@ def test_decimated_rate_holds_from_the_first_frame_and_the_final_frame_goes(
     assert rec.live[-1][1].rows[-1, 0] == pytest.approx(3.0)
 
 
+def test_a_realtime_run_sends_a_frame_every_25_ms_each_at_its_time(service: Service) -> None:
+    """A paced run simulates two frames per solver call (fewer wake-ups, cheaper runs) and still sends
+    40 frames per second, each when it is due, not two at a time."""
+    s = service.client.create_session("ann", "spider")
+    prepare(s, stop_time=2.0, pacing="realtime")
+    rec = Recorder(s)
+    run_id = s.run()
+    assert s.wait_for(["finished", "failed"], 60, run_id).phase == "finished"
+    wait_until(lambda: rec.full and rec.full[-1].final, what="final full frame")
+    rec.close()
+    # 2 s of samples every 2 ms, in 80 frames of at most 25 ms each
+    assert len(rec.full) == 80 and rec.full[-1].rows[-1, 0] == pytest.approx(2.0)
+    assert max(f.rows[-1, 0] - f.rows[0, 0] for f in rec.full) < 0.025 + 1e-9
+    gaps = np.diff([f.wall_ns for f in rec.full]) / 1e6
+    # sent in pairs, the gaps would be about 0 and 50 ms in turn
+    assert np.count_nonzero(gaps < 5.0) < len(gaps) / 4, np.round(gaps, 1)
+    assert 15.0 < float(np.median(gaps)) < 35.0, np.round(gaps, 1)
+
+
 def test_a_first_run_starts_at_once_and_the_session_keeps_its_last_ten_runs(service: Service) -> None:
     """The simulator is ready only once a worker is warm: the first run's first frame comes at once."""
     c = service.client
