@@ -37,7 +37,7 @@ from simecs.testing.launch import LocalMesh, wait_until
 
 PATH = [([0.4, -0.3, 0.5, 0.2, -0.2, 0.3, 0.1], 30.0, 30.0)]
 MAX_SESSIONS = 64
-TIME_LIMIT_S = 300.0
+TIME_LIMIT_S = 600.0
 FAST_RUNS = 8
 RTF_WINDOWS = 3  # a run's RTF is the mean of this many 1 s windows: one window's is +-1 % of jitter
 
