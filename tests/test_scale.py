@@ -5,7 +5,10 @@ Real processes on a real mesh; the LAN test puts each host in a network namespac
 
 from __future__ import annotations
 
+import json
 import signal
+import subprocess
+import sys
 import threading
 import time
 
@@ -17,7 +20,7 @@ from simecs.mesh import codec, keys
 from simecs.mesh import messages as m
 from simecs.mesh.client import SessionClient
 from simecs.testing import netns
-from simecs.testing.launch import LocalMesh, wait_until
+from simecs.testing.launch import LocalMesh, clean_env, wait_until
 
 PATH = [([0.4, -0.3, 0.5, 0.2, -0.2, 0.3, 0.1], 60.0, 60.0)]
 JOINTS = [f"joint{i}.q" for i in range(1, 8)]
@@ -95,7 +98,7 @@ def test_realtime_runs_share_a_small_machine_and_fast_runs_queue_per_core(mesh: 
 @pytest.fixture
 def lan() -> netns.Lan:
     try:
-        made = netns.Lan(("hub", "prx", "sim1", "sim2", "sim3")).up()
+        made = netns.Lan(("hub", "prx", "sim1", "sim2", "sim3", "cli1", "cli2")).up()
     except netns.NetnsUnavailable as exc:
         pytest.fail(f"network namespaces are needed for this test: {exc}")
     try:
@@ -104,14 +107,46 @@ def lan() -> netns.Lan:
         made.down()
 
 
+def run_on_client_host(
+    lan: netns.Lan, host: str, mesh: LocalMesh, user: str, stop_time: float, output_interval: float, out: str
+) -> subprocess.Popen[str]:
+    """A user's `simecs run` (docs/CLIENT.md) on a client host of its own: its real-time run of PATH
+    over the LAN to the hub, its results written to `out` (CSV of JOINTS) once the run ends."""
+    command = mesh.folder / "path.json"
+    q, speed, acc = PATH[0]
+    command.write_text(
+        json.dumps({"kind": "joint_path", "nodes": [{"q": q, "speed_pct": speed, "acc_pct": acc}]})
+    )
+    argv = [*lan.prefix(host), sys.executable, "-m", "simecs.nodes.cli", "run", "--model", "spider"]
+    argv += [
+        "--command",
+        str(command),
+        "--stop-time",
+        str(stop_time),
+        "--output-interval",
+        str(output_interval),
+    ]
+    argv += ["--pacing", "realtime", "--user", user, "--connect", f"tcp/{lan.address('hub')}:7447"]
+    argv += ["--vars", ",".join(JOINTS), "--out", out, "--quiet", "--timeout", "120"]
+    return subprocess.Popen(argv, stderr=subprocess.PIPE, text=True, env=clean_env(), start_new_session=True)
+
+
+def session_of(mesh: LocalMesh, user: str) -> SessionClient:
+    """The one session `user` opened (from a client host)."""
+    entries = wait_until(lambda: mesh.client().list_sessions(user), 30, what=f"{user}'s session")
+    return mesh.client().session(user, entries[0].session)
+
+
 def test_a_lost_host_costs_no_run_and_a_joining_host_takes_the_queue(lan: netns.Lan) -> None:
-    """Hub, proxy and three simulator hosts, each in its own namespace, on one virtual LAN. Each
-    simulator takes one run (--max-runs 1) so that the test sees placement. Run A and run B go to
-    different hosts; A's host is killed mid-run; A waits (B's host is full) until a third host joins,
-    then runs there from the start to the same result as an uninterrupted run, and the recording
-    says it restarted."""
+    """Hub, proxy, three simulator hosts and two users' client hosts, each in its own namespace, on
+    one virtual LAN. Each simulator takes one run (--max-runs 1) so that the test sees placement. Ann's
+    run A and Bob's run B, each started by `simecs run` on the user's own host, go to different
+    simulator hosts; A's host is killed mid-run; A waits (B's host is full) until a third host joins,
+    then runs there from the start, and Ann's client gets the result of an uninterrupted run; the
+    recording says it restarted."""
     placement = {"proxy": "prx", "sim1": "sim1", "sim2": "sim2", "sim3": "sim3", "recorder": "prx"}
     mesh = netns.lan_mesh(lan, placement)
+    clients: list[subprocess.Popen[str]] = []
     try:
         mesh.start_hub()
         data = mesh.folder / "data"
@@ -121,12 +156,14 @@ def test_a_lost_host_costs_no_run_and_a_joining_host_takes_the_queue(lan: netns.
             mesh.start("simulator", "--results-dir", str(data / name), "--max-runs", "1", name=name)
         wait_until(lambda: len(simulator_loads(mesh)) == 2, 10, what="both hosts' loads")
 
-        a = new_session(mesh, "ann", stop_time=3.0, output_interval=0.002)
-        b = new_session(mesh, "bob", stop_time=20.0, output_interval=0.01)
-        a_run = a.run()
-        st_a = a.wait_for(["running"], 60, a_run)
-        b.wait_for(["running"], 60, b.run())
-        st_b = b.snapshot().state
+        a_csv = str(mesh.folder / "ann.csv")
+        clients.append(run_on_client_host(lan, "cli1", mesh, "ann", 3.0, 0.002, a_csv))
+        a = session_of(mesh, "ann")
+        st_a = a.wait_for(["running"], 60)
+        a_run = st_a.run_id
+        clients.append(run_on_client_host(lan, "cli2", mesh, "bob", 20.0, 0.01, str(mesh.folder / "bob.csv")))
+        b = session_of(mesh, "bob")
+        st_b = b.wait_for(["running"], 60)
         assert {st_a.host, st_b.host} == {"sim1-t", "sim2-t"}, "two idle hosts: one run each"
 
         wait_until(lambda: a.snapshot().state.sim_time >= 1.0, 20, what="run A halfway")
@@ -147,11 +184,15 @@ def test_a_lost_host_costs_no_run_and_a_joining_host_takes_the_queue(lan: netns.
         assert time.monotonic() - joined_at < 40
         info = next(r for r in a.runs() if r.run_id == a_run)
         assert info.host == "sim3-t" and info.attempt == 2 and info.phase == "finished"
+        _, ann_stderr = clients[0].communicate(timeout=60)
+        assert clients[0].returncode == 0, ann_stderr
+        assert f"run {a_run}: finished at t = 3.000 s" in ann_stderr, ann_stderr
+        restarted = np.loadtxt(a_csv, delimiter=",", skiprows=1)
 
-        again = a.run()  # the same run, uninterrupted, for reference
-        assert a.wait_for(["finished", "failed"], 60, again).phase == "finished"
-        _, restarted = a.results(a_run, JOINTS)
-        _, reference = a.results(again, JOINTS)
+        ref = new_session(mesh, "ann", stop_time=3.0, output_interval=0.002)  # uninterrupted
+        again = ref.run()
+        assert ref.wait_for(["finished", "failed"], 60, again).phase == "finished"
+        _, reference = ref.results(again, JOINTS)
         assert restarted.shape == reference.shape == (1501, 8)
         np.testing.assert_array_equal(restarted, reference)
 
@@ -163,9 +204,16 @@ def test_a_lost_host_costs_no_run_and_a_joining_host_takes_the_queue(lan: netns.
         )
         blob = mesh.client().download_recording("ann", recording.name)
         assert b"restarted" in blob and b"was lost" in blob, "the recording notes the restart"
-        assert len([r for r in mesh.client().recordings("ann") if r.run_id == a_run]) == 1
+        assert (
+            len([r for r in mesh.client().recordings("ann") if r.run_id == a_run and r.session == a.id]) == 1
+        )
         b.abort()
+        _, bob_stderr = clients[1].communicate(timeout=60)
+        assert "aborted" in bob_stderr, bob_stderr
     finally:
+        for proc in clients:
+            if proc.poll() is None:
+                proc.kill()
         mesh.close()
 
 
