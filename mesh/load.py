@@ -43,11 +43,17 @@ def demand(settings: m.RunSettings, cost: float, replay: bool = False) -> float:
     return min(1.0, max(MIN_DEMAND, per_sim_s * settings.speed * COST_MARGIN))
 
 
-def measured_cost(load: m.SimulatorLoad | None, model_id: str, replay: bool = False) -> float | None:
-    """CPU s per simulated s of a run of `model_id` on a host, as the host measured it (None: not yet)."""
+def measured_cost(
+    load: m.SimulatorLoad | None, model_id: str, replay: bool = False, fast: bool = False
+) -> float | None:
+    """CPU s per simulated s of a run of `model_id` on a host, as the host measured it (None: not yet).
+    A paced run sleeps between its solver calls and finds its caches cold each time; a run as fast as
+    possible (`fast`) never sleeps and costs less: the host measures the two apart."""
     if replay:
         return REPLAY_COST
-    return load.cost.get(model_id) if load is not None else None
+    if load is None:
+        return None
+    return (load.fast_cost.get(model_id) if fast else None) or load.cost.get(model_id)
 
 
 def model_cost(load: m.SimulatorLoad | None, model_id: str, replay: bool = False) -> float:

@@ -655,7 +655,12 @@ class SimulatorLoad(Record):
     demand: Annotated[float, Meta(ge=0.0, description="sum of its runs' demand")] = 0.0
     runs: Annotated[list[RunLoad], Meta(max_length=10_000)] = []
     cost: Annotated[
-        dict[Name, float], Meta(description="measured CPU s per simulated s, by model (1/RTF when fast)")
+        dict[Name, float],
+        Meta(description="measured CPU s per simulated s of a paced run, by model: its demand's base"),
+    ] = {}
+    fast_cost: Annotated[
+        dict[Name, float],
+        Meta(description="measured CPU s per simulated s of a run as fast as possible, by model (1/its RTF)"),
     ] = {}
     models: Annotated[list[Name], Meta(max_length=10_000, description="the models it can run")] = []
     memory_free_mb: Annotated[float, Meta(ge=0.0)] = 0.0

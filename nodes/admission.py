@@ -158,7 +158,6 @@ class Admission:
                 continue
             info = rec.run_info(rec.state.run_id)
             replay = bool(info is not None and info.recording)
-            measured = load.measured_cost(view.load, rec.model_id, replay)
             cost = load.model_cost(view.load, rec.model_id, replay)
             stop = info.stop_time if info is not None else rec.settings.stop_time
             speed = rec.settings.speed
@@ -166,6 +165,7 @@ class Admission:
                 if rec.state.rtf > 0:
                     speed = rec.state.rtf
                 else:  # not stepping yet: its model's cost says how fast it will go, once measured
+                    measured = load.measured_cost(view.load, rec.model_id, replay, fast=True)
                     speed = 1.0 / max(measured, 1e-6) if measured is not None else math.nan
             left = max(stop - rec.state.sim_time, 0.0) / speed
             out.append(GoingRun(host, load.demand(rec.settings, cost, replay), left))

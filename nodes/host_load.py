@@ -10,6 +10,7 @@ simulated second (a moving average over the runs), and the host's capacity.
 from __future__ import annotations
 
 import json
+import math
 import os
 import subprocess
 import time
@@ -22,6 +23,7 @@ from .worker import COST, PROGRESS
 
 SAMPLE_S = 1.0
 COST_SMOOTHING = 0.3  # weight of a new measurement of a model's cost
+MIN_COST_SIM_S = 0.2  # simulated s a measurement of a cost needs at least (a run just started has less)
 OTHER_SMOOTHING = 0.3  # of a new measurement of the other processes' CPU use
 START_SMOOTHING = 0.3  # of a new measurement of a start-up time
 DEFAULT_WORKER_MB = 300.0
@@ -106,7 +108,8 @@ class HostLoad:
         self.max_runs = max_runs
         self.runs: dict[str, HostedRun] = {}
         self._partial: dict[int, bytes] = {}  # a worker's unfinished last line, by pid
-        self.cost: dict[str, float] = {}
+        self.cost: dict[str, float] = {}  # of paced runs, by model
+        self.fast_cost: dict[str, float] = {}  # of runs as fast as possible, by model
         self.other = 0.0  # cores used on our cores by processes other than the runs' workers
         self.worker_mb = DEFAULT_WORKER_MB
         self.start_s = 0.0  # moving average of hand-over to a warm worker to first progress
@@ -168,6 +171,7 @@ class HostLoad:
         for model_id, cost in measured.items():
             if isinstance(cost, float | int) and cost > 0:
                 self.cost.setdefault(str(model_id), float(cost))
+                self.fast_cost.setdefault(str(model_id), float(cost))
 
     # -- measuring ------------------------------------------------------------------------------------
     def sample(self, idle_pids: list[int], warm: int) -> bool:
@@ -183,6 +187,7 @@ class HostLoad:
             return changed
         self._sampled = now
         workers_cpu = 0.0
+        spent: dict[tuple[str, bool], list[float]] = {}  # (model, fast) -> [CPU s, simulated s]
         for run in self.runs.values():
             cpu_s = process_cpu_s(run.proc.pid)
             if cpu_s is None:
@@ -192,11 +197,13 @@ class HostLoad:
                 dt = max(now - wall, 1e-3)
                 run.cpu = max(cpu_s - cpu0, 0.0) / dt
                 workers_cpu += run.cpu
-                if not run.replay and run.sim_time - sim0 > 0.2:
-                    measured = (cpu_s - cpu0) / (run.sim_time - sim0)
-                    before = self.cost.get(run.model_id, measured)
-                    self.cost[run.model_id] = before + COST_SMOOTHING * (measured - before)
+                # a replay reads rows, a run in the loop waits spinning: neither is the model's cost
+                if not run.replay and run.settings.controller != "external" and run.sim_time > sim0:
+                    sums = spent.setdefault((run.model_id, not math.isfinite(run.settings.speed)), [0.0, 0.0])
+                    sums[0] += max(cpu_s - cpu0, 0.0)
+                    sums[1] += run.sim_time - sim0
             run._last = (now, cpu_s, run.sim_time)
+        self._take_spent(spent)
         t0, busy0, total0 = self._cores_at
         busy, total = cores_busy_s(self.cpus)
         self._cores_at = (now, busy, total)
@@ -209,6 +216,18 @@ class HostLoad:
         self.memory_mb = memory_free_mb()
         self.current = self._build()
         return True
+
+    def _take_spent(self, spent: dict[tuple[str, bool], list[float]]) -> None:
+        """The CPU and simulated time each model's runs spent over the last sample, paced runs and runs
+        as fast as possible apart, into the costs. Summed over the runs first: one run's CPU over a
+        second is read in 10 ms ticks (+-25 % of a real-time Spider run's), the sum of many is not."""
+        for (model_id, fast), (cpu_s, sim_s) in spent.items():
+            if sim_s < MIN_COST_SIM_S:
+                continue
+            table = self.fast_cost if fast else self.cost
+            measured = cpu_s / sim_s
+            before = table.get(model_id, measured)
+            table[model_id] = before + COST_SMOOTHING * (measured - before)
 
     def _read_lines(self, run: HostedRun) -> bool:
         """Take a run's progress lines; whether its `behind` changed."""
@@ -260,6 +279,7 @@ class HostLoad:
             demand=round(sum(demands.values()), 4),
             runs=runs,
             cost={k: round(v, 5) for k, v in sorted(self.cost.items())},
+            fast_cost={k: round(v, 5) for k, v in sorted(self.fast_cost.items())},
             models=list(self.models),
             memory_free_mb=round(self.memory_mb, 1),
             worker_mb=round(self.worker_mb, 1),

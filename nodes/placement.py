@@ -196,7 +196,9 @@ class Hosts:
         its speed (fast: over the RTF its model's measured cost allows; None while that is unmeasured)."""
         speed = request.settings.speed
         if not math.isfinite(speed):
-            cost = load.measured_cost(self._status(host), request.model_id, bool(request.recording))
+            cost = load.measured_cost(
+                self._status(host), request.model_id, bool(request.recording), fast=True
+            )
             if cost is None:
                 return None
             speed = 1.0 / max(cost, 1e-6)

@@ -7,6 +7,7 @@ import math
 
 import pytest
 from simecs.mesh import messages as m
+from simecs.nodes.host_load import COST_SMOOTHING, HostLoad
 from simecs.nodes.placement import GoingRun, Hosts
 
 
@@ -101,3 +102,28 @@ def test_a_run_over_before_the_hosts_status_lists_it_gives_its_core_back() -> No
     assert h.choose(second)[0] == ""
     h.release("a", first.session, first.run_id)
     assert h.choose(second) == ("a", "")
+
+
+def test_a_fast_run_lasts_what_fast_runs_cost_not_what_paced_runs_do() -> None:
+    """A paced run sleeps between its solver calls and pays cold caches each time: the host measures the
+    two apart. A queued fast run of 20 s takes 20 x its fast cost (0.03: 0.6 s), not 20 x 0.05."""
+    h = hosts(a=host_load(0.95, fast_cost={"spider": 0.03}))
+    waits = h.wait_estimates([GoingRun("a", 1.0, 2.0)], [request(1), request(2)])
+    assert waits == pytest.approx([2.0, 2.6])
+
+
+def test_a_host_measures_the_costs_of_paced_and_fast_runs_apart_over_all_its_runs() -> None:
+    """Each second the host sums its runs' CPU and simulated time by model and pacing, then smooths:
+    one run's CPU is read in 10 ms ticks, the sum of many is steadier. The warm-up's calibration is
+    the first estimate of both."""
+    hl = HostLoad(["spider"])
+    hl.take_costs('cost {"spider": 0.03}')
+    assert hl.cost == hl.fast_cost == {"spider": 0.03}
+    # 30 real-time runs of 1 simulated s at 0.03 to 0.05 CPU s each; one fast run of 25 s in 0.75 CPU s
+    hl._take_spent({("spider", False): [1.2, 30.0], ("spider", True): [0.75, 25.0]})
+    assert hl.cost["spider"] == pytest.approx(0.03 + COST_SMOOTHING * (0.04 - 0.03))
+    assert hl.fast_cost["spider"] == pytest.approx(0.03)
+    hl._take_spent({("spider", False): [0.01, 0.1]})  # a run that just started: too little to say
+    assert hl.cost["spider"] == pytest.approx(0.033)
+    status = hl._build()
+    assert status.cost == {"spider": 0.033} and status.fast_cost == {"spider": 0.03}
