@@ -39,8 +39,8 @@ from .sources import RunSource, SimulationSource, open_source
 # Simulated seconds per frame at real-time pacing: 25 ms gives 40 frames per wall second, below the
 # default live rate of 50 Hz: the hot-feedback rate limit then never holds frames back in steady real
 # time. Abort acts between frames.
-CHUNK_S = 0.025
-MAX_CHUNK_S = 0.1  # faster pacing: bigger frames (fewer, larger), still a few ms of wall time
+FRAME_S = 0.025
+MAX_FRAME_S = 0.1  # faster pacing: bigger frames (fewer, larger), still a few ms of wall time
 # A paced run simulates this many frames per solver call and sends them each at its time. Every wake-up
 # of a sleeping worker costs its simulation cold caches: measured on our 2-core VMs, a paced Spider run
 # takes 42-44 ms of CPU per simulated s in 25 ms calls, 35.5 in 50 ms calls (and 28 never sleeping).
@@ -58,9 +58,9 @@ PROGRESS = "progress"  # `progress <simulated s> <1 if falling behind its pace e
 log = logging.getLogger("simecs.worker")
 
 
-def chunk_length(speed: float, output_interval: float) -> float:
+def frame_length(speed: float, output_interval: float) -> float:
     """About 40 frames per wall second: 25 ms simulated in real time, up to 100 ms when faster."""
-    return max(min(CHUNK_S * speed, MAX_CHUNK_S), CHUNK_S, output_interval)
+    return max(min(FRAME_S * speed, MAX_FRAME_S), FRAME_S, output_interval)
 
 
 def frame_parts(rows: np.ndarray, t0: float, frame: float, t_end: float) -> list[tuple[np.ndarray, float]]:
@@ -285,7 +285,7 @@ class Run:
     def _loop(self, source: RunSource) -> None:
         st, ctl, pacer = self.req.settings, self.control, self.pacer
         speed = st.speed
-        frame = chunk_length(speed, source.output_interval)
+        frame = frame_length(speed, source.output_interval)
         # lockstep with an external controller keeps its own cadence: one frame per call
         solve = frame * FRAMES_PER_SOLVE if pacer.paced and self.hil is None else frame
         last_status = 0.0
@@ -331,6 +331,10 @@ class Run:
                 self.samples += part.shape[0]
                 self.publish(part, final=source.finished and k == len(parts) - 1)
                 self.sim_time = t_part
+                step = source.step_at(t_part)
+                if step != last_step:  # a step begins: said at once, however short
+                    self.status("running")
+                    last_step = step
                 ahead = pacer.ahead(t_part)
                 if ahead > 0:
                     ctl.sleep(ahead)
@@ -343,11 +347,8 @@ class Run:
             busy += time.monotonic() - step_wall
             self.rtf = simulated / max(busy, 1e-9)
             now = time.monotonic()
-            step, periodic = source.step_at(t), now - last_status >= STATUS_PERIOD_S
-            if periodic or step != last_step:
+            if now - last_status >= STATUS_PERIOD_S:
                 self.status("running")
-                last_step = step
-            if periodic:
                 self.watch_pace(t)
                 last_status = now
 
