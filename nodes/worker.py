@@ -32,20 +32,10 @@ from simecs.mesh.runtime import mesh_from_args, node_arguments
 from simecs.mesh.seal import Seal, SealedPublisher
 
 from .hil import Lockstep
-from .pacing import Pacer, PaceWatch
+from .pacing import FRAMES_PER_SOLVE, Pacer, PaceWatch, frame_length, frame_parts
 from .results_store import ResultsStore, StoredRun
 from .sources import RunSource, SimulationSource, open_source
 
-# Simulated seconds per frame at real-time pacing: 25 ms gives 40 frames per wall second, below the
-# default live rate of 50 Hz: the hot-feedback rate limit then never holds frames back in steady real
-# time. Abort acts between frames.
-FRAME_S = 0.025
-MAX_FRAME_S = 0.1  # faster pacing: bigger frames (fewer, larger), still a few ms of wall time
-# A paced run simulates this many frames per solver call and sends them each at its time. Every wake-up
-# of a sleeping worker costs its simulation cold caches: measured on our 2-core VMs, a paced Spider run
-# takes 42-44 ms of CPU per simulated s in 25 ms calls, 35.5 in 50 ms calls (and 28 never sleeping).
-# Jogging, pause and seek act between calls (50 ms in real time).
-FRAMES_PER_SOLVE = 2
 # At most 5 progress reports per wall second: each costs a put here, a routing in the hub and a state
 # the proxy publishes in turn (the proxy's part alone about 0.09 ms of CPU, measured with 27 runs).
 # A step of the command that begins is reported at once, however short (a 0.2 s wait would otherwise
@@ -56,28 +46,6 @@ READY = "ready"  # warm: send the run
 COST = "cost"  # `cost {"model": CPU s per simulated s, ...}`, measured while warming up
 PROGRESS = "progress"  # `progress <simulated s> <1 if falling behind its pace else 0> <RTF, last window>`
 log = logging.getLogger("simecs.worker")
-
-
-def frame_length(speed: float, output_interval: float) -> float:
-    """About 40 frames per wall second: 25 ms simulated in real time, up to 100 ms when faster."""
-    return max(min(FRAME_S * speed, MAX_FRAME_S), FRAME_S, output_interval)
-
-
-def frame_parts(rows: np.ndarray, t0: float, frame: float, t_end: float) -> list[tuple[np.ndarray, float]]:
-    """The rows of a solver call from t0 to t_end, cut every `frame` s of simulated time: (rows, the
-    simulated time the part ends at). A row on a cut belongs to the part it ends; parts without rows
-    are left out, so the last part, which ends at t_end, holds the call's last row."""
-    times, parts, first = rows[:, 0], [], 0
-    cut = t0 + frame
-    while cut < t_end - 1e-9:
-        last = int(np.searchsorted(times, cut + 1e-9, side="right"))
-        if last > first:
-            parts.append((rows[first:last], cut))
-            first = last
-        cut += frame
-    if first < rows.shape[0]:
-        parts.append((rows[first:], t_end))
-    return parts
 
 
 class Control:
