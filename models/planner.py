@@ -14,6 +14,8 @@ The proxy plans to check a command; the simulator plans again to run it (same co
 
 from __future__ import annotations
 
+import bisect
+import functools
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
@@ -127,12 +129,15 @@ class Plan:
         return self.tab[:, 0].copy(), self.tab[:, 1 : 1 + n].copy()
 
     def step_at(self, t: float) -> PlanStep | None:
-        """The step running at simulated time t (the last one once all are done)."""
-        current = None
-        for step in self.steps:
-            if step.start <= t + 1e-12:
-                current = step
-        return current
+        """The step running at simulated time t (the last one once all are done). A run's worker asks
+        at every frame (40 a second), for commands of up to 1000 steps: a bisection over the starts,
+        which come in time order (a step begins where the one before it ends)."""
+        k = bisect.bisect_right(self._starts, t + 1e-12)
+        return self.steps[k - 1] if k else None
+
+    @functools.cached_property
+    def _starts(self) -> list[float]:
+        return [step.start for step in self.steps]
 
     def summary(self, stop_time: float) -> m.CommandPlan:
         return m.CommandPlan(
