@@ -51,6 +51,7 @@ from simecs.viewer import (
 )
 from simecs.viewer.errors import describe_error
 from simecs.viewer.host import Claims
+from simecs.viewer.loop import TabLoop
 from simecs.viewer.tab import Tab
 
 VIEWER = Path(__file__).resolve().parent.parent / "viewer"
@@ -58,6 +59,8 @@ H = math.pi / 2
 #: Modules of the session controller and what it uses: no viser, no GUI.
 HEADLESS = (
     "session",
+    "loop",
+    "tab_state",
     "opening",
     "edits",
     "results_io",
@@ -411,7 +414,9 @@ class Recorder(list):
 
 def controller(*models: ModelDescription) -> tuple[session.SessionController, FakeMesh, Recorder]:
     mesh = FakeMesh(*(models or (arm(),)))
-    ctl = session.SessionController(FakeHost(mesh), tab_id=3, sync_delay_s=0.05)
+    ctl = session.SessionController(
+        FakeHost(mesh), tab_id=3, sync_delay_s=0.05, loop=TabLoop("t", driven=True)
+    )
     got = Recorder()
     ctl.subscribe(got)
     return ctl, mesh, got
@@ -514,9 +519,38 @@ def test_the_viewer_builds_no_column_names_keys_or_phase_sets_of_its_own() -> No
     assert "def effective_shape" not in source and "def pipe_mesh" not in source
 
 
-def test_no_viewer_module_is_a_god_class() -> None:
+def viewer_imports() -> dict[str, set[str]]:
+    """Module stem -> the viewer modules it imports, type-checking imports included."""
+    graph: dict[str, set[str]] = {}
     for file in VIEWER.glob("*.py"):
-        assert len(file.read_text().splitlines()) <= 420, file
+        wanted = set()
+        for name, level in imports_of(file):
+            stem = name.removeprefix("simecs.viewer.") if not level else name
+            if (VIEWER / f"{stem}.py").is_file():
+                wanted.add(stem)
+        graph[file.stem] = wanted
+    return graph
+
+
+def test_viewer_modules_import_each_other_without_a_cycle() -> None:
+    """The parts of the session controller see the tab through its state and dispatcher, never through
+    the controller: no module of the viewer reaches back to one that imports it (a circle means a
+    part reaching into its owner's privates, one idea badly cut)."""
+    graph = viewer_imports()
+    done: set[str] = set()
+
+    def visit(stem: str, path: list[str]) -> None:
+        assert stem not in path, " -> ".join([*path, stem])
+        if stem in done:
+            return
+        for dep in sorted(graph.get(stem, ())):
+            visit(dep, [*path, stem])
+        done.add(stem)
+
+    for stem in sorted(graph):
+        visit(stem, [])
+    for part in ("edits", "runs", "results_io", "opening", "jog"):
+        assert "session" not in graph[part], part
 
 
 def test_viewer_binds_loopback_by_default_and_hides_sharing() -> None:
@@ -928,7 +962,10 @@ def test_plot_redraws_live_then_full_resolution(server: Any) -> None:
     buf.reset(["time", "joint1.q"])
     plot.redraw(buf)  # no sample yet: the live window's span, nothing drawn in it, a y axis all the same
     assert list(plot.chart.data[0]) == [0.0, 10.0] and np.isnan(plot.chart.data[1]).all()
-    assert plot.chart.scales["y"]["range"] == [-0.5, 0.5]
+    assert plot.chart.scales["y"]["range"] == [-0.5, 0.5] and plot.chart.scales["x"]["range"] == [0, 10]
+    plot.stop_time = 2.0  # a run shorter than the window: its own span, from its start
+    plot.redraw(buf)
+    assert plot.chart.scales["x"]["range"] == [0, 2]
     buf.append(np.column_stack([np.linspace(0, 1, 50), np.linspace(0, 2, 50)]))
     plot.redraw(buf)
     assert len(plot.chart.data) == 2 and len(plot.chart.data[0]) == 50
@@ -948,15 +985,31 @@ def test_plot_redraws_live_then_full_resolution(server: Any) -> None:
     plot.add_var.value = "joint2.q"
     plot._add_variable(Event(plot.add_var))
     assert plot.variables == ["joint1.q", "joint2.q"] and plot.add_var.value == "—"
-    # Reset zoom: a drag-zoom lives in the browser's chart, so a new chart takes its place
-    old, order = plot.chart, plot.chart.order
+    # Reset zoom: a drag-zoom lives in the browser's chart; new scales make it draw the chart anew
+    # (the same chart: nothing is removed under the user's pointer)
+    old, scaled = plot.chart, dict(plot.chart.scales)
     plot.reset_zoom()
-    assert plot.chart is not old and plot.chart.order == order and plot.dirty
+    assert plot.dirty
     plot.redraw(buf)
+    assert plot.chart is old and plot.chart.scales != scaled
+    assert plot.chart.scales["x"]["range"] == [0, 1]  # the full resolution's span
     assert len(plot.chart.data) == 5 and plot.chart.series[2]["label"] == "joint2.q"  # 2 + 2 overlaid
     plot._transient(Event(SimpleNamespace(value="Live")))  # back to live: no drag-zoom left over
-    assert plot.full is None and plot.chart is not old
+    plot.redraw(buf)
+    assert plot.full is None and plot.chart is old and plot.chart.scales["x"]["range"] == [0, 2]
     plot.remove()
+
+
+def test_the_live_time_axis_shows_the_runs_span_or_sweeps_the_window() -> None:
+    """Issue 32, 1: the live time axis is never wider than the live window or the run, whichever is
+    shorter; past the window it moves on a quarter at a time, keeping its span."""
+    assert plots.live_axis(0.3, 10.0, 2.0, None) == (0.0, 2.0)
+    assert plots.live_axis(1.9, 10.0, 2.0, (0.0, 2.0)) == (0.0, 2.0)
+    assert plots.live_axis(4.0, 10.0, 60.0, None) == (0.0, 10.0)
+    lo, hi = plots.live_axis(10.5, 10.0, 60.0, (0.0, 10.0))
+    assert (lo, hi) == pytest.approx((3.0, 13.0))
+    assert plots.live_axis(12.9, 10.0, 60.0, (lo, hi)) == (lo, hi)  # kept while the trace is inside
+    assert plots.live_axis(5.0, 4.0, 0.0, None)[1] - plots.live_axis(5.0, 4.0, 0.0, None)[0] == 4.0
 
 
 def test_a_variable_against_another_is_drawn_as_a_curve(server: Any) -> None:
@@ -1102,7 +1155,7 @@ def test_text_from_a_model_or_the_server_is_shown_never_run() -> None:
     summary = library.model_markdown(msgspec.structs.replace(model.summary_entry(), name=evil, summary=evil))
     eqs = joints.init_equations_markdown([InitEquation("x", "q", evil)])
     failed = m.SessionState("s" * 22, "failed", run_id="r2", reason=evil, warnings=[evil])
-    for shown in (summary, eqs, run.status_text(failed)):
+    for shown in (summary, eqs, run.status_detail(failed)):
         assert "<img" not in shown and "&lt;img" in shown, shown
 
 
@@ -1111,12 +1164,11 @@ def test_status_line_and_run_buttons() -> None:
     assert run.status_text(st) == "**running** run r2 · t = 1.000 s · 50 % · RTF 0.98"
     assert "**running** replay r2 of `s_r1`" in run.status_text(st, replay="s_r1")
     doing = msgspec.structs.replace(st, step="tasks[1].actions[0]", task="back", action="home")
-    assert run.status_text(doing).endswith("RTF 0.98 · ⏵ back · home")  # the step that runs
-    assert run.status_text(msgspec.structs.replace(doing, task="", action="")).endswith(
-        "⏵ tasks[1].actions[0]"
-    )
-    failed = m.SessionState("s" * 22, "failed", run_id="r2", reason="diverged")
-    assert "diverged" in run.status_text(failed)
+    assert run.status_detail(doing) == "⏵ back · home"  # the step that runs, beside the run bar
+    assert run.status_detail(msgspec.structs.replace(doing, task="", action="")) == "⏵ tasks[1].actions[0]"
+    failed = m.SessionState("s" * 22, "failed", run_id="r2", reason="diverged: 2*pi*f")
+    assert "diverged" not in run.status_text(failed)  # the reason is in the session panel, as written:
+    assert r"diverged: 2\*pi\*f" in run.status_detail(failed)  # stars, not emphasis (issue 32, 9)
     queued = m.SessionState("s" * 22, "queued", run_id="r3", queue_position=2)
     assert "position 2" in run.status_text(queued)
     assert run.applicable("finished") == ["Run"] and run.applicable("paused") == ["Resume", "Abort"]
@@ -1208,7 +1260,7 @@ def test_spider_appearance_parameters_reshape_its_shapes() -> None:
 
 def test_status_line_shows_warnings() -> None:
     st = m.SessionState(session="s", phase="finished", run_id="r1", warnings=["recorder: gaps"])
-    assert "⚠ recorder: gaps" in run.status_text(st)
+    assert "⚠ recorder: gaps" in run.status_detail(st)
 
 
 # -- the session controller, driven by injected messages ------------------------------------------------
@@ -1234,7 +1286,7 @@ def test_on_a_secured_mesh_a_tab_logs_in_first_and_acts_as_its_user_only() -> No
     mesh = FakeMesh(arm())
     host = FakeHost(mesh, passwords={"ann": "ann-password", "bob": "bob-password"})
     kept = mesh.create_session("ann", "arm3")  # from an earlier visit of this browser
-    ctl = session.SessionController(host, tab_id=3, sync_delay_s=0.05)
+    ctl = session.SessionController(host, tab_id=3, sync_delay_s=0.05, loop=TabLoop("t", driven=True))
     got = Recorder()
     ctl.subscribe(got)
     ctl.start(remembered_session=kept.id, remembered_user="ann")
@@ -1305,7 +1357,7 @@ def test_a_remembered_session_is_asked_again_when_the_server_does_not_answer(
 
 def test_one_tab_per_session() -> None:
     ctl, sc, got = attached()
-    second = session.SessionController(ctl.host, tab_id=4)
+    second = session.SessionController(ctl.host, tab_id=4, loop=TabLoop("t2", driven=True))
     seen = Recorder()
     second.subscribe(seen)
     second.start()  # the same browser: the same user
@@ -1656,7 +1708,7 @@ def started_tab(server: Any, model: ModelDescription) -> tuple[Tab, FakeClient, 
     """A tab on a fake mesh offering `model`, started (its models window open)."""
     mesh = FakeMesh(model)
     client = FakeClient(server)
-    tab = Tab(FakeHost(mesh), client)
+    tab = Tab(FakeHost(mesh), client, TabLoop("tab", driven=True))
     tab.build_frame()
     tab.controller.start()
     tab.controller.drain()
@@ -1686,16 +1738,14 @@ def test_the_tab_applies_controller_events_to_its_panels(server: Any) -> None:
     try:
         # the toolbar follows the state; the pendant locks while a run goes on
         sc.watched["on_state"](state(sc, "running", progress=0.5, sim_time=0.5, rtf=1.0))
-        assert tab.toolbar.status.content.startswith("**running** run r1")
-        enabled = [label for label, b in tab.toolbar.run_buttons.items() if not b.disabled]
-        assert enabled == ["Pause", "Abort"] and page.commands.pendant.locked
-        assert "not now" in tab.toolbar.run_buttons["Run"].hint
+        assert tab.run_bar.status.content.startswith("**running** run r1")
+        assert "Pause or Abort" in tab.run_bar.status.content and page.commands.pendant.locked
         # a replay run: the status names the recording, the arm takes the recorded link length
         sc.watched["on_state"](state(sc, "queued", "r2", seq=11))
         lay = layout(sc, model, "r2", "rec_r1", **{"link2.length": 1.0})
         sc.watched["on_layout"](lay)
         sc.watched["on_state"](state(sc, "running", "r2", seq=12))
-        assert "replay r2 of `rec_r1`" in tab.toolbar.status.content
+        assert "replay r2 of `rec_r1`" in tab.run_bar.status.content
         assert page.scene.solids[2][0].scale[2] == pytest.approx(1.0)
         sc.watched["on_live"](live_frame(lay, model, [0.4, 0.1, -0.2]))
         expected = link_poses(model, lay.context.values, [0.4, 0.1, -0.2])

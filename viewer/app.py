@@ -101,8 +101,9 @@ class Viewer(Node):
             self.server = None
 
     def tick(self) -> None:
+        """Each tab's tick, on its own loop; a tab still busy with its last one skips this one."""
         for tab in list(self.tabs.values()):
-            tab.tick()
+            tab.loop.post(tab.tick, key="tick")
 
     # -- tabs ------------------------------------------------------------------------------------
     def _connected(self, client: Any) -> None:

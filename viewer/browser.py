@@ -156,13 +156,19 @@ def install_watchdog(client: Any) -> None:
     """Say, on the page itself, when the server is gone: the viewer beats every second (`beat`) and
     the page shows a banner at its top edge after `SILENT_S` without a beat. viser only dims the
     panels; the banner says what happened and that nothing is lost. It goes when beats come back
-    (viser reconnects by itself, and the new tab reopens the session)."""
+    (viser reconnects by itself, and the new tab reopens the session).
+
+    viser's page retries a lost connection every second, but only while the page has the focus
+    (`document.hasFocus()`): a page in a background tab or window, or beside another one, would
+    never come back until clicked. The page here always counts as focused for that, so every page
+    reconnects within a second or two of the server's return."""
     run_js(
         client,
         f"""(() => {{
   window.__simecsBeat = Date.now();
   if (window.__simecsWatchdog) return;
   window.__simecsWatchdog = true;
+  document.hasFocus = () => true;
   const banner = document.createElement('div');
   banner.id = 'simecs-lost';
   banner.setAttribute('role', 'alert');
@@ -177,6 +183,51 @@ def install_watchdog(client: Any) -> None:
   }}, 500);
 }})();""",
     )
+
+
+def install_page_rules(client: Any) -> None:
+    """What the page does besides viser's own: viser's developer controls (server URL, Save Canvas,
+    dev settings, the scene tree, behind the panel's "Configuration & diagnostics" icon) are hidden
+    from users; the browser's Back button does not leave the app; Space pauses or resumes the run and
+    Esc aborts it (clicking the run bar's buttons, so the same checks apply), except while the user
+    types in a field or answers a dialog."""
+    run_js(
+        client,
+        """(() => {
+  if (window.__simecsRules) return;
+  window.__simecsRules = true;
+  const style = document.createElement('style');
+  style.textContent = 'button:has(svg.tabler-icon-adjustments){display:none !important}';
+  document.head.appendChild(style);
+  history.pushState({simecs: true}, '', location.href);
+  window.addEventListener('popstate', () => history.pushState({simecs: true}, '', location.href));
+  const runButton = (label) => Array.from(document.querySelectorAll('button')).find((b) =>
+    b.textContent.trim() === label && b.parentElement &&
+    Array.from(b.parentElement.children).some((c) => c.textContent.trim() === 'Abort') &&
+    Array.from(b.parentElement.children).some((c) => c.textContent.trim() === 'Run'));
+  document.addEventListener('keydown', (e) => {
+    if (e.ctrlKey || e.metaKey || e.altKey || e.repeat) return;
+    const t = e.target;
+    const typing = t && (t.isContentEditable || ['INPUT', 'TEXTAREA', 'SELECT'].includes(t.tagName));
+    if (typing || document.querySelector('.mantine-Modal-content')) return;
+    const phase = window.__simecsPhase || '';
+    let label = '';
+    if (e.code === 'Space') label = phase === 'running' ? 'Pause' : (phase === 'paused' ? 'Resume' : '');
+    else if (e.key === 'Escape') label = ['queued', 'running', 'paused'].includes(phase) ? 'Abort' : '';
+    if (!label) return;
+    const button = runButton(label);
+    if (!button) return;
+    e.preventDefault();
+    e.stopPropagation();
+    button.click();
+  }, true);
+})();""",
+    )
+
+
+def tell_phase(client: Any, phase: str) -> None:
+    """The session's phase, for the page's keys (Space, Esc: `install_page_rules`)."""
+    run_js(client, f"window.__simecsPhase = {json.dumps(phase)};")
 
 
 def beat(client: Any) -> None:

@@ -5,7 +5,8 @@ variables, the initial pose, the joint path and the settings.
 Sliders and the pendant fire on every move, so the pose, the path and the settings are sent once
 the user paused for `sync_delay_s` (`tick`), and all at once before a run starts (`flush`). An edit
 the session's phase forbids is refused here with the phase table's reason. Part of the session
-controller: the values themselves live on it, where the panels read them.
+controller: the values themselves live in the tab's state (tab_state.py), where the panels read them;
+what a request brings back is handed to the tab's loop.
 """
 
 from __future__ import annotations
@@ -13,8 +14,9 @@ from __future__ import annotations
 import threading
 import time
 from collections import deque
+from collections.abc import Callable
 from functools import partial
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import msgspec
 from simecs.mesh import codec, columns
@@ -24,9 +26,8 @@ from simecs.mesh.shapes import appearance_parameters
 
 from . import events as ev
 from .program import pendant_level
-
-if TYPE_CHECKING:
-    from .session import SessionController
+from .tab_state import TabState
+from .workers import Dispatcher
 
 SYNC_DELAY_S = 0.25  # an edit is sent once the user paused this long (sliders fire on every move)
 DEBOUNCED = ("initial", "command", "settings")
@@ -44,10 +45,19 @@ def undo_label(before: dict[str, float]) -> str:
 
 
 class Edits:
-    """Sending one controller's edits."""
+    """Sending one tab's edits: `view` is the tab's state, `tasks` its loop and workers, `preview(q)`
+    shows the arm at a pose."""
 
-    def __init__(self, controller: SessionController, sync_delay_s: float = SYNC_DELAY_S) -> None:
-        self.c = controller
+    def __init__(
+        self,
+        view: TabState,
+        tasks: Dispatcher,
+        preview: Callable[[list[float]], None],
+        sync_delay_s: float = SYNC_DELAY_S,
+    ) -> None:
+        self.c = view
+        self.t = tasks
+        self.preview = preview
         self.sync_delay_s = sync_delay_s
         self._due: dict[str, float] = {}
         self._lock = threading.Lock()
@@ -78,51 +88,66 @@ class Edits:
     def set_params(self, changes: dict[str, float]) -> None:
         """Values the user applied, all at once: the 3D arm reshapes at once, the server checks them
         (all or none; a refusal names the culprit, and the arm comes back)."""
-        c = self.c
+        c, t = self.c, self.t
         sc, model = c.session, c.model
         if sc is None or model is None or not changes:
             return
         what = next(iter(changes)) if len(changes) == 1 else f"{len(changes)} parameters"
         why = c.refusal("set_params")
         if why:
-            c.notify(f"{what} not changed", why, "warning")
-            c.emit(ev.ParamsRefused("", why))
-            c.emit(ev.ValuesChanged(dict(c.values)))
+            t.notify(f"{what} not changed", why, "warning")
+            t.emit(ev.ParamsRefused("", why))
+            t.emit(ev.ValuesChanged(dict(c.values)))
             return
         if set(changes) & appearance_parameters(model):
             c.replaying = None
-            c.emit(ev.ShapesChanged({**c.values, **{k: float(v) for k, v in changes.items()}}))
+            t.emit(ev.ShapesChanged({**c.values, **{k: float(v) for k, v in changes.items()}}))
+        before = dict(c.values)
 
         def job() -> None:
-            before = dict(c.values)  # the session's stream may bring the new values before the reply
             try:
                 values = sc.command(m.SetParams({k: float(v) for k, v in changes.items()}))
             except (RemoteError, NoReply) as exc:
-                self.show_values(c.values)
-                if isinstance(exc, RemoteError):
-                    c.emit(ev.ParamsRefused(exc.field.removeprefix("values."), exc.error.message))
-                c.fail(f"{what} not changed", exc)
+                t.on_loop(partial(self._params_refused, exc))
+                t.fail(f"{what} not changed", exc)
                 return
-            self._replaced(before, values)
-            self.show_values(values)
+            t.on_loop(lambda: self._took(before, values))
 
-        c.submit(f"{what} not changed", job)
+        t.submit(f"{what} not changed", job)
+
+    def _params_refused(self, exc: RemoteError | NoReply) -> None:
+        """The server did not take a change of values: the stored ones shown again, and its reason."""
+        self.show_values(self.c.values)
+        if isinstance(exc, RemoteError):
+            self.t.emit(ev.ParamsRefused(exc.field.removeprefix("values."), exc.error.message))
+
+    def _took(self, before: dict[str, float], values: dict[str, float]) -> None:
+        """The server took a change of values (`before`: the values when it was sent): shown, and
+        what it replaced kept for Undo (on the loop)."""
+        self._replaced(before, values)
+        self.show_values(values)
 
     def undo_params(self) -> None:
         """Put back the values the user's last change (applied edits, a reset, a loaded set) replaced."""
-        c = self.c
+        t = self.t
+        if not self.undo_stack:
+            t.notify("Undo refused", "no change of parameter values to undo", "warning")
+            return
+        before = self.undo_stack[-1]
 
         def job() -> None:
-            if not self.undo_stack:
-                raise ValueError("no change of parameter values to undo")
-            before = self.undo_stack[-1]
             values = self.command(m.SetParams(dict(before)))
-            self.undo_stack.pop()
-            self.show_values(values)
-            self._undo_shown()
-            c.notify("Undone", undo_label(before), "ok")
 
-        c.submit("Undo refused", job)
+            def undone() -> None:
+                if self.undo_stack and self.undo_stack[-1] is before:
+                    self.undo_stack.pop()
+                self.show_values(values)
+                self._undo_shown()
+
+            t.on_loop(undone)
+            t.notify("Undone", undo_label(before), "ok")
+
+        t.submit("Undo refused", job)
 
     def _replaced(self, before: dict[str, float], values: dict[str, float]) -> None:
         """The server took a change of the user's (`before` the values when it was sent): keep what
@@ -137,74 +162,72 @@ class Edits:
         return undo_label(self.undo_stack[-1]) if self.undo_stack else ""
 
     def _undo_shown(self) -> None:
-        self.c.emit(ev.UndoChanged(self.undo_what()))
+        self.t.emit(ev.UndoChanged(self.undo_what()))
 
     def reset_params(self, names: list[str]) -> None:
-        def job() -> None:
-            before = dict(self.c.values)
-            values = self.command(m.ResetParams(list(names)))
-            self._replaced(before, values)
-            self.show_values(values)
-            self.c.notify("Parameters", f"{len(names) or 'All'} parameter(s) back to their defaults.", "ok")
+        before = dict(self.c.values)
 
-        self.c.submit("Reset refused", job)
+        def job() -> None:
+            values = self.command(m.ResetParams(list(names)))
+            self.t.on_loop(lambda: self._took(before, values))
+            self.t.notify("Parameters", f"{len(names) or 'All'} parameter(s) back to their defaults.", "ok")
+
+        self.t.submit("Reset refused", job)
 
     def param_set(self, op: str, name: str) -> None:
         """save / load / delete a named parameter set (kept by the server per user and model)."""
-        c = self.c
+        t = self.t
+        before = dict(self.c.values)
 
         def job() -> None:
             if op in ("load", "delete") and name in ("", "(none)"):
                 raise ValueError("no saved set chosen")
             if op == "save":
                 self.command(m.SaveParamSet(name))
-                c.notify("Parameter set saved", f"Saved **{name}**.", "ok")
+                t.notify("Parameter set saved", f"Saved **{name}**.", "ok")
             elif op == "load":
-                before = dict(c.values)
                 values = self.command(m.LoadParamSet(name))
-                self._replaced(before, values)
-                self.show_values(values)
-                c.notify("Parameter set loaded", f"Loaded **{name}**.", "ok")
+                t.on_loop(lambda: self._took(before, values))
+                t.notify("Parameter set loaded", f"Loaded **{name}**.", "ok")
             elif op == "delete":
                 self.command(m.DeleteParamSet(name))
-                c.notify("Parameter set deleted", f"Deleted **{name}**.", "ok")
+                t.notify("Parameter set deleted", f"Deleted **{name}**.", "ok")
             self.refresh_sets()
 
-        c.submit(f"Parameter set {op}", job)
+        t.submit(f"Parameter set {op}", job)
 
     def refresh_sets(self) -> None:
         if self.c.session is not None:
-            self.c.emit(ev.ParamSetsChanged(list(self.command(m.ListParamSets()))))
+            self.t.emit(ev.ParamSetsChanged(list(self.command(m.ListParamSets()))))
 
     def show_values(self, values: dict[str, float]) -> None:
         """The server's values: to the parameter panel, and to the arm unless a replay shapes it."""
         c = self.c
         c.values = dict(values)
-        c.emit(ev.ValuesChanged(dict(c.values)))
+        self.t.emit(ev.ValuesChanged(dict(c.values)))
         if c.replaying is None:
-            c.emit(ev.ShapesChanged(dict(c.values)))
+            self.t.emit(ev.ShapesChanged(dict(c.values)))
 
     # -- obstacles ---------------------------------------------------------------------------------
     def set_obstacles(self, obstacles: list[m.Obstacle]) -> None:
         """The session's whole obstacle list as the user edited it: drawn at once, then stored by the
         server (a refusal names the field, and the list drawn comes back to the stored one)."""
-        c = self.c
-        before = list(c.obstacles)
+        before = list(self.c.obstacles)
         self.show_obstacles(obstacles)
 
         def job() -> None:
             try:
                 self.command(m.SetObstacles(list(obstacles)))
             except (RemoteError, NoReply, ValueError):
-                self.show_obstacles(before)
+                self.t.on_loop(lambda: self.show_obstacles(before))
                 raise
-            c.notify("Obstacles", f"{len(obstacles)} obstacle(s) stored for the next runs.", "ok")
+            self.t.notify("Obstacles", f"{len(obstacles)} obstacle(s) stored for the next runs.", "ok")
 
-        c.submit("Obstacles refused", job)
+        self.t.submit("Obstacles refused", job)
 
     def show_obstacles(self, obstacles: list[m.Obstacle]) -> None:
         self.c.obstacles = list(obstacles)
-        self.c.emit(ev.ObstaclesChanged(list(obstacles)))
+        self.t.emit(ev.ObstaclesChanged(list(obstacles)))
 
     def on_obstacles(self, published: m.ObstacleValues) -> None:
         """The server's list (after any client's set_obstacles): drawn when it is not the one shown."""
@@ -225,19 +248,19 @@ class Edits:
             return
         required = set(columns.joint_position_columns(c.model))
         c.streamed = set(wanted) | required | (set(plotted) if not wanted else set())
-        c.emit(ev.StreamedChanged(set(c.streamed)))
+        self.t.emit(ev.StreamedChanged(set(c.streamed)))
         self.later("settings")
 
     def ensure_streamed(self, name: str) -> None:
         c = self.c
         if name not in c.streamed:
             c.streamed.add(name)
-            c.emit(ev.StreamedChanged(set(c.streamed)))
+            self.t.emit(ev.StreamedChanged(set(c.streamed)))
             self.later("settings")
 
     def set_initial(self, q: list[float]) -> None:
         self.c.initial = list(q)
-        self.c.preview(q)
+        self.preview(q)
         self.later("initial")
 
     def command_changed(self, kind: str = "joint_path") -> None:
@@ -256,7 +279,7 @@ class Edits:
                 self._again = True
                 return
             self._in_flight = True
-        self.c.submit("Command not sent", self._send_latest_command)
+        self.t.submit("Command not sent", self._send_latest_command)
 
     def _send_latest_command(self) -> None:
         try:
@@ -272,16 +295,18 @@ class Edits:
 
     def apply_settings(self, settings: m.RunSettings) -> None:
         """Settings from the settings window (the streamed variables go with them)."""
-        c = self.c
         settings = msgspec.structs.replace(settings, live_vars=self.live_vars())
 
         def job() -> None:
             self.command(m.SetSettings(settings))
-            c.settings = settings
-            c.emit(ev.SettingsChanged(settings))
-            c.notify("Settings", f"Stop time {settings.stop_time:g} s, pacing {settings.pacing}.", "ok")
+            self.t.on_loop(lambda: self._settings_taken(settings))
+            self.t.notify("Settings", f"Stop time {settings.stop_time:g} s, pacing {settings.pacing}.", "ok")
 
-        c.submit("Settings refused", job)
+        self.t.submit("Settings refused", job)
+
+    def _settings_taken(self, settings: m.RunSettings) -> None:
+        self.c.settings = settings
+        self.t.emit(ev.SettingsChanged(settings))
 
     def live_vars(self) -> list[str]:
         """`RunSettings.live_vars` for the streamed variables ([] = every variable)."""
@@ -309,7 +334,7 @@ class Edits:
             for what in due:
                 del self._due[what]
         for what in due:
-            self.c.submit(f"{what.capitalize()} not sent", partial(self.send, what))
+            self.t.submit(f"{what.capitalize()} not sent", partial(self.send, what))
 
     def flush(self, also: tuple[str, ...] = ()) -> None:
         """Send every pending edit now (and `also`, pending or not), on the calling worker."""
@@ -319,27 +344,35 @@ class Edits:
             self.send(what)
 
     def send(self, what: str) -> None:
-        """Send one edit (on the command worker)."""
-        c = self.c
+        """Send one edit (on the command worker), as the loop holds it when it goes."""
+        c, t = self.c, self.t
         if c.session is None or c.model is None:
             return
         if what == "initial":
-            self.command(m.SetInitial(list(c.initial)))
+            self.command(m.SetInitial(t.on_loop(lambda: list(c.initial))))
         elif what == "command":
             self.send_command()
         elif what == "settings":
-            settings = msgspec.structs.replace(c.settings, live_vars=self.live_vars())
+            settings = t.on_loop(lambda: msgspec.structs.replace(c.settings, live_vars=self.live_vars()))
             self.command(m.SetSettings(settings))
-            c.settings = settings
+            t.on_loop(lambda: setattr(c, "settings", settings))
+
+    def _command_now(self) -> tuple[str, Any]:
+        """(level, command) of the pendant whose path is the session's command, as it stands (on the
+        loop); (level, None) when that pendant's path is empty or not this viewer's."""
+        kind = self.c.command_kind
+        editor = self.c.editor(kind)
+        if editor is None or editor.empty:
+            return kind, None
+        return kind, editor.to_command()
 
     def send_command(self) -> None:
         """The path being edited as the session's command; the server's plan, or its refusal of the
         path (shown beside the path, naming the node: `CommandRefused`)."""
-        c = self.c
-        editor = c.editor(c.command_kind)
-        if editor is None or editor.empty:
+        t = self.t
+        kind, command = t.on_loop(self._command_now)
+        if command is None:
             return
-        command = editor.to_command()
         with self._lock:
             self._sent.append(codec.dumps(command))
         try:
@@ -347,11 +380,18 @@ class Edits:
         except RemoteError as exc:
             if not exc.field.startswith("command"):
                 raise
-            self.refused = exc.error.message
-            c.emit(ev.CommandRefused(c.command_kind, exc.field, exc.error.message))
+            t.on_loop(partial(self._command_refused, kind, exc.field, exc.error.message))
             return
-        self.plan, self.refused = plan, ""
-        c.emit(ev.PlanChanged(plan, c.command_kind))
+
+        def planned() -> None:
+            self.plan, self.refused = plan, ""
+            t.emit(ev.PlanChanged(plan, kind))
+
+        t.on_loop(planned)
+
+    def _command_refused(self, kind: str, field: str, reason: str) -> None:
+        self.refused = reason
+        self.t.emit(ev.CommandRefused(kind, field, reason))
 
     def on_command(self, published: m.CommandValue) -> None:
         """The session's command as the proxy published it: one another client set (not one this
@@ -374,4 +414,4 @@ class Edits:
         editor.load(command)  # type: ignore[arg-type]
         c.command_kind = kind
         self.plan, self.refused = published.plan, ""
-        c.emit(ev.CommandReplaced(kind))
+        self.t.emit(ev.CommandReplaced(kind))

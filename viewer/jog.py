@@ -2,18 +2,17 @@
 a joint or a tool direction, at a speed override. viser buttons report clicks, not holds, so a click
 starts the jog and Stop (or another axis) ends it; while it lasts, the velocity is re-sent every
 RESEND_S, well within the server's deadman time, so a closed or disconnected tab stops the arm by
-itself. Part of the session controller; no viser here.
+itself. Part of the session controller (it reads the tab's state only); no viser here.
 """
 
 from __future__ import annotations
 
 import threading
-from typing import TYPE_CHECKING
+from collections.abc import Callable
 
 from simecs.mesh import messages as m
 
-if TYPE_CHECKING:
-    from .session import SessionController
+from .tab_state import TabState
 
 RESEND_S = 0.1
 CARTESIAN_AXES = ("x", "y", "z", "roll", "pitch", "yaw")
@@ -21,8 +20,11 @@ WALL_PACED = ("realtime", "scaled")
 
 
 class JogControl:
-    def __init__(self, controller: SessionController) -> None:
-        self.c = controller
+    """The jog of one tab's session (`view`: its state; `closed()`: the tab went away)."""
+
+    def __init__(self, view: TabState, closed: Callable[[], bool]) -> None:
+        self.c = view
+        self.closed = closed
         self.speed_pct = 25.0
         self.lock = threading.Lock()
         self.wake = threading.Condition(self.lock)
@@ -95,7 +97,7 @@ class JogControl:
                 pass
 
     def _send_while_active(self) -> None:
-        while not self.c.closed:
+        while not self.closed():
             with self.wake:
                 msg = self.active
                 if msg is None:

@@ -55,6 +55,18 @@ class Layout:
         panel.dock_right()
         panel.set_width(self.right_px)
 
+    @property
+    def run_bar_px(self) -> int:
+        """The run bar, floating at the foot of the 3D view: as wide as its buttons and status need,
+        never wider than the view."""
+        view = self.width - self.left_px - self.right_px - (self.plots_px if self.wide else 0)
+        return max(300, min(460, view - 24))
+
+    def place_run_bar(self, panel: Any) -> None:
+        """Bottom left of the 3D view, clear of the docks (floating: its height follows its content,
+        so nothing in it is ever scrolled away)."""
+        panel.float(x=12, y=-12, width=self.run_bar_px)
+
     def place_command(self, panel: Any, toolbar: Any) -> None:
         """The command pendant, under the toolbar: beside the arm it moves."""
         panel.dock_below(toolbar)

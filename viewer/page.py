@@ -68,6 +68,7 @@ class ModelPage:
                 c.edits.reset_params,
                 c.edits.param_set,
                 c.edits.undo_params,
+                after=c.loop.after,
             )
             self.params.show_undo(c.edits.undo_what())
         with tabs.add_tab("Variables"):
@@ -170,7 +171,8 @@ class ModelPage:
 
     def _new_run(self, event: ev.LayoutChanged) -> None:
         layout = event.layout
-        self.plots.new_run(f"{'replay' if layout.source == 'replay' else 'run'} {layout.run_id}")
+        kind = "replay" if layout.source == "replay" else "run"
+        self.plots.new_run(f"{kind} {layout.run_id}", layout.stop_time)
         self.compare.new_run()
         self.trace.clear()
         self._draw_obstacles()

@@ -16,7 +16,6 @@ once; a refusal is shown beside the fields with the server's reason.
 from __future__ import annotations
 
 import math
-import time
 from collections.abc import Callable, Sequence
 from typing import Any
 
@@ -25,6 +24,7 @@ from simecs.mesh.model import ModelDescription, Parameter, Variable, check_value
 
 from . import tree as tr
 from .component_tree import ComponentTree
+from .markup import escape_text
 
 CHANGED_MARK = " •"  # appended to the label of a value that differs from its default
 DRAFT_MARK = " ✎"  # appended to the label of a typed value not applied yet
@@ -66,8 +66,10 @@ class ParamPanel:
         on_reset: Callable[[list[str]], None],
         on_set_op: Callable[[str, str], None],
         on_undo: Callable[[], None] = lambda: None,
+        after: Callable[[float, Callable[[], None]], None] = lambda _s, job: job(),
     ) -> None:
         self.gui = gui
+        self.after = after  # runs a job later on the tab's loop (the page's `loop.after`)
         self.model = model
         self.values = dict(values)
         self.defaults = model.default_values()
@@ -191,7 +193,7 @@ class ParamPanel:
         if problems:
             text = "⚠ Not applicable yet: " + "; ".join(problems)
         elif self.refusal:
-            text = f"✗ The server refused: {self.refusal}"
+            text = f"✗ The server refused: {escape_text(self.refusal)}"
         elif self.drafts:
             text = f"{len(self.drafts)} typed value(s) ✎ not sent yet: **Apply edits** sends them."
         else:
@@ -202,7 +204,9 @@ class ParamPanel:
         self.discard.disabled = not self.drafts
 
     def _apply(self) -> None:
-        time.sleep(APPLY_GRACE_S)  # the last keystrokes may still be on their way
+        self.after(APPLY_GRACE_S, self._apply_typed)  # the last keystrokes may still be on their way
+
+    def _apply_typed(self) -> None:
         # viser sets a field's value as its message arrives, before the update callbacks run in its
         # thread pool: the fields themselves say what was typed last
         for name, handle in self.fields.items():

@@ -16,6 +16,7 @@ from simecs.mesh import messages as m
 from simecs.mesh.model import Link
 from simecs.mesh.robot_commands import MAX_ITEMS
 
+from .markup import escape_text
 from .tree import fmt
 
 DEG = 180.0 / math.pi
@@ -229,8 +230,9 @@ class JointPathEditor(NodeList[Node]):
 
 
 def refused_text(where: str, reason: str) -> str:
-    """How every pendant shows the server's refusal of its command, beside it: what it blames, why."""
-    return f"**✗ The server refused {where}:** {reason}"
+    """How every pendant shows the server's refusal of its command, beside it: what it blames, why
+    (the server's words as written: plain text, not markdown)."""
+    return f"**✗ The server refused {where}:** {escape_text(reason)}"
 
 
 def plan_text(plan: m.CommandPlan | None, stop_time: float, what: str = "path") -> str:

@@ -29,6 +29,7 @@ class PlotDock:
         self.actions = actions
         self.plots: dict[int, Plot] = {}
         self.live_label = ""  # the run shown live, named in each plot's title
+        self.stop_time = 0.0  # its span (0: not known)
         self.angles = "rad"  # angles shown in rad or deg: one choice for every plot (units.py)
         self.on_angles: Callable[[str], None] = lambda _a: None
         self.angle_choice: Any = None  # the dropdown, while the dock is shown
@@ -53,6 +54,7 @@ class PlotDock:
         with self.tab:
             plot = Plot(self.gui, self.counter, [name], self.units, self.actions, self.live_label)
             plot.angles = self.angles
+            plot.stop_time = self.stop_time
         self.plots[plot.number] = plot
         self.set_choices(choices)
         return plot
@@ -74,11 +76,14 @@ class PlotDock:
         for plot in self.plots.values():
             plot.set_choices(names)
 
-    def new_run(self, label: str = "") -> None:
-        """A new run is shown (`label`: "run r3", "replay r4"): every plot back to its live window."""
+    def new_run(self, label: str = "", stop_time: float = 0.0) -> None:
+        """A new run is shown (`label`: "run r3", "replay r4"; `stop_time`: its span, 0 unknown):
+        every plot back to its live window."""
         self.live_label = label
+        self.stop_time = stop_time
         for plot in self.plots.values():
             plot.live_label = label
+            plot.stop_time = stop_time
             plot.full = None
             plot.folder.label = plot.title()
             plot.reset_zoom()

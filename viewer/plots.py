@@ -28,12 +28,38 @@ CURSOR = {"label": "cursor", "stroke": "#444444", "width": 1.0}
 TIME_AXIS = "time"  # the X axis choice of a chart over time (any other: a variable, xy_plot.py)
 
 
-def scales(y: tuple[float, float] | None) -> dict[str, Any]:
-    """A chart's scales: time on x; y fitted by uPlot, or the range given when a series has gaps."""
+def scales(
+    y: tuple[float, float] | None, x: tuple[float, float] | None = None, reset: int = 0
+) -> dict[str, Any]:
+    """A chart's scales: time on x, shown over `x` (None: fitted by uPlot); y fitted by uPlot, or the
+    range given when a series has gaps. viser keeps a user's drag-zoom of an x range across data
+    pushes and draws the chart anew when the scales change: `reset` is bumped to clear a zoom."""
     out: dict[str, Any] = {"x": {"time": False}}
+    if x is not None:
+        out["x"] = {"time": False, "range": [x[0], x[1]], "reset": reset}
     if y is not None:
         out["y"] = {"auto": False, "range": [y[0], y[1]]}
     return out
+
+
+#: Of the live window, how far ahead of the newest sample the time axis reaches once the trace has
+#: filled it: the axis then moves on by this much at a time, a sweep rather than a scroll, so the
+#: chart is drawn anew a few times per window instead of at every redraw.
+SWEEP_AHEAD = 0.25
+
+
+def live_axis(
+    t_last: float, window: float, stop_time: float, shown: tuple[float, float] | None
+) -> tuple[float, float]:
+    """The time axis of the live window: the run's own span from 0 when it is shorter than the window,
+    else the window; kept as `shown` while the newest sample `t_last` is inside it."""
+    span = min(window, stop_time) if stop_time > 0 else window
+    if shown is not None and abs((shown[1] - shown[0]) - span) < 1e-9 and shown[0] <= t_last <= shown[1]:
+        return shown
+    if t_last <= span:
+        return 0.0, span
+    hi = t_last + SWEEP_AHEAD * span
+    return hi - span, hi
 
 
 class Plot:
@@ -59,10 +85,20 @@ class Plot:
         self.angles = "rad"  # what angles are shown in (the plots dock's choice, units.py)
         self.dirty = True
         self.live_label = live_label  # the run the live window shows ("run r3", "replay r4")
+        self.stop_time = 0.0  # of the run shown live: its span, when shorter than the window
         self.x_var = TIME_AXIS  # what the variables are drawn against
+        self.x_shown: tuple[float, float] | None = None  # the time axis the chart was last given
+        self.resets = 0  # bumped by reset_zoom: the chart is drawn anew in the browser
         self.folder = gui.add_folder(self.title())
         with self.folder:
-            self.chart = self._new_chart()
+            self.chart = gui.add_uplot(
+                (np.zeros(2), np.zeros(2)),
+                ({"label": "t [s]"}, {"label": "…"}),
+                scales=scales(None),
+                cursor={"drag": {"x": True, "y": False}},
+                legend={"show": True},
+                height=220,
+            )
             self.xy = gui.add_html("", visible=False)
             self.window = gui.add_number("Live window [s]", 10.0, min=0.5, max=3600.0, step=0.5)
             self.window.on_update(lambda _e: self.mark())
@@ -84,26 +120,11 @@ class Plot:
             close = gui.add_button("Close plot", color="gray")
             close.on_click(lambda _e: self.actions.close(self))
 
-    def _new_chart(self, order: float | None = None) -> Any:
-        return self.gui.add_uplot(
-            (np.zeros(2), np.zeros(2)),
-            ({"label": "t [s]"}, {"label": "…"}),
-            scales=scales(None),
-            cursor={"drag": {"x": True, "y": False}},
-            legend={"show": True},
-            height=220,
-            order=order,
-            visible=self.x_var == TIME_AXIS,
-        )
-
     def reset_zoom(self) -> None:
         """Back to the whole window with fitted axes. A drag-zoom lives in the browser's chart (kept
-        across data pushes), so the chart is drawn anew in its place."""
-        with self.actions.batch():
-            order = self.chart.order
-            self.chart.remove()
-            with self.folder:
-                self.chart = self._new_chart(order)
+        across data pushes): new scales make the browser draw the same chart anew, unzoomed."""
+        self.resets += 1
+        self.x_shown = None
         self.mark()
 
     def title(self) -> str:
@@ -242,9 +263,9 @@ class Plot:
         (_, t, ys), *others = self.runs_data(live, self.variables)
         t, ys, compared = overlay(t, ys, [(t_o, ys_o) for _, t_o, ys_o in others])
         ys = ys + [y for run in compared for y in run]
-        if len(t) < 2:  # uPlot needs two x values to draw axes: the live window, nothing invented in it
-            start = float(t[0]) if len(t) else 0.0
-            t = np.array([start, start + float(self.window.value)])
+        x_axis = self._x_axis(t)
+        if len(t) < 2:  # uPlot needs two x values to draw axes: the axis' ends, nothing invented in it
+            t = np.array(x_axis)
             ys = [np.array([y[-1] if len(y) else np.nan, np.nan]) for y in ys]
         if self.cursor is not None:
             t, ys, line = with_cursor(np.asarray(t, dtype=float), ys, self.cursor)
@@ -252,7 +273,7 @@ class Plot:
         series = self.series()
         units = sorted({self.unit_of(v)[0] for v in self.variables} - {"", "-"})
         axes = ({"label": "time [s]"}, {"label": ", ".join(units)})
-        fixed = scales(y_range(ys))
+        fixed = scales(y_range(ys), x_axis, self.resets)
         with self.actions.batch():
             if self.chart.series != series:
                 self.chart.series = series
@@ -260,6 +281,20 @@ class Plot:
             if self.chart.scales != fixed:
                 self.chart.scales = fixed
             self.chart.data = (np.asarray(t, dtype=float), *[np.asarray(y, dtype=float) for y in ys])
+
+    def _x_axis(self, t: np.ndarray) -> tuple[float, float]:
+        """The time axis shown: the live window (live_axis), or what a loaded transient and the runs
+        beside it span (the window asked for, when one was)."""
+        if self.full is None:
+            t_last = float(t[-1]) if len(t) else 0.0
+            self.x_shown = live_axis(t_last, float(self.window.value), self.stop_time, self.x_shown)
+            return self.x_shown
+        lo = self.full.t0 if self.full.t0 is not None else (float(t[0]) if len(t) else 0.0)
+        hi = self.full.t1 if self.full.t1 is not None else (float(t[-1]) if len(t) else 1.0)
+        if hi <= lo:
+            hi = lo + 1.0
+        self.x_shown = (float(lo), float(hi))
+        return self.x_shown
 
     def _redraw_xy(self, live: LiveBuffer) -> None:
         """The variables against the X-axis variable, for the shown run and the compared ones."""

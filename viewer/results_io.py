@@ -3,37 +3,50 @@ transients for the plots (zoom windows, the runs compared with it), the poses a 
 through, CSV and MCAP downloads, and uploading a recording to replay it.
 
 Part of the session controller: every method returns at once and does its requests on the
-controller's data worker; what it gets reaches the listeners as events.
+controller's data worker; what it gets reaches the listeners as events. It sees the tab through its
+state, its dispatcher and its identity only.
 """
 
 from __future__ import annotations
 
 import functools
 from collections.abc import Callable, Sequence
-from typing import TYPE_CHECKING
 
 import numpy as np
-from simecs.mesh import keys, phases
 from simecs.mesh import messages as m
+from simecs.mesh import phases
 from simecs.mesh.client import NoReply
 
 from . import events as ev
 from .compare import recording_of_key, track_columns, track_every, track_of
 from .export import csv_name, to_csv, upload_name
+from .identity import Identity
 from .series import Transient, every_for, transient
-
-if TYPE_CHECKING:
-    from .session import SessionController
+from .tab_state import TabState
+from .workers import Dispatcher
 
 #: Asks for a run's (or a recording's) samples: (variables, t0, t1, every) -> the results reply.
 Fetch = Callable[..., tuple[m.ResultsAttachment, np.ndarray]]
 
 
 class ResultsIO:
-    """Fetches and transfers of one controller's session."""
+    """Fetches and transfers of one tab's session: `view` its state, `tasks` its loop and workers,
+    `identity` who asks; an uploaded recording is replayed with `replay(name)` when it is of the
+    session's model, else with `replay_elsewhere(model_id, name)` in a new session on its model."""
 
-    def __init__(self, controller: SessionController) -> None:
-        self.c = controller
+    def __init__(
+        self,
+        view: TabState,
+        tasks: Dispatcher,
+        identity: Identity,
+        replay: Callable[[str], None],
+        replay_elsewhere: Callable[[str, str], None],
+    ) -> None:
+        self.c = view
+        self.t = tasks
+        self.identity = identity
+        self.replay = replay
+        self.replay_elsewhere = replay_elsewhere
         #: What each recording compared holds (its RunInfo), asked once per listing: a closed file
         #: does not change, and each plot and zoom would otherwise ask again before its samples.
         self._recorded: dict[str, m.RunInfo] = {}
@@ -42,13 +55,6 @@ class ResultsIO:
         """Run `run_id` of the session, or the newest when it names none."""
         runs = self.c.runs
         return next((r for r in runs if r.run_id == run_id), runs[-1] if runs else None)
-
-    def recording_of(self, run_id: str) -> str:
-        """The recording that holds run `run_id`: the recorder's for a simulation, the replayed one
-        for a replay (replays are not recorded again)."""
-        sc = self.c.session
-        assert sc is not None
-        return self.c.replay_of(run_id) or keys.recording_name(sc.id, run_id)
 
     def wants_full(self, name: str) -> bool:
         """A plot opened on `name` shows the last run at full resolution (nothing live to show)."""
@@ -80,9 +86,9 @@ class ResultsIO:
             assert sc is not None
             full = self._fetch(run.run_id, run, functools.partial(sc.results_of, run.run_id), names, t0, t1)
             others = self._compared([r for r in compare if r != run.run_id], names, t0, t1)
-            self.c.emit(ev.TransientLoaded(plot, full, others))
+            self.t.emit(ev.TransientLoaded(plot, full, others))
 
-        self.c.submit("Full resolution", job, "io")
+        self.t.submit("Full resolution", job, "io")
 
     def load_compared(
         self,
@@ -95,9 +101,9 @@ class ResultsIO:
         """The runs in `compare` (their `names` over [t0, t1]) for plot `plot`'s overlay."""
 
         def job() -> None:
-            self.c.emit(ev.ComparedLoaded(plot, self._compared(compare, names, t0, t1)))
+            self.t.emit(ev.ComparedLoaded(plot, self._compared(compare, names, t0, t1)))
 
-        self.c.submit("Compare", job, "io")
+        self.t.submit("Compare", job, "io")
 
     def load_track(self, key: str) -> None:
         """What the time cursor needs of a run (or a recording: `compare.recording_key`): its link
@@ -108,9 +114,9 @@ class ResultsIO:
             model = self.c.model
             assert model is not None
             att, rows = fetch(track_columns(model), every=track_every(run.samples))
-            self.c.emit(ev.TrackLoaded(track_of(key, list(att.columns), rows, att.context)))
+            self.t.emit(ev.TrackLoaded(track_of(key, list(att.columns), rows, att.context)))
 
-        self.c.submit("Time cursor", job, "io")
+        self.t.submit("Time cursor", job, "io")
 
     def _ended(self, run_id: str) -> m.RunInfo:
         run = next((r for r in self.c.runs if r.run_id == run_id), None)
@@ -130,7 +136,7 @@ class ResultsIO:
         and how to ask for its samples: the run's results, or the recorder's answer for the file."""
         name = recording_of_key(key)
         if name:
-            mc, user = self.c.mc, self.c.user
+            mc, user = self.identity.mc, self.identity.user
             held = self._recorded.get(name)
             if held is None:
                 try:
@@ -153,14 +159,14 @@ class ResultsIO:
             model = self.c.model
             self._recorded.clear()  # a recording may have been deleted and uploaded again since
             try:
-                listed = self.c.mc.recordings(self.c.user)
+                listed = self.identity.mc.recordings(self.identity.user)
             except NoReply:
-                self.c.emit(ev.RecordingsListed([], available=False))
+                self.t.emit(ev.RecordingsListed([], available=False))
                 return
             kept = [r for r in listed if model is not None and r.model_id == model.id]
-            self.c.emit(ev.RecordingsListed(kept))
+            self.t.emit(ev.RecordingsListed(kept))
 
-        self.c.submit("Recordings", job, "io")
+        self.t.submit("Recordings", job, "io")
 
     def _fetch(
         self, key: str, run: m.RunInfo, fetch: Fetch, names: list[str], t0: float | None, t1: float | None
@@ -168,7 +174,7 @@ class ResultsIO:
         every = every_for(run.samples, t0, t1, run.stop_time)
         att, rows = fetch(names, t0, t1, every)
         if every > 1:
-            self.c.notify(
+            self.t.notify(
                 "Long run", f"Showing every {every}th sample of {key}; zoom in for full resolution."
             )
         return transient(key, list(att.columns), rows, t0, t1, every, att.context)
@@ -186,30 +192,30 @@ class ResultsIO:
             recording = self.c.replay_of(run_id)
             if recording:
                 meta["replay of"] = recording
-            self.c.emit(ev.Download(csv_name(model.id, sc.id, run_id), to_csv(cols, units, rows, meta)))
-            self.c.notify("CSV", f"{rows.shape[0]} samples × {len(cols)} columns of {run_id}.", "ok")
+            self.t.emit(ev.Download(csv_name(model.id, sc.id, run_id), to_csv(cols, units, rows, meta)))
+            self.t.notify("CSV", f"{rows.shape[0]} samples × {len(cols)} columns of {run_id}.", "ok")
 
-        self.c.submit("CSV download", job, "io")
+        self.t.submit("CSV download", job, "io")
 
     def download_mcap(self, run_id: str) -> None:
         """The run's recording (from the recorder node; it opens in Foxglove)."""
 
         def job() -> None:
-            name = self.recording_of(run_id)
+            name = self.c.recording_of(run_id)
             try:
-                payload = self.c.mc.download_recording(self.c.user, name)
+                payload = self.identity.mc.download_recording(self.identity.user, name)
             except NoReply:
-                self.c.notify(
+                self.t.notify(
                     "No recording",
                     "No recorder answered: the server runs without the recorder node, so this run was not "
                     "recorded. CSV is available.",
                     "warning",
                 )
                 return
-            self.c.emit(ev.Download(f"{name}.mcap", payload))
-            self.c.notify("Recording", f"{name}.mcap ({len(payload) / 1e6:.2f} MB): opens in Foxglove.", "ok")
+            self.t.emit(ev.Download(f"{name}.mcap", payload))
+            self.t.notify("Recording", f"{name}.mcap ({len(payload) / 1e6:.2f} MB): opens in Foxglove.", "ok")
 
-        self.c.submit("Recording download", job, "io")
+        self.t.submit("Recording download", job, "io")
 
     def upload(self, filename: str, content: bytes) -> None:
         """Store a recording the user kept, then replay it: in this session when it is of this
@@ -218,9 +224,9 @@ class ResultsIO:
         def job() -> None:
             name = upload_name(filename)
             try:
-                info = self.c.mc.upload_recording(self.c.user, name, content)
+                info = self.identity.mc.upload_recording(self.identity.user, name, content)
             except NoReply:
-                self.c.notify(
+                self.t.notify(
                     "Upload unavailable",
                     "No recorder answered: the server cannot take recordings.",
                     "warning",
@@ -228,20 +234,15 @@ class ResultsIO:
                 return
             model = self.c.model
             if model is not None and info.model_id == model.id:
-                self.c.notify("Recording uploaded", f"Stored as **{name}**; replaying it.", "ok")
-                self.c.control.replay(name)
+                self.t.notify("Recording uploaded", f"Stored as **{name}**; replaying it.", "ok")
+                self.replay(name)
                 return
-            self.c.notify(
+            self.t.notify(
                 "Recording uploaded",
                 f"Stored as **{name}**, a recording of model **{info.model_id}**: a new session on that "
                 "model replays it.",
                 "ok",
             )
+            self.replay_elsewhere(info.model_id, name)
 
-            def elsewhere() -> None:
-                if self.c.opening.open_new_now(info.model_id):
-                    self.c.control.replay_now(name)
-
-            self.c.submit("Replay refused", elsewhere)
-
-        self.c.submit("Upload", job, "io")
+        self.t.submit("Upload", job, "io")

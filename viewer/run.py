@@ -14,7 +14,7 @@ from simecs.mesh.codec import DecodeError
 from simecs.mesh.model import CONTROL_SYSTEM_TITLES
 
 from .camera import VIEWS
-from .markup import escape_html
+from .markup import escape_html, escape_text
 
 PACING = {"real time": "realtime", "N x real time": "scaled", "as fast as possible": "fast"}
 PACING_LABEL = {v: k for k, v in PACING.items()}
@@ -23,37 +23,36 @@ CONTROL = {v: k for k, v in CONTROL_LABEL.items()}
 TOOLBAR = ("Models", "Initialise", "Settings", "Documentation")
 #: Run buttons and the session command each sends (the phase table says when it applies).
 RUN_BUTTONS = {"Run": "run", "Pause": "pause", "Resume": "resume", "Abort": "abort"}
-RUN_HINTS = {
-    "Run": "start a run of the session (sends the pending edits first)",
-    "Pause": "hold the run where it is (the simulated time stops)",
-    "Resume": "go on with a paused run",
-    "Abort": "end the run now (its results so far are kept)",
-}
 
 
 def status_text(st: m.SessionState | None, replay: str = "") -> str:
     """One line a user can read at a glance: phase, which run (a replay names its recording), time,
-    speed."""
+    progress, speed. The run bar shows it; what else the run says is `status_detail`'s."""
     if st is None:
-        return "_No session._"
+        return "_No session: choose a model (Models)._"
     what = f"run {st.run_id}" if st.run_id else ""
     if replay:
-        what = f"replay {st.run_id} of `{replay}`"
+        what = f"replay {st.run_id} of `{escape_html(replay)}`"
     if st.phase == "queued":
         return f"**queued** {what}: position {st.queue_position} (the server is busy with other runs)"
     if st.phase in (*phases.GOING, *phases.ENDED):
-        line = (
-            f"**{st.phase}** {what} · t = {st.sim_time:.3f} s · {st.progress * 100:.0f} % · RTF {st.rtf:.2f}"
-        )
-        doing = " · ".join(x for x in (st.task, st.action) if x) or st.step
-        if doing and st.phase in phases.GOING:  # the step of a task or path that runs now
-            line += f" · ⏵ {escape_html(doing)}"
-        if st.reason and st.phase in ("aborted", "failed"):
-            line += f"\n\n{escape_html(st.reason)}"
-        for warning in st.warnings:
-            line += f"\n\n⚠ {escape_html(warning)}"
-        return line
+        progress = f"t = {st.sim_time:.3f} s · {st.progress * 100:.0f} % · RTF {st.rtf:.2f}"
+        return f"**{st.phase}** {what} · {progress}"
     return f"**{st.phase}**: ready to run"
+
+
+def status_detail(st: m.SessionState | None) -> str:
+    """What the run says besides its progress: the step that runs, why it ended early, warnings."""
+    if st is None:
+        return ""
+    parts = []
+    doing = " · ".join(x for x in (st.task, st.action) if x) or st.step
+    if doing and st.phase in phases.GOING:  # the step of a task or path that runs now
+        parts.append(f"⏵ {escape_html(doing)}")
+    if st.reason and st.phase in ("aborted", "failed"):
+        parts.append(escape_text(st.reason))
+    parts += [f"⚠ {escape_text(warning)}" for warning in st.warnings]
+    return "\n\n".join(parts)
 
 
 def applicable(phase: str) -> list[str]:
@@ -61,44 +60,34 @@ def applicable(phase: str) -> list[str]:
     return [label for label, op in RUN_BUTTONS.items() if not phases.refusal(op, phase)]
 
 
-class Toolbar:
-    """The session's toolbar, docked above the command pendant: what the run is doing (status and
-    progress first, so a short region still shows them), the run buttons, the windows to open and
-    the camera presets. `on_run(op)` gets the session command of the clicked button, `on_window` and
-    `on_view` the clicked label."""
+#: The run bar's hint: what its buttons do, and the keys that do the same.
+RUN_BAR_HINT = (
+    "Run starts a run (the pending edits first); Pause holds it, Resume goes on, Abort ends it now (its "
+    "results so far are kept). Keys: Space pauses or resumes, Esc aborts."
+)
 
-    def __init__(
-        self,
-        gui: Any,
-        on_window: Callable[[str], None],
-        on_run: Callable[[str], None],
-        on_view: Callable[[str], None],
-    ) -> None:
+
+class RunBar:
+    """The run's controls, which never hide (paper §3.2 Time Presentation): the status line, the
+    progress bar and Run, Pause, Resume, Abort, in a window of their own floating at the foot of the
+    3D view, sized to its content (so never scrolled away, whatever the docks around it do). A button
+    that does not apply now says why when clicked; the line after the status says which apply."""
+
+    def __init__(self, gui: Any, on_run: Callable[[str], None]) -> None:
         self.panel = gui.add_panel()
-        tab = self.panel.add_tab("Session")
-        with tab:
+        with self.panel.add_tab("Run"):
             self.status = gui.add_markdown("_Choose a model to start._")
             self.progress = gui.add_progress_bar(0.0, animated=False)
-            # one button each, so each can be disabled, with the reason, when it does not apply
-            self.run_buttons: dict[str, Any] = {}
-            for label, op in RUN_BUTTONS.items():
-                button = gui.add_button(label, disabled=True, hint="load a model first")
-                button.on_click(lambda _e, op=op: on_run(op))
-                self.run_buttons[label] = button
-            self.windows = gui.add_button_group("Windows", TOOLBAR)
-            self.windows.on_click(lambda e: on_window(e.target.value))
-            self.views = gui.add_button_group("View", VIEWS)
-            self.views.on_click(lambda e: on_view(e.target.value))
+            self.buttons = gui.add_button_group("Run", tuple(RUN_BUTTONS), hint=RUN_BAR_HINT)
+            self.buttons.on_click(lambda e: on_run(RUN_BUTTONS[str(e.target.value)]))
 
     def show(self, st: m.SessionState | None, replay: str = "") -> None:
-        self.status.content = status_text(st, replay)
-        for label, button in self.run_buttons.items():
-            why = "load a model first" if st is None else phases.refusal(RUN_BUTTONS[label], st.phase)
-            hint = f"{label}: not now ({why})" if why else RUN_HINTS[label]
-            if button.disabled != bool(why):
-                button.disabled = bool(why)
-            if button.hint != hint:
-                button.hint = hint
+        ops = applicable(st.phase) if st is not None else []
+        line = status_text(st, replay)
+        if st is not None:
+            line += "  \n<small>" + (" or ".join(ops) if ops else "nothing to do now") + "</small>"
+        if self.status.content != line:
+            self.status.content = line
         progress = 0.0 if st is None else max(0.0, min(100.0, st.progress * 100.0))
         if abs(self.progress.value - progress) > 1e-6:
             self.progress.value = progress
@@ -108,6 +97,33 @@ class Toolbar:
         if st is not None:
             color = {"failed": "red", "aborted": "yellow", "finished": "green"}.get(st.phase)
         self.progress.color = color
+
+
+class Toolbar:
+    """The session's docked panel, above the command pendant: what the run says besides its progress
+    (the step that runs, why it ended, warnings), the windows to open and the camera presets. The run
+    bar (`RunBar`) is separate, so its buttons are always in sight. `on_window` and `on_view` get
+    the clicked label."""
+
+    def __init__(
+        self,
+        gui: Any,
+        on_window: Callable[[str], None],
+        on_view: Callable[[str], None],
+    ) -> None:
+        self.panel = gui.add_panel()
+        tab = self.panel.add_tab("Session")
+        with tab:
+            self.detail = gui.add_markdown("")
+            self.windows = gui.add_button_group("Windows", TOOLBAR)
+            self.windows.on_click(lambda e: on_window(e.target.value))
+            self.views = gui.add_button_group("View", VIEWS)
+            self.views.on_click(lambda e: on_view(e.target.value))
+
+    def show(self, st: m.SessionState | None) -> None:
+        detail = status_detail(st)
+        if self.detail.content != detail:
+            self.detail.content = detail
 
 
 def settings_from_form(

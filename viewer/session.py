@@ -1,12 +1,17 @@
 """The session of one browser tab, without the browser: what the tab shows and every request it makes.
 
-`SessionController` owns the tab's session on the server (attach, create, close), the model
-description, the parameter values, the initial pose, the joint path, the settings, the streamed
-variables, the state, the shown run and its live samples, and the list of runs. It makes every
-request on its two worker threads (commands in order on one, data fetches on the other), so viser's
-and zenoh's callbacks never wait on the server; it sends slider-rate edits once they pause; and it
-tells its listeners what changed with the events of `events.py`. It imports nothing of viser: the
-tests drive it with a fake client and injected messages.
+`SessionController` owns the tab's session on the server (attach, create, close): its data is a
+`TabState` (the model description, the parameter values, the initial pose, the pendants' commands,
+the settings, the streamed variables, the state, the shown run and its live samples, the runs), kept
+on the tab's loop (loop.py). It makes every request on its two worker threads (commands in order on
+one, data fetches on the other), so viser's and zenoh's callbacks never wait on the server; a worker
+hands what it got back to the loop. It sends slider-rate edits once they pause, and it tells its
+listeners what changed with the events of `events.py`. It imports nothing of viser: the tests drive
+it with a fake client and injected messages on a driven loop.
+
+Its parts each hold one idea and see the tab only through `TabState` and the `Dispatcher`: `edits`
+sends the user's edits, `control` starts and steers runs, `results` fetches and saves them, `opening`
+lists the models and the user's sessions and opens one, `jog` jogs the arm.
 
 A replay is a run of the session whose source is a recording of the same model: it is started,
 paused, aborted and listed like any run; while its layout is the one shown, the 3D arm takes the
@@ -18,75 +23,66 @@ from __future__ import annotations
 import logging
 import threading
 import time
-from collections.abc import Callable
+from collections import deque
 from functools import partial
 
+import numpy as np
 from simecs.mesh import frames, keys, phases
 from simecs.mesh import messages as m
 from simecs.mesh.client import MeshClient, NoReply, RemoteError, SessionClient, Watch
 from simecs.mesh.model import DocPage, ModelDescription
 
 from . import events as ev
-from .cartesian import CartesianPathEditor, Pose, tool_pose
+from .cartesian import CartesianPathEditor
 from .direct import DirectInputEditor
 from .edits import SYNC_DELAY_S, Edits
 from .errors import describe_error
 from .host import Host
 from .identity import Identity, new_user_name
 from .jog import JogControl
+from .loop import TabLoop
 from .opening import Opening
 from .path import JointPathEditor, clamp_to_limits
-from .program import LEVELS, ProgramEditor, pendant_level
+from .program import ProgramEditor, pendant_level
 from .results_io import ResultsIO
 from .runs import RunControl
-from .stream import LIVE_BEHIND, RunStream
+from .stream import LIVE_BEHIND, RunStream, Sample
+from .tab_state import TabState
 from .workers import Dispatcher
 
 log = logging.getLogger("simecs.viewer")
 REOPEN_TRIES = 3  # asks for a remembered session when the server does not answer
 REOPEN_PAUSE_S = 1.0
+#: Live frames waiting for the loop at most: a tab that falls further behind skips the oldest (the
+#: run and its full results are not affected, and the tab says so once per run).
+LIVE_QUEUE = 256
 
 
-class SessionController(Dispatcher):
-    """One tab's session and what the tab shows of it; see the module docstring. Its parts:
-    `edits` sends the user's edits, `control` starts and steers runs, `results` fetches and saves
-    them, `opening` lists the models and the user's sessions and opens one."""
+class SessionController(TabState, Dispatcher):
+    """One tab's session and what the tab shows of it; see the module docstring."""
 
-    def __init__(self, host: Host, tab_id: int = 0, sync_delay_s: float = SYNC_DELAY_S) -> None:
-        super().__init__(tab_id)
+    def __init__(
+        self,
+        host: Host,
+        tab_id: int = 0,
+        sync_delay_s: float = SYNC_DELAY_S,
+        loop: TabLoop | None = None,
+    ) -> None:
+        TabState.__init__(self)
+        Dispatcher.__init__(self, tab_id, loop)
         self.host = host
         self.identity = Identity(host)
         self._remembered = ""  # the session the tab had, reopened once its user logged in
-        self.session: SessionClient | None = None
-        self.model: ModelDescription | None = None
-        self.meshes: dict[str, bytes] = {}  # the GLB of each mesh shape of the model (host.meshes)
-        #: The parameters typed but not applied (the page's parameter panel answers it).
-        self.pending_params: Callable[[], list[str]] = lambda: []
-        self.values: dict[str, float] = {}
-        self.initial: list[float] = []
-        self.obstacles: list[m.Obstacle] = []  # what the arm can touch (the session's list)
-        self.shown_q: list[float] = []  # the pose the arm shows: what Teach records
-        self.path: JointPathEditor | None = None
-        self.cart: CartesianPathEditor | None = None  # when the model takes Cartesian paths
-        self.direct: DirectInputEditor | None = None  # when the model takes direct inputs
-        self.program: ProgramEditor | None = None  # when the model takes tasks
-        self.command_kind = "joint_path"  # whose path is the session's command (the last one edited)
-        self.settings = m.RunSettings()
-        self.streamed: set[str] = set()
-        self.state: m.SessionState | None = None
-        self.runs: list[m.RunInfo] = []
-        self.stream: RunStream | None = None
-        self.replaying: m.RunLayout | None = None  # the replay whose recorded values shape the arm
-        self.edits = Edits(self, sync_delay_s)
-        self.results = ResultsIO(self)
-        self.control = RunControl(self)
-        self.jog = JogControl(self)
-        self.opening = Opening(self)
+        self.edits = Edits(self, self, self.preview, sync_delay_s)
+        self.control = RunControl(self, self, self.edits, self.refresh_runs)
+        self.jog = JogControl(self, lambda: self.closed)
+        self.opening = Opening(self, self, host, self.identity, self.attach, self)
+        self.results = ResultsIO(self, self, self.identity, self.control.replay, self._replay_in_new_session)
         self.live_frames = 0  # frames shown (diagnostics)
-        self._recordings: dict[str, str] = {}  # run id -> the recording it replays
         self._notified_end: set[str] = set()
         self._watch: Watch | None = None
-        self._lock = threading.RLock()
+        self._watch_lock = threading.Lock()
+        self._live: deque[tuple[str, frames.Frame]] = deque(maxlen=LIVE_QUEUE)
 
     @property
     def user(self) -> str:
@@ -96,23 +92,6 @@ class SessionController(Dispatcher):
     def mc(self) -> MeshClient:
         """The client this tab acts for its user with (identity.py)."""
         return self.identity.mc
-
-    @property
-    def phase(self) -> str:
-        return self.state.phase if self.state is not None else "created"
-
-    def refusal(self, op: str) -> str:
-        """Why command `op` would be refused now ('' when it applies): `phases.refusal`."""
-        return phases.refusal(op, self.phase)
-
-    def replay_of(self, run_id: str) -> str:
-        """The recording run `run_id` replays ('' for a simulation)."""
-        return self._recordings.get(run_id, "")
-
-    def replays(self, run_id: str, recording: str) -> None:
-        """Run `run_id` replays `recording` (a RunStarted reply said so before any list or layout)."""
-        with self._lock:
-            self._recordings[run_id] = recording
 
     # == lifecycle ================================================================================
     def start(self, remembered_session: str = "", remembered_user: str = "") -> None:
@@ -135,7 +114,7 @@ class SessionController(Dispatcher):
             return
         if sid and keys.is_session_id(sid):
             log.info("tab %s reopens its session %s", self.tab_id, sid)
-            if self._attach(sid, quiet_missing=True, tries=REOPEN_TRIES):
+            if self.attach(sid, quiet_missing=True, tries=REOPEN_TRIES):
                 return
         self.opening.list_library(can_dismiss=False)
 
@@ -152,17 +131,25 @@ class SessionController(Dispatcher):
     def close(self) -> None:
         """The tab went away (closed or reloading): keep the session, drop the subscriptions."""
         self.jog.stop()
-        with self._lock:
-            self.closed = True
-            if self.session is not None:
-                self.host.claims.release(self.session.id, self)
+        self.closed = True
+        session = self.session
+        if session is not None:
+            self.host.claims.release(session.id, self)
         self._stop_watch()
         self.shutdown()
         self.identity.logout()
 
+    def _replay_in_new_session(self, model_id: str, recording: str) -> None:
+        """A recording of another model (an upload): replayed in a new session on its model."""
+
+        def job() -> None:
+            if self.opening.open_new_now(model_id):
+                self.control.replay_now(recording)
+
+        self.submit("Replay refused", job)
+
     def _stop_watch(self) -> None:
-        """Never under the lock: a watch worker may wait for it while its watch is being closed."""
-        with self._lock:
+        with self._watch_lock:
             watch, self._watch = self._watch, None
         if watch is not None:
             try:
@@ -170,16 +157,16 @@ class SessionController(Dispatcher):
             except Exception as exc:
                 log.debug("watch close: %s", exc)
 
-    def _attach(
+    def attach(
         self,
         sid: str,
         snapshot: m.SessionSnapshot | None = None,
         quiet_missing: bool = False,
         tries: int = 1,
     ) -> bool:
-        """Make `sid` this tab's session: restore its values, pose, command, settings and runs.
-        `tries` > 1 asks again when the server did not answer (a viewer that has just restarted
-        may ask before the mesh has its routes)."""
+        """Make `sid` this tab's session (on a worker): restore its values, pose, command, settings
+        and runs. `tries` > 1 asks again when the server did not answer (a viewer that has just
+        restarted may ask before the mesh has its routes)."""
         claims = self.host.claims
         if not claims.claim(sid, self):
             log.info("tab %s: session %s is open in another tab", self.tab_id, sid)
@@ -217,34 +204,43 @@ class SessionController(Dispatcher):
                 self.fail("Cannot open the session", exc)
             return False
         self._stop_watch()
-        with self._lock:
-            if self.closed:
-                claims.release(sid, self)
-                return False
-            if self.session is not None and self.session.id != sid:
-                claims.release(self.session.id, self)
-            self.session = sc
-            self.meshes = meshes
-            self._take(model, snap)
+        if not self.on_loop(partial(self._show_session, sc, model, meshes, snap)):
+            claims.release(sid, self)
+            return False
         log.info("tab %s shows session %s (%s, user %s)", self.tab_id, sid, model.id, self.user)
-        self.emit(ev.SessionRemembered(sid))
-        self.emit(ev.ModelLoaded(model, sid))
-        self.show_state()
         watch = sc.watch(
-            on_state=self.on_state,
-            on_params=self.on_params,
-            on_obstacles=self.edits.on_obstacles,
-            on_command=self.edits.on_command,
-            on_layout=self.on_layout,
+            on_state=self.loop.wrap(self.on_state),
+            on_params=self.loop.wrap(self.on_params),
+            on_obstacles=self.loop.wrap(self.edits.on_obstacles),
+            on_command=self.loop.wrap(self.edits.on_command),
+            on_layout=self.loop.wrap(self.on_layout),
             on_live=partial(self._on_live_of, sid),
         )
-        with self._lock:
+        with self._watch_lock:
             self._watch = watch
-        if self.editor(self.command_kind) is not None and not self.refusal("set_command"):
+        if self.on_loop(
+            lambda: self.editor(self.command_kind) is not None and not self.refusal("set_command")
+        ):
             # the plan of the session's path (its duration, tool path, node poses) is the server's
             self.submit("Command not planned", self.edits.send_command)
         self.submit("Results", self.refresh_runs, "io")
         self.submit("Parameter sets", self.edits.refresh_sets, "io")
+        return True
+
+    def _show_session(
+        self, sc: SessionClient, model: ModelDescription, meshes: dict[str, bytes], snap: m.SessionSnapshot
+    ) -> bool:
+        """On the loop: the attached session becomes the tab's, and its page is built."""
+        if self.closed:
+            return False
+        if self.session is not None and self.session.id != sc.id:
+            self.host.claims.release(self.session.id, self)
+        self.session = sc
+        self.meshes = meshes
+        self._take(model, snap)
+        self.emit(ev.SessionRemembered(sc.id))
+        self.emit(ev.ModelLoaded(model, sc.id))
+        self.show_state()
         return True
 
     def _take(self, model: ModelDescription, snap: m.SessionSnapshot) -> None:
@@ -254,7 +250,7 @@ class SessionController(Dispatcher):
         self.obstacles = list(snap.obstacles)
         self.state = snap.state
         self.runs = list(snap.runs)
-        self._recordings = {r.run_id: r.recording for r in snap.runs if r.recording}
+        self.recordings = {r.run_id: r.recording for r in snap.runs if r.recording}
         self._notified_end = {r.run_id for r in snap.runs if r.phase in phases.ENDED}
         if snap.state.phase in phases.ENDED:
             self._notified_end.add(snap.state.run_id)
@@ -280,20 +276,6 @@ class SessionController(Dispatcher):
         self.replaying = None
         self.edits.forget()
 
-    def editor(
-        self, kind: str
-    ) -> JointPathEditor | CartesianPathEditor | DirectInputEditor | ProgramEditor | None:
-        """The pendant's command of level `kind` (None: this viewer does not edit that level)."""
-        if kind in LEVELS:
-            return self.program
-        editors = {"joint_path": self.path, "cartesian_path": self.cart, "direct_input": self.direct}
-        return editors.get(kind)
-
-    def tool_pose(self, q: list[float]) -> Pose:
-        """The tool pose at joint positions `q` with the session's values (what Teach records)."""
-        assert self.model is not None
-        return tool_pose(self.model, self.values, q)
-
     # == what the arm shows ========================================================================
     def preview(self, q: list[float]) -> None:
         """Show the arm at `q` (the user's own configuration: a replay's shapes give way)."""
@@ -302,12 +284,6 @@ class SessionController(Dispatcher):
             self.replaying = None
             self.emit(ev.ShapesChanged(dict(self.values)))
         self.emit(ev.PosePreview(list(q)))
-
-    def _shape_values(self) -> dict[str, float]:
-        if self.replaying is None:
-            return dict(self.values)
-        recorded = self.replaying.context.values
-        return {k: float(recorded.get(k, v)) for k, v in self.values.items()}
 
     def tick(self, now: float | None = None) -> None:
         """Send the edits whose pause has come (called about 10 times a second)."""
@@ -331,6 +307,7 @@ class SessionController(Dispatcher):
 
     # == runs =====================================================================================
     def refresh_runs(self) -> None:
+        """The session's runs, asked from the server (on a worker)."""
         sc = self.session
         if sc is None:
             return
@@ -338,29 +315,31 @@ class SessionController(Dispatcher):
             runs = sc.runs()
         except (RemoteError, NoReply):
             runs = list(sc.snapshot().runs)
-        with self._lock:
+
+        def take() -> None:
             if sc is not self.session:
                 return
             self.runs = list(runs)
-            self._recordings.update({r.run_id: r.recording for r in runs if r.recording})
-        self.emit(ev.RunsChanged(list(runs), runs[-1].run_id if runs else ""))
+            self.recordings.update({r.run_id: r.recording for r in runs if r.recording})
+            self.emit(ev.RunsChanged(list(runs), runs[-1].run_id if runs else ""))
 
-    # == streams from the server (zenoh worker threads) ==========================================
+        self.on_loop(take)
+
+    # == streams from the server (run on the loop: `attach` wraps them) ==========================
     def _mine(self, session: str) -> bool:
         return not self.closed and self.session is not None and session == self.session.id
 
     def on_state(self, st: m.SessionState) -> None:
-        with self._lock:
-            if not self._mine(st.session):
-                return
-            prev = self.state
-            if prev is not None and prev.run_id == st.run_id and prev.seq > st.seq:
-                return  # an older publication arriving late
-            self.state = st
-            moved = prev is None or (prev.phase, prev.run_id) != (st.phase, st.run_id)
-            ended = st.phase in phases.ENDED and st.run_id and st.run_id not in self._notified_end
-            if ended:
-                self._notified_end.add(st.run_id)
+        if not self._mine(st.session):
+            return
+        prev = self.state
+        if prev is not None and prev.run_id == st.run_id and prev.seq > st.seq:
+            return  # an older publication arriving late
+        self.state = st
+        moved = prev is None or (prev.phase, prev.run_id) != (st.phase, st.run_id)
+        ended = st.phase in phases.ENDED and st.run_id and st.run_id not in self._notified_end
+        if ended:
+            self._notified_end.add(st.run_id)
         self.show_state()
         if ended:
             self.control.ended(st)
@@ -377,40 +356,68 @@ class SessionController(Dispatcher):
 
     def on_layout(self, layout: m.RunLayout) -> None:
         """A run announced its columns: it is the run shown from now on (a replay's shapes with it)."""
-        with self._lock:
-            stream, st = self.stream, self.state
-            if not self._mine(layout.session) or stream is None:
-                return
-            stream.take_layout(layout)
-            replay = layout.source == "replay"
-            if replay and layout.context.recording:
-                self._recordings[layout.run_id] = layout.context.recording
-            # A replay that already ended (a latched layout seen on attach) is not shown again.
-            over = st is not None and st.run_id == layout.run_id and st.phase in phases.ENDED
-            was = self.replaying
-            self.replaying = layout if replay and not over else None
+        stream, st = self.stream, self.state
+        if not self._mine(layout.session) or stream is None:
+            return
+        stream.take_layout(layout)
+        replay = layout.source == "replay"
+        if replay and layout.context.recording:
+            self.recordings[layout.run_id] = layout.context.recording
+        # A replay that already ended (a latched layout seen on attach) is not shown again.
+        over = st is not None and st.run_id == layout.run_id and st.phase in phases.ENDED
+        was = self.replaying
+        self.replaying = layout if replay and not over else None
         self.emit(ev.LayoutChanged(layout))
         if self.replaying is not None or was is not None:
-            self.emit(ev.ShapesChanged(self._shape_values()))
+            self.emit(ev.ShapesChanged(self.shape_values()))
         self.show_state()
 
     def _on_live_of(self, session: str, frame: frames.Frame) -> None:
-        if self._mine(session):
-            self.on_live(frame)
+        """A live frame (on zenoh's thread): queued for the loop, which takes every waiting frame at
+        once, so a tab that falls behind draws the newest pose instead of a backlog."""
+        self._live.append((session, frame))
+        if self.loop.owns():
+            self._take_live()
+        else:
+            self.loop.post(self._take_live, key="live")
+
+    def _take_live(self) -> None:
+        samples: list[Sample] = []
+        while self._live:
+            session, frame = self._live.popleft()
+            if self._mine(session):
+                sample = self._sample(frame)
+                if sample is not None:
+                    samples.append(sample)
+        if samples:
+            self._show_live(samples)
 
     def on_live(self, frame: frames.Frame) -> None:
-        """A decimated sample of the shown run: pose the arm, feed the plots."""
+        """A decimated sample of the shown run: pose the arm, feed the plots (on the loop)."""
+        sample = self._sample(frame)
+        if sample is not None:
+            self._show_live([sample])
+
+    def _sample(self, frame: frames.Frame) -> Sample | None:
         stream = self.stream
         if self.closed or stream is None:
-            return
+            return None
         sample = stream.take_frame(frame)
-        if sample is None:
-            return
-        if sample.first_gap:  # said once per run
+        if sample is not None and sample.first_gap:  # said once per run
             self.notify(*LIVE_BEHIND)
-        if sample.q is not None:
-            self.shown_q = sample.q
-        self.emit(ev.LiveSamples(sample.rows, sample.poses, sample.moved, sample.arrows, sample.tool))
-        self.live_frames += 1
-        if stream.layout is not None:
+        return sample
+
+    def _show_live(self, samples: list[Sample]) -> None:
+        """What the frames taken at once show: the newest pose, every row for the plots and trace."""
+        last = samples[-1]
+        q = next((s.q for s in reversed(samples) if s.q is not None), None)
+        if q is not None:
+            self.shown_q = q
+        poses = next((s.poses for s in reversed(samples) if s.poses is not None), None)
+        rows = np.concatenate([s.rows for s in samples]) if len(samples) > 1 else last.rows
+        tool = np.concatenate([s.tool for s in samples]) if len(samples) > 1 else last.tool
+        self.emit(ev.LiveSamples(rows, poses, last.moved, last.arrows, tool))
+        self.live_frames += len(samples)
+        stream = self.stream
+        if stream is not None and stream.layout is not None:
             self.control.shown(stream.layout.run_id)

@@ -5,12 +5,16 @@ The tab is glue: a `SessionController` (`session.py`) holds the session and make
 the tab builds the toolbar and the models window for its browser client, builds a `ModelPage`
 (`page.py`) when a model is loaded, connects their callbacks to controller actions, and applies the
 controller's events to them inside `client.atomic()`. It sees the viewer node only as a `Host`.
+
+Everything the tab shows is changed on one thread, the tab's loop (loop.py): the panels get a client
+whose callbacks run there (loop_client.py), the controller's events are delivered there, and the
+viewer node posts the tab's tick there. So no lock guards a panel, and a tab whose page is slow slows
+only itself.
 """
 
 from __future__ import annotations
 
 import logging
-import threading
 from collections.abc import Callable
 from typing import Any
 
@@ -20,8 +24,10 @@ from .docs import LINK_PREFIX
 from .host import Host
 from .layout import Layout
 from .library import LibraryWindow
+from .loop import TabLoop
+from .loop_client import LoopClient
 from .page import ModelPage
-from .run import Toolbar
+from .run import RunBar, Toolbar
 from .session import SessionController
 
 log = logging.getLogger("simecs.viewer")
@@ -30,20 +36,23 @@ VIEW_KEPT_EVERY = 10  # ticks (about a second) between looks at what the tab sho
 
 
 class Tab:
-    """The session controller and the panels of one browser tab."""
+    """The session controller and the panels of one browser tab (`loop`: the tab's, by default a
+    thread of its own; a test passes a driven one)."""
 
-    def __init__(self, host: Host, client: Any) -> None:
-        self.client = client
-        self.gui = client.gui
-        self.controller = SessionController(host, client.client_id)
+    def __init__(self, host: Host, client: Any, loop: TabLoop | None = None) -> None:
+        self.controller = SessionController(host, client.client_id, loop=loop)
+        self.loop = self.controller.loop
+        self.raw_client = client  # viser's own: the browser's memory is read through it off the loop
+        self.client = LoopClient(client, self.loop)
+        self.gui = self.client.gui
         self.toolbar: Toolbar | None = None
+        self.run_bar: RunBar | None = None
         self.page: ModelPage | None = None
         self.library: LibraryWindow | None = None
         self.layout = Layout()  # until the browser tells its viewport
         self.remembered_view: dict[str, Any] = {}  # what the tab showed before a reload (browser.py)
         self._kept_view: dict[str, Any] = {}  # what the tab's memory holds now
         self._ticks = 0
-        self.lock = threading.RLock()  # one event or panel change at a time
         self._apply: dict[type, Callable[[Any], None]] = {
             ev.Notice: lambda e: browser.notify(client, e.title, e.body, e.kind),
             ev.UserChanged: lambda e: browser.remember_user(client, e.user),
@@ -62,23 +71,32 @@ class Tab:
 
     # -- lifecycle ---------------------------------------------------------------------------------
     def start(self) -> None:
-        """Build the page frame, find out who this is and which session the tab had, and restore it."""
-        self.build_frame()
-        memory = browser.recall(self.client)  # waits for the browser (not for the server)
+        """Build the page frame, find out who this is and which session the tab had, and restore it.
+        Returns at once: the browser's memory is read on a worker (it waits for the browser)."""
+        self.loop.post(self.build_frame)
+        self.controller.submit("Open your session", self._recall, "io")
+
+    def _recall(self) -> None:
+        memory = browser.recall(self.raw_client)  # waits for the browser (not for the server)
         log.info(
             "tab %s: the browser remembers session %s, viewport %sx%s",
-            self.client.client_id,
+            self.raw_client.client_id,
             memory.session or "(none)",
             memory.width,
             memory.height,
         )
+        self.loop.call(lambda: self._remembered(memory))
+
+    def _remembered(self, memory: browser.TabMemory) -> None:
+        """On the loop: the page placed for the browser's viewport, and the tab's session reopened."""
+        if self.closed:
+            return
         self.remembered_view = memory.view
-        if memory.width and memory.height and not self.closed:
-            with self.lock, self.client.atomic():
+        if memory.width and memory.height:
+            with self.client.atomic():
                 self.layout = Layout(memory.width, memory.height)
                 self.place_frame()
-        if not self.closed:
-            self.controller.start(memory.session, memory.user)
+        self.controller.start(memory.session, memory.user)
 
     def build_frame(self) -> None:
         """What every tab shows before a model is loaded: the theme, the docked panel, the toolbar."""
@@ -86,30 +104,34 @@ class Tab:
         gui.configure_theme(show_share_button=False, control_width="large", show_logo=False)
         gui.set_panel_label("simecs")
         self.client.scene.set_up_direction("+z")
-        self.toolbar = Toolbar(gui, self._on_window, self.controller.control.run_action, self._on_view)
+        self.toolbar = Toolbar(gui, self._on_window, self._on_view)
+        self.run_bar = RunBar(gui, self.controller.control.run_action)
         self.place_frame()
         browser.install_doc_links(self.client, LINK_PREFIX)
         browser.install_watchdog(self.client)
+        browser.install_page_rules(self.client)
 
     def place_frame(self) -> None:
-        """The trees' panel and the toolbar docked where this viewport's layout puts them."""
+        """The trees' panel, the toolbar and the run bar where this viewport's layout puts them."""
         self.layout.place_main(self.gui)
         if self.toolbar is not None:
             self.layout.place_toolbar(self.toolbar.panel)
+        if self.run_bar is not None:
+            self.layout.place_run_bar(self.run_bar.panel)
 
     def close(self) -> None:
         """The tab went away (closed or reloading): the session stays on the server."""
         self.controller.close()
 
     def tick(self) -> None:
-        """About 10 times a second: send edits whose pause has come, redraw plots with new data."""
+        """About 10 times a second, on the loop: send edits whose pause has come, redraw plots with
+        new data."""
         if self.closed:
             return
         self.controller.tick()
         page, stream = self.page, self.controller.stream
         if page is not None and stream is not None:
-            with self.lock:
-                page.plots.redraw(stream.live)
+            page.plots.redraw(stream.live)
         self._ticks += 1
         if self._ticks % BEAT_EVERY == 0:
             browser.beat(self.client)
@@ -118,17 +140,17 @@ class Tab:
 
     def _keep_view(self, page: ModelPage) -> None:
         """The camera, the open plots and the shown component into the tab's memory, when changed."""
-        with self.lock:  # the plots and the tree change under events
-            view = page.view_state()
+        view = page.view_state()
         if view != self._kept_view:
             self._kept_view = view
             browser.remember_view(self.client, view)
 
     # -- controller events -------------------------------------------------------------------------
     def _on_event(self, event: ev.Event) -> None:
+        """A controller event (delivered on the loop) applied to the panels in one batch."""
         if self.closed:
             return
-        with self.lock, self.client.atomic():
+        with self.client.atomic():
             handler = self._apply.get(type(event))
             if handler is not None:
                 handler(event)
@@ -149,7 +171,10 @@ class Tab:
 
     def _show_state(self, event: ev.StateShown) -> None:
         if self.toolbar is not None:
-            self.toolbar.show(event.state, event.replay)
+            self.toolbar.show(event.state)
+        if self.run_bar is not None:
+            self.run_bar.show(event.state, event.replay)
+        browser.tell_phase(self.client, event.state.phase if event.state is not None else "")
 
     def _show_library(self, event: ev.LibraryListed) -> None:
         c = self.controller
@@ -179,7 +204,7 @@ class Tab:
         if page is None:
             self.controller.notify(name, "Load a model first (Models).", "warning")
             return
-        with self.lock, self.client.atomic():
+        with self.client.atomic():
             page.look(name)
 
     def _on_window(self, name: str) -> None:
@@ -190,7 +215,7 @@ class Tab:
         if page is None:
             self.controller.notify(name, "Load a model first (Models).", "warning")
             return
-        with self.lock, self.client.atomic():
+        with self.client.atomic():
             if name == "Initialise":
                 page.toggle_init()
             elif name == "Settings":
