@@ -337,9 +337,14 @@ def test_a_value_typed_key_by_key_is_stored_exactly_when_applied(mesh: Mesh, bro
     with logs_on_failure(mesh, "viewer", "proxy"):
         page, context, session = spider_tab(mesh, browser)
         search = text_field(page, "Find parameter")
+        # the results of a search come from many components: each is labelled with its own (issue 32, 5)
+        search.fill("kp_pos")
+        text_appears(page, "8 parameters match")  # the 7 joints' and the task-space controller's
+        labels = [f"joint{k}.ctrl.kp_pos [1/s]" for k in range(1, 8)]
+        wait_until(lambda: all(page.get_by_label(lb, exact=True).count() == 1 for lb in labels), what="the 7")
         search.fill("joint3 J_rotor")
         # the label gains a mark as the value is typed (✎) and applied (•): found by its start
-        field = page.get_by_label(re.compile(r"^J_rotor \[kg\*m\^2\]"))
+        field = page.get_by_label(re.compile(r"^joint3\.motor\.J_rotor \[kg\*m\^2\]"))
         field.wait_for(timeout=20_000)
         field.click()
         field.press("Control+a")
@@ -352,7 +357,8 @@ def test_a_value_typed_key_by_key_is_stored_exactly_when_applied(mesh: Mesh, bro
         wait_until(
             lambda: session.snapshot().values["joint3.motor.J_rotor"] == 8e-5, timeout=10, what="8e-5 stored"
         )
-        wait_until(lambda: page.get_by_label("J_rotor [kg*m^2] •", exact=True).count() == 1, what="applied")
+        applied = "joint3.motor.J_rotor [kg*m^2] •"
+        wait_until(lambda: page.get_by_label(applied, exact=True).count() == 1, what="applied")
         assert field.input_value() == "0.00008"
         page.screenshot(path=str(ARTIFACTS / "viewer_param_applied.png"))
         # Undo puts back what the change replaced, on the server and in the field

@@ -180,7 +180,11 @@ def test_the_pendant_sends_a_dragged_pose_and_shows_the_nodes_arm_or_the_refusal
         sc.watched["on_state"](state(sc, "running", progress=0.5, sim_time=0.5, rtf=1.0))
         assert cart.locked and not cart.gizmo.visible and cart.set_pose.disabled
         sc.watched["on_state"](state(sc, "finished", seq=11, sim_time=1.0))
-        assert not cart.locked and cart.gizmo.visible
+        # unlocked, but the joint path is the session's command: no gizmo nor dots of the Cartesian
+        # path in 3D (issue 32, 9); an edit of the Cartesian path makes it the command again
+        assert not cart.locked and not cart.gizmo.visible and not cart._markers
+        cart._clicked(Event(SimpleNamespace(value="Add")))
+        assert cart.gizmo.visible and len(cart._markers) == len(cart.editor.nodes)
     finally:
         tab.close()
         page.remove()

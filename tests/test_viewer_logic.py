@@ -1165,7 +1165,9 @@ def test_status_line_and_run_buttons() -> None:
     assert "**running** replay r2 of `s_r1`" in run.status_text(st, replay="s_r1")
     doing = msgspec.structs.replace(st, step="tasks[1].actions[0]", task="back", action="home")
     assert run.status_detail(doing) == "⏵ back · home"  # the step that runs, beside the run bar
-    assert run.status_detail(msgspec.structs.replace(doing, task="", action="")) == "⏵ tasks[1].actions[0]"
+    unnamed = msgspec.structs.replace(doing, task="", action="")
+    assert run.status_detail(unnamed) == "⏵ task 2, action 1"  # counted as the tables count (issue 32, 9)
+    assert run.step_words("nodes[0]") == "node 1" and run.step_words("signals") == "signals"
     failed = m.SessionState("s" * 22, "failed", run_id="r2", reason="diverged: 2*pi*f")
     assert "diverged" not in run.status_text(failed)  # the reason is in the session panel, as written:
     assert r"diverged: 2\*pi\*f" in run.status_detail(failed)  # stars, not emphasis (issue 32, 9)

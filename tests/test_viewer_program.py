@@ -12,11 +12,13 @@ Screenshots go to `artifacts/viewer/tasks_*.png`.
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import pytest
 from simecs.mesh import codec
 from simecs.mesh import messages as m
+from simecs.mesh.robot_commands import ACTION_ARGS
 from simecs.testing import browser as chromium
 from simecs.viewer import program
 from simecs.viewer.path import PathError
@@ -38,16 +40,20 @@ JOINTS = ["joint1", "joint2", "joint3"]
 def test_the_composition_is_what_the_protocol_takes_and_steps_are_named_as_the_server_names_them() -> None:
     ed = program.ProgramEditor(JOINTS)
     assert ed.empty and ed.kind == "task"
-    ed.insert(ed.build("move_joints", {"q": "0.1, 0.2 0.3", "speed_pct": "50"}, "reach"))
+    # typed as on the other pendants (degrees, mm), stored in the protocol's units (rad, m)
+    ed.insert(ed.build("move_joints", {"q": "90, 45 -30", "speed_pct": "50"}, "reach"))
     ed.insert(ed.build("wait", {"duration": "0.5"}))
-    ed.insert(ed.build("move_linear", {"position": "0.4, 0, 0.3"}))  # rpy left out: optional
+    ed.insert(ed.build("move_linear", {"position": "400, 0, 300"}))  # rpy left out: optional
+    assert ed.current.actions[-1].args["position"] == pytest.approx([0.4, 0.0, 0.3])
     ed.move(-1)
     ed.remove()  # the line, now second
     cmd = ed.to_command()
     assert cmd == m.Task(
         "task1",
         [
-            m.Action("move_joints", {"q": [0.1, 0.2, 0.3], "speed_pct": 50.0}, "reach"),
+            m.Action(
+                "move_joints", {"q": [math.pi / 2, math.pi / 4, -math.pi / 6], "speed_pct": 50.0}, "reach"
+            ),
             m.Action("wait", {"duration": 0.5}),
         ],
     )
@@ -61,13 +67,15 @@ def test_the_composition_is_what_the_protocol_takes_and_steps_are_named_as_the_s
     assert isinstance(mission, m.Mission) and [t.name for t in mission.tasks] == ["task1", "place"]
     assert ed.kind == "mission" and ed.step_path(1, 0) == "tasks[1].actions[0]"
     table = ed.table_markdown({"tasks[0].actions[1]": (1.25, 1.75)}, running="tasks[1].actions[0]")
-    assert "| 2 | wait (duration 0.5) | 1.25–1.75 |" in table and "| ⏵ **▶1** | home | — |" in table
+    assert "| 2 | wait (duration 0.5 s) | 1.25–1.75 |" in table and "| ⏵ **▶1** | home | — |" in table
+    assert "reach: move_joints (joint positions 90, 45, -30 deg; speed 50 %)" in table  # the user's words
+    assert program.arg_text("q", ACTION_ARGS["move_joints"]["q"], [-2.68254e-05, 0.5]) == "-0.002, 28.648"
 
     # what the editor cannot take is named, and nothing changes
     for primitive, texts, label, match in [
-        ("move_joints", {"q": "1, 2"}, "", "q: 3 numbers, got 2"),
-        ("move_joints", {}, "", "q is required"),
-        ("wait", {"duration": "soon"}, "", "duration: 'soon' is not a number"),
+        ("move_joints", {"q": "1, 2"}, "", "Joint positions: 3 numbers, got 2"),
+        ("move_joints", {}, "", "Joint positions is required"),
+        ("wait", {"duration": "soon"}, "", "Duration: 'soon' is not a number"),
         ("wait", {"duration": "1"}, "no spaces", "wait: name"),
         ("fly", {}, "", "no primitive 'fly'"),
     ]:
@@ -86,7 +94,7 @@ def test_the_composition_is_what_the_protocol_takes_and_steps_are_named_as_the_s
     other.load(mission)
     assert other.to_command() == mission and (other.task, other.action) == (0, 1)
     assert refusal_text(other, "command.tasks[1].actions[0].args.speed_pct", "250 % is outside") == (
-        "**✗ The server refused place, action 1 (speed_pct):** 250 % is outside"
+        "**✗ The server refused place, action 1 (Speed):** 250 % is outside"
     )
 
 
@@ -110,22 +118,23 @@ def tasks_walk(mesh: Mesh, browser: Any, size: tuple[int, int]) -> None:
 
     # move_joints taught at the arm's pose, then edited; a wait after it: a task, stored and planned
     press(page, "Teach")
-    q_field = chromium.labelled_input(page, "q [rad]")
+    q_field = chromium.labelled_input(page, "Joint positions [deg]")
     wait_until(lambda: q_field.input_value() != "", what="Teach fills q")
-    assert [float(x) for x in q_field.input_value().split(",")] == pytest.approx(q0, abs=1e-6)
-    target = [0.3, *q0[1:]]
-    chromium.type_into(page, "q [rad]", ", ".join(f"{x:g}" for x in target))
+    taught = [math.radians(float(x)) for x in q_field.input_value().split(",")]
+    assert taught == pytest.approx(q0, abs=2e-5)  # in degrees, to 0.001 deg
+    target = [math.radians(20.0), *q0[1:]]
+    chromium.type_into(page, "Joint positions [deg]", ", ".join(f"{math.degrees(x):.3f}" for x in target))
     chromium.type_into(page, "Label", "turn")
     press(page, "Add")
     text_appears(page, "turn: move_joints")
     chromium.pick_option(page, "Primitive", "wait")
-    chromium.type_into(page, "duration [s]", "0.3")
+    chromium.type_into(page, "Duration [s]", "0.3")
     press(page, "Add")
     task = wait_until(
         lambda: c if isinstance(c := session.snapshot().command, m.Task) and len(c.actions) == 2 else None,
         what="the task stored",
     )
-    assert task.actions[0] == m.Action("move_joints", {"q": pytest.approx(target)}, "turn")
+    assert task.actions[0] == m.Action("move_joints", {"q": pytest.approx(target, abs=2e-5)}, "turn")
     text_appears(page, "Task duration")
     view_is_clear(page, 300 if width < 1400 else 500)
 
@@ -143,14 +152,14 @@ def tasks_walk(mesh: Mesh, browser: Any, size: tuple[int, int]) -> None:
     chromium.type_into(page, "Task name", "back")
     press(page, "New")
     chromium.pick_option(page, "Primitive", "home")
-    chromium.type_into(page, "speed_pct [%]", "250")
+    chromium.type_into(page, "Speed [%]", "250")
     press(page, "Add")
-    text_appears(page, "The server refused back, action 1 (speed_pct)")
+    text_appears(page, "The server refused back, action 1 (Speed)")
     reason = page.get_by_text("is outside").locator("visible=true").first.bounding_box()
     assert reason is not None and 0 <= reason["y"] < height - 10, f"the reason is out of sight: {reason}"
     assert session.snapshot().command == task
     page.screenshot(path=str(SHOTS / f"tasks_refused_{tag}.png"))
-    chromium.type_into(page, "speed_pct [%]", "80")
+    chromium.type_into(page, "Speed [%]", "80")
     press(page, "Update")
     mission = wait_until(
         lambda: c if isinstance(c := session.snapshot().command, m.Mission) else None, what="a mission"

@@ -57,6 +57,7 @@ class CartesianPendant:
         self.on_preview = on_preview
         self.on_error = on_error
         self.locked = False
+        self.is_command = False  # the path is the session's command: its gizmo and dots are drawn
         self.plan: m.CommandPlan | None = None
         self._preview_wanted = False  # the next plan answers an edit here: show its node's arm
         self._markers: list[Any] = []
@@ -164,6 +165,7 @@ class CartesianPendant:
 
     def _edited(self, at_once: bool, gizmo: bool = True) -> None:
         self._preview_wanted = True
+        self.is_command = True  # an edit here makes the path the session's command
         self.refresh(gizmo=gizmo)
         (self.on_dragged if at_once else self.on_changed)()
 
@@ -173,6 +175,7 @@ class CartesianPendant:
         server just answered an edit). While the user edits here, every answer draws the arm where
         the selected node puts it (a drag's answers come one after the other)."""
         self.plan = plan if current else None
+        self.is_command = current or (self.is_command and plan is None)  # an answer still to come
         if current:
             self.editor.accepted()
             self.duration.content = plan_text(plan, stop_time)
@@ -180,6 +183,8 @@ class CartesianPendant:
             self._preview_wanted = False
             if self.editor.nodes:
                 self.duration.content = "_Not the session's command: edit the path to make it so._"
+            else:  # emptied: the last plan's duration and warnings are no longer the path's
+                self.duration.content = plan_text(None, stop_time)
         self.refresh(gizmo=False)
         if current and answer and self._preview_wanted and self.editor.nodes:
             q = node_target(plan, self.editor.selected)
@@ -224,14 +229,19 @@ class CartesianPendant:
             if gizmo:
                 self.gizmo.position = tuple(node.pose.position)
                 self.gizmo.wxyz = rotation_wxyz(node.pose.rpy)
-        visible = bool(ed.nodes) and not self.locked
+        visible = bool(ed.nodes) and not self.locked and self.is_command
         if self.gizmo.visible != visible:
             self.gizmo.visible = visible
         self._draw_markers()
 
     def _draw_markers(self) -> None:
-        """A dot at every node (red where the server refused it); the gizmo sits on the selected one."""
+        """A dot at every node (red where the server refused it); the gizmo sits on the selected one.
+        Drawn while the path is the session's command (another pendant's command draws its own)."""
         ed = self.editor
+        if not self.is_command:
+            while self._markers:
+                self._markers.pop().remove()
+            return
         bad = ed.refused[0] if ed.refused is not None else -1
         for k, node in enumerate(ed.nodes):
             color = REFUSED_COLOR if k == bad else NODE_COLOR
@@ -254,7 +264,7 @@ class CartesianPendant:
             self._preview_wanted = False  # the run shows the arm now
         for handle in (self.speed, self.acc, self.move, self.position, self.rpy, self.set_pose):
             handle.disabled = disabled
-        self.gizmo.visible = bool(self.editor.nodes) and not disabled
+        self.gizmo.visible = bool(self.editor.nodes) and not disabled and self.is_command
 
     def remove(self) -> None:
         """The 3D part (the panel's widgets go with the command panel)."""

@@ -82,6 +82,7 @@ class CommandPanel:
                     c.direct,
                     on_changed=lambda: c.edits.command_changed("direct_input"),
                     on_error=warn("Direct input"),
+                    after=c.loop.after,
                 )
         self.program: ProgramPanel | None = None
         if c.program is not None:
@@ -97,6 +98,8 @@ class CommandPanel:
                     request=c.edits.command,
                     submit=c.submit,
                     on_error=warn("Tasks"),
+                    ui=c.on_loop,
+                    after=c.loop.after,
                 )
         with self.panel.add_tab("Jog"):
             self.jog = JogPanel(gui, c.jog, warn("Jog"))

@@ -247,6 +247,8 @@ class ComparePanel:
         """Cursor on: every plot marks it, the arm takes the followed run's pose, values are read."""
         if not self.cursor_on.value:
             self.plots.set_cursor(None)
+            if self.values.content:  # no cursor, nothing read at it (issue 32, 8)
+                self.values.content = ""
             return
         at = float(self.cursor.value)
         self.plots.set_cursor(at)

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import functools
 import typing
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -114,11 +114,18 @@ def points_text(points: Sequence[Sequence[float]]) -> str:
     return "\n".join(numbers_text(point) for point in points)
 
 
-class DirectInputEditor:
-    """The signals being edited: a mode for all of them and at most one signal per joint."""
+#: rad: how far a position set point at t = 0 may be from where its joint starts without a warning.
+JUMP_TOLERANCE = 1e-3
 
-    def __init__(self, joints: Sequence[str]) -> None:
+
+class DirectInputEditor:
+    """The signals being edited: a mode for all of them and at most one signal per joint.
+    `initial()` gives where the joints start (the session's initial pose, rad): a new position set
+    point starts there, so the arm does not jump at t = 0."""
+
+    def __init__(self, joints: Sequence[str], initial: Callable[[], Sequence[float]] = lambda: ()) -> None:
         self.joints = list(joints)
+        self.initial = initial
         self.mode = "open_loop"
         self.reference = "position"
         self.signals: dict[str, m.Signal] = {}
@@ -170,14 +177,45 @@ class DirectInputEditor:
         joint's own for its generator, the first values for the others) and a table as text."""
         sig = self.signals.get(joint)
         numbers = {kind: {f.name: f.first for f in signal_fields(kind)} for kind in GENERATORS}
+        start = self.start_of(joint)
+        if start is not None:  # a position set point: from where the joint starts
+            for fields in numbers.values():
+                if "offset" in fields:
+                    fields["offset"] = round(start, 6)
+        table = (
+            FIRST_TABLE if start is None else points_text([[0.0, round(start, 6)], [1.0, round(start, 6)]])
+        )
         if sig is None:
-            return NO_SIGNAL, numbers, FIRST_TABLE
+            return NO_SIGNAL, numbers, table
         obj = codec.to_obj(sig)
         kind = obj.pop("type")
         if kind == TABLE:
             return TABLE, numbers, points_text(obj["points"])
         numbers[kind].update({k: float(v) for k, v in obj.items()})
-        return kind, numbers, FIRST_TABLE
+        return kind, numbers, table
+
+    def start_of(self, joint: str) -> float | None:
+        """Where `joint` starts (rad) when its signal is a position set point; None otherwise."""
+        if (self.mode, self.reference) != ("closed_loop", "position"):
+            return None
+        q0 = list(self.initial())
+        k = self.joints.index(joint) if joint in self.joints else -1
+        return float(q0[k]) if 0 <= k < len(q0) else None
+
+    def jumps(self, preview: m.SignalPreview | None) -> list[str]:
+        """The joints whose position set point at t = 0, as the server expanded it, is not where the
+        joint starts: the arm would jump there at once."""
+        if preview is None or not preview.t or preview.unit != "rad":
+            return []
+        out = []
+        for joint, values in preview.values.items():
+            start = self.start_of(joint)
+            if start is not None and values and abs(values[0] - start) > JUMP_TOLERANCE:
+                out.append(
+                    f"{joint} starts at {start:.4g} rad but its set point at t = 0 is {values[0]:.4g} rad: "
+                    "the arm jumps there at once"
+                )
+        return out
 
     # -- protocol --------------------------------------------------------------------------------
     def to_command(self) -> m.DirectInput:

@@ -11,7 +11,6 @@ and the server answers with its plan (the preview) or a refusal naming the field
 from __future__ import annotations
 
 import re
-import time
 from collections.abc import Callable
 from typing import Any
 
@@ -19,6 +18,7 @@ import numpy as np
 from simecs.mesh import messages as m
 
 from .direct import GENERATORS, MODES, NO_SIGNAL, SIGNAL_TYPES, TABLE, DirectInputEditor, signal_fields
+from .markup import escape_text
 from .params import APPLY_GRACE_S
 from .path import LOCKED, PathError, refused_text
 from .plots import COLORS, scales
@@ -55,9 +55,12 @@ class DirectInputPanel:
         editor: DirectInputEditor,
         on_changed: Callable[[], None],
         on_error: Callable[[str], None],
+        after: Callable[[float, Callable[[], None]], None] = lambda _s, job: job(),
     ) -> None:
+        """`after(s, job)`: `job` later on the tab's loop (at once by default: tests without one)."""
         self.gui = gui
         self.editor = editor
+        self.after = after
         self.on_changed = on_changed
         self.on_error = on_error
         self.locked = False
@@ -135,8 +138,10 @@ class DirectInputPanel:
         if self.locked:
             self.on_error(LOCKED)
             return
-        time.sleep(APPLY_GRACE_S)  # the last keystrokes may still be on their way
-        joint, kind = self.joint.value, self.kind.value
+        # the last keystrokes may still be on their way
+        self.after(APPLY_GRACE_S, lambda: self._apply(self.joint.value, self.kind.value))
+
+    def _apply(self, joint: str, kind: str) -> None:
         try:
             if kind == NO_SIGNAL:
                 if joint in self.editor.signals:
@@ -209,8 +214,11 @@ class DirectInputPanel:
             self.planned.content = "_Not the session's command: apply a signal to make it so._"
             self._draw(None)
             return
-        self.planned.content = plan_text(plan if current else None, stop_time)
-        self._draw(plan.signals if current and plan is not None else None)
+        planned = plan_text(plan if current else None, stop_time)
+        signals = plan.signals if current and plan is not None else None
+        jumps = self.editor.jumps(signals)
+        self.planned.content = planned + "".join(f"\n\n**⚠ {escape_text(j)}**" for j in jumps)
+        self._draw(signals)
 
     def show_refusal(self, field: str, reason: str) -> None:
         """The server refused the signals: its reason beside them, no preview."""

@@ -265,8 +265,16 @@ class Edits:
 
     def command_changed(self, kind: str = "joint_path") -> None:
         """A path (the controller's `path` or `cart`) was edited in place: it becomes the session's
-        command, sent once the edits pause."""
+        command, sent once the edits pause. A path emptied (its last node removed) has no plan: the
+        pendant and the 3D view forget the last one (a run is refused until a node is taught)."""
         self.c.command_kind = kind
+        editor = self.c.editor(kind)
+        if editor is not None and editor.empty:
+            with self._lock:
+                self._due.pop("command", None)
+            self.plan, self.refused = None, ""
+            self.t.emit(ev.PlanChanged(None, kind))
+            return
         self.later("command")
 
     def command_dragged(self, kind: str) -> None:

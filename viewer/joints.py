@@ -36,6 +36,7 @@ class JointSliders:
     ):
         self.links = list(links)
         self.on_change = on_change
+        self.moved = -1  # the slider the user moved last (its joint's index)
         self.sliders = []
         for link, deg in zip(self.links, to_deg(q), strict=True):
             lo, hi = math.ceil(link.joint_min * DEG * 10) / 10, math.floor(link.joint_max * DEG * 10) / 10
@@ -53,6 +54,7 @@ class JointSliders:
     def _moved(self, event: Any) -> None:
         if event.client is None:
             return
+        self.moved = next((k for k, s in enumerate(self.sliders) if s is event.target), -1)
         self.on_change(self.q)
 
     @property

@@ -81,6 +81,7 @@ class ParamPanel:
         self.on_set_op = on_set_op  # (op, name): save / load / delete / refresh a parameter set
         self.fields: dict[str, Any] = {}
         self.shown: list[Parameter] = []
+        self.whole_names = False  # the fields shown are labelled with their component (a search)
         self.roots = tr.build_tree(model.parameters)
         self.title: str = ""
 
@@ -134,13 +135,17 @@ class ParamPanel:
             return
         found = tr.search(self.model.parameters, self.search.value)
         text = self.search.value.strip()
-        self._show(found, f"**{len(found)}** parameters match “{text}”" if text else "_No search._")
+        caption = f"**{len(found)}** parameters match “{escape_text(text)}”" if text else "_No search._"
+        self._show(found, caption, whole_names=True)
 
-    def _show(self, params: Sequence[Parameter], caption: str) -> None:
+    def _show(self, params: Sequence[Parameter], caption: str, whole_names: bool = False) -> None:
+        """The table: `params`' fields under `caption`; `whole_names`: labelled with their component
+        (search results come from many components: seven `kp_pos` must be told apart)."""
         for handle in self.fields.values():
             handle.remove()
         self.fields.clear()
         self.shown = list(params)
+        self.whole_names = whole_names
         self.caption.content = caption
         with self.table:
             for p in self.shown:
@@ -156,10 +161,11 @@ class ParamPanel:
                 self.fields[p.name] = handle
 
     def _label(self, p: Parameter, value: float) -> str:
+        label = tr.param_label(p, self.whole_names)
         if p.name in self.drafts:
-            return tr.param_label(p) + DRAFT_MARK
+            return label + DRAFT_MARK
         changed = value != self.defaults.get(p.name, p.value)
-        return tr.param_label(p) + (CHANGED_MARK if changed else "")
+        return label + (CHANGED_MARK if changed else "")
 
     def _edited(self, event: Any, p: Parameter) -> None:
         if event.client is None:  # our own assignment, not the user's
@@ -326,9 +332,10 @@ class VariablePanel:
             return
         found = tr.search(self.model.variables, self.search.value)
         text = self.search.value.strip()
-        self._show(found, f"**{len(found)}** variables match “{text}”" if text else "_No search._")
+        caption = f"**{len(found)}** variables match “{escape_text(text)}”" if text else "_No search._"
+        self._show(found, caption, whole_names=True)
 
-    def _show(self, variables: Sequence[Variable], caption: str) -> None:
+    def _show(self, variables: Sequence[Variable], caption: str, whole_names: bool = False) -> None:
         for handle in self.rows:
             handle.remove()
         self.rows.clear()
@@ -336,11 +343,11 @@ class VariablePanel:
         self.caption.content = caption
         with self.table:
             for v in variables:
-                check = self.gui.add_checkbox(tr.var_label(v), v.name in self.streamed, hint=tr.var_hint(v))
+                label = tr.var_label(v, whole_names)
+                check = self.gui.add_checkbox(label, v.name in self.streamed, hint=tr.var_hint(v))
                 check.on_update(lambda e, v=v: self._ticked(e, v))
-                plot = self.gui.add_button(
-                    f"Plot {tr.short_name(v)}", icon=None, hint=f"open a plot of {v.name}"
-                )
+                name = v.name if whole_names else tr.short_name(v)
+                plot = self.gui.add_button(f"Plot {name}", icon=None, hint=f"open a plot of {v.name}")
                 plot.on_click(lambda _e, v=v: self.on_plot(v.name))
                 self.checks[v.name] = check
                 self.rows += [check, plot]

@@ -102,7 +102,13 @@ class PendantPanel:
 
     def _moved(self, q: list[float]) -> None:
         if not self.editor.nodes:
+            # the first node: the arm's pose with the joint the user moved (not the sliders' pose,
+            # which is whatever they showed before the arm moved)
+            k = self.sliders.moved
+            here = self.current_q()
+            q = [q[j] if j == k else here[j] for j in range(len(here))] if 0 <= k < len(here) else q
             self.editor.teach(q)
+            self.sliders.set_q(q)
         else:
             self.editor.set_q(q)
         self.on_preview(q)

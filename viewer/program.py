@@ -34,11 +34,43 @@ def pendant_level(kind: str) -> str:
     return "task" if kind == "action" else kind
 
 
+#: What the pendant calls each argument of the protocol's table (`ACTION_ARGS`): the user's words,
+#: not the protocol's field names.
+ARG_NAMES = {
+    "q": "Joint positions",
+    "speed_pct": "Speed",
+    "acc_pct": "Acceleration",
+    "position": "Position",
+    "rpy": "Roll, pitch, yaw",
+    "duration": "Duration",
+    "mass": "Mass",
+    "size": "Cube edge",
+    "object": "Object",
+}
+#: Decimals an argument is written with in its typed unit (Teach, a loaded action): 0.001 deg, 0.01 mm.
+TYPED_DECIMALS = {"deg": 3, "mm": 2}
+
+
+def arg_name(name: str) -> str:
+    return ARG_NAMES.get(name, name)
+
+
+def typed_unit(name: str, spec: ArgSpec) -> tuple[str, float]:
+    """The unit an argument is typed and shown in, as on the other pendants (angles in degrees, the
+    tool's position in mm), and the factor from the protocol's value to it."""
+    if spec.unit == "rad":
+        return "deg", 180.0 / math.pi
+    if spec.unit == "m" and name == "position":
+        return "mm", 1000.0
+    return spec.unit, 1.0
+
+
 def arg_label(name: str, spec: ArgSpec) -> str:
-    return f"{name} [{spec.unit}]" if spec.unit else name
+    unit = typed_unit(name, spec)[0]
+    return f"{arg_name(name)} [{unit}]" if unit else arg_name(name)
 
 
-def arg_hint(spec: ArgSpec, joints: int) -> str:
+def arg_hint(name: str, spec: ArgSpec, joints: int) -> str:
     """What a user types for an argument."""
     if spec.size == NAME_ARG:
         shape = "a name"
@@ -46,47 +78,61 @@ def arg_hint(spec: ArgSpec, joints: int) -> str:
         shape = "a number"
     else:
         shape = f"{joints if spec.size == -1 else spec.size} numbers, separated by commas"
+    unit, factor = typed_unit(name, spec)
     if spec.default is not None:
-        rule = f"empty: {fmt(spec.default)}"
+        rule = f"empty: {fmt(spec.default * factor)}"
     elif spec.optional:
         rule = "may stay empty"
     else:
         rule = "required"
-    return f"{spec.description}: {shape} ({rule})"
+    what = f"{spec.description} ({unit})" if unit else spec.description
+    return f"{what}: {shape} ({rule})"
 
 
-def arg_text(value: float | list[float] | str | None) -> str:
+def arg_text(name: str, spec: ArgSpec, value: float | list[float] | str | None) -> str:
+    """An argument's protocol value as the user types it (in `typed_unit`, sensibly rounded)."""
     if value is None:
         return ""
     if isinstance(value, str):
         return value
+    unit, factor = typed_unit(name, spec)
+    decimals = TYPED_DECIMALS.get(unit)
+
+    def shown(x: float) -> float:
+        y = x * factor
+        return round(y, decimals) + 0.0 if decimals is not None else y  # + 0.0: no "-0"
+
     if isinstance(value, list):
-        return numbers_text(value)
-    return fmt(float(value))
+        return numbers_text([shown(float(x)) for x in value])
+    return fmt(shown(float(value)))
 
 
 def parse_arg(name: str, spec: ArgSpec, text: str, joints: int) -> float | list[float] | str | None:
-    """One argument from its typed text (None: left out). PathError names it and what it needs."""
+    """One argument from its typed text, in the protocol's unit (None: left out). PathError names it
+    and what it needs."""
     text = text.strip()
+    label = arg_name(name)
     if not text:
         if spec.default is None and not spec.optional:
-            raise PathError(f"{name} is required: {spec.description}")
+            raise PathError(f"{label} is required: {spec.description}")
         return None
     if spec.size == NAME_ARG:
         return text
     try:
         values = parse_numbers(text)
     except ValueError:
-        raise PathError(f"{name}: {text!r} is not {'a number' if spec.size == 0 else 'numbers'}") from None
+        raise PathError(f"{label}: {text!r} is not {'a number' if spec.size == 0 else 'numbers'}") from None
     if not all(math.isfinite(x) for x in values):
-        raise PathError(f"{name}: the numbers must be finite")
+        raise PathError(f"{label}: the numbers must be finite")
+    factor = typed_unit(name, spec)[1]
+    values = [x / factor for x in values]
     size = joints if spec.size == -1 else spec.size
     if spec.size == 0:
         if len(values) != 1:
-            raise PathError(f"{name}: one number, got {len(values)}")
+            raise PathError(f"{label}: one number, got {len(values)}")
         return values[0]
     if len(values) != size:
-        raise PathError(f"{name}: {size} numbers, got {len(values)}")
+        raise PathError(f"{label}: {size} numbers, got {len(values)}")
     return values
 
 
@@ -268,8 +314,17 @@ class ProgramEditor:
 
     # -- shown -------------------------------------------------------------------------------------
     def describe(self, action: m.Action) -> str:
-        args = ", ".join(f"{k} {arg_text(v)}" for k, v in action.args.items())
-        return f"{action.primitive}" + (f" ({args})" if args else "")
+        """An action as the table shows it, its arguments in the units they are typed in."""
+        specs = ACTION_ARGS.get(action.primitive, {})
+        parts = []
+        for k, v in action.args.items():
+            spec = specs.get(k)
+            if spec is None:
+                parts.append(f"{k} {v}")
+                continue
+            unit = typed_unit(k, spec)[0]
+            parts.append(f"{arg_name(k).lower()} {arg_text(k, spec, v)}" + (f" {unit}" if unit else ""))
+        return f"{action.primitive}" + (f" ({'; '.join(parts)})" if parts else "")
 
     def table_markdown(self, times: dict[str, tuple[float, float]], running: str = "") -> str:
         """Every task and its actions: the selected action ▶, the running one ⏵ (`running`: its

@@ -3,15 +3,18 @@ of actions composed from primitives and from the user's saved programs, reordere
 task (or a mission when there are several), and the step that runs marked while it runs. The
 composition itself is `program.ProgramEditor`, owned by the session controller.
 
-Typed arguments are drafts until **Add** or **Update** (viser's text fields report every keystroke).
-Every composition edit makes it the session's command; the server answers with its plan (each
-action's start and end, the arm drawn where a picked action ends) or a refusal naming the action.
+Typed arguments are drafts until **Add** or **Update** (viser's text fields report every keystroke),
+in the pendants' units (degrees, mm) under the user's names for them. Every composition edit makes it
+the session's command; the server answers with its plan (each action's start and end, the arm drawn
+where a picked action ends) or a refusal naming the action.
+
+It runs on the tab's loop; the library's requests go to a worker (`submit`), which hands what it got
+back to the loop (`ui`).
 """
 
 from __future__ import annotations
 
 import re
-import time
 from collections.abc import Callable
 from typing import Any
 
@@ -21,7 +24,7 @@ from simecs.mesh.robot_commands import ACTION_ARGS, ACTION_DOC
 from .cartesian import Pose
 from .params import APPLY_GRACE_S
 from .path import LOCKED, PathError, plan_text, refused_text
-from .program import PRIMITIVES, ProgramEditor, arg_hint, arg_label, arg_text
+from .program import PRIMITIVES, ProgramEditor, arg_hint, arg_label, arg_name, arg_text
 
 ACTION_FIELD = re.compile(r"^command\.(?:tasks\[(\d+)\]\.)?actions\[(\d+)\](?:\.(.+))?$")
 TASK_BUTTONS = ("New", "Rename", "Remove", "Up", "Down")
@@ -39,7 +42,7 @@ def refusal_text(editor: ProgramEditor, field: str, reason: str) -> str:
         return refused_text(f"the {editor.kind}", reason)
     task = int(found.group(1) or 0)
     name = editor.tasks[task].name if task < len(editor.tasks) else f"task {task + 1}"
-    arg = f" ({found.group(3).removeprefix('args.')})" if found.group(3) else ""
+    arg = f" ({arg_name(found.group(3).removeprefix('args.'))})" if found.group(3) else ""
     return refused_text(f"{name}, action {int(found.group(2)) + 1}{arg}", reason)
 
 
@@ -62,8 +65,14 @@ class ProgramPanel:
         request: Callable[[Any], Any],
         submit: Callable[[str, Callable[[], None]], None],
         on_error: Callable[[str], None],
+        ui: Callable[[Callable[[], Any]], Any] = lambda job: job(),
+        after: Callable[[float, Callable[[], None]], None] = lambda _s, job: job(),
     ) -> None:
+        """`submit(what, job)` runs a request on a worker, `ui(job)` runs `job` back on the tab's
+        loop and `after(s, job)` later on it (the defaults run at once: for tests without a loop)."""
         self.editor = editor
+        self.ui = ui
+        self.after = after
         self.current_q = current_q
         self.tool_pose = tool_pose
         self.on_changed = on_changed
@@ -96,7 +105,7 @@ class ProgramPanel:
         n = len(editor.joints)
         self.args: dict[str, dict[str, Any]] = {
             p: {
-                name: gui.add_text(arg_label(name, spec), "", hint=arg_hint(spec, n), visible=False)
+                name: gui.add_text(arg_label(name, spec), "", hint=arg_hint(name, spec, n), visible=False)
                 for name, spec in specs.items()
             }
             for p, specs in ACTION_ARGS.items()
@@ -139,7 +148,10 @@ class ProgramPanel:
         if self.locked:
             self.on_error(LOCKED)
             return
-        time.sleep(APPLY_GRACE_S)  # the name's last keystrokes may still be on their way
+        # the name's last keystrokes may still be on their way
+        self.after(APPLY_GRACE_S, lambda: self._task_button(button))
+
+    def _task_button(self, button: str) -> None:
         ed = self.editor
         try:
             if button == "New":
@@ -175,20 +187,17 @@ class ProgramPanel:
         if self.locked and button != "Teach":
             self.on_error(LOCKED)
             return
+        if button in ("Add", "Update"):
+            primitive = self.primitive.value  # picked before the click; typed text may lag it
+            # the last keystrokes may still be on their way
+            self.after(APPLY_GRACE_S, lambda: self._add(button, primitive))
+            return
         ed = self.editor
         try:
             if button == "Teach":
                 self._teach()
                 return
-            if button in ("Add", "Update"):
-                primitive = self.primitive.value  # picked before the click; typed text may lag it
-                time.sleep(APPLY_GRACE_S)  # the last keystrokes may still be on their way
-                texts = {k: str(h.value) for k, h in self.args[primitive].items()}
-                action = ed.build(primitive, texts, self.label.value.strip())
-                (ed.insert if button == "Add" else ed.update)(action)
-                if button == "Add":
-                    self.label.value = ""  # a label names one action
-            elif button == "Remove":
+            if button == "Remove":
                 ed.remove()
             else:
                 ed.move(-1 if button == "Up" else 1)
@@ -198,16 +207,31 @@ class ProgramPanel:
         self.refresh()
         self.changed()
 
+    def _add(self, button: str, primitive: str) -> None:
+        """Add (after the picked action) or Update it with the typed arguments."""
+        ed = self.editor
+        texts = {k: str(h.value) for k, h in self.args[primitive].items()}
+        try:
+            action = ed.build(primitive, texts, self.label.value.strip())
+            (ed.insert if button == "Add" else ed.update)(action)
+        except PathError as exc:
+            self.on_error(str(exc))
+            return
+        if button == "Add":
+            self.label.value = ""  # a label names one action
+        self.refresh()
+        self.changed()
+
     def _teach(self) -> None:
         """The arm's pose (where the pendants left it) into the picked primitive's arguments."""
         primitive, q = self.primitive.value, self.current_q()
-        fields = self.args[primitive]
+        fields, specs = self.args[primitive], ACTION_ARGS[primitive]
         if "q" in fields:
-            fields["q"].value = arg_text(q)
+            fields["q"].value = arg_text("q", specs["q"], q)
         elif "position" in fields:
             pose = self.tool_pose(q)
-            fields["position"].value = arg_text(pose.position)
-            fields["rpy"].value = arg_text(pose.rpy)
+            fields["position"].value = arg_text("position", specs["position"], pose.position)
+            fields["rpy"].value = arg_text("rpy", specs["rpy"], pose.rpy)
         else:
             raise PathError(f"{primitive} takes no pose: Teach fills the moves' arguments")
 
@@ -229,14 +253,21 @@ class ProgramPanel:
     def refresh_library(self) -> None:
         """The user's saved programs for this model, from the server (on a worker)."""
         entries: list[m.ProgramEntry] = list(self.request(m.ListPrograms()))
+        self.ui(lambda: self._show_library(entries))
+
+    def _show_library(self, entries: list[m.ProgramEntry], picked: str = "") -> None:
         self.saved = {saved_label(e): e for e in entries}
         options = tuple(self.saved) or (NO_SAVED,)
         if tuple(self.library.options) != options:
             self.library.options = options
+        if picked in options:
+            self.library.value = picked
 
     def _save_clicked(self, event: Any) -> None:
         kind = event.target.value
-        time.sleep(APPLY_GRACE_S)
+        self.after(APPLY_GRACE_S, lambda: self._save(kind))  # the name's last keystrokes may lag
+
+    def _save(self, kind: str) -> None:
         name = self.save_as.value.strip()
         try:
             program = self.editor.program(kind)
@@ -249,9 +280,9 @@ class ProgramPanel:
 
         def job() -> None:
             self.request(m.SaveProgram(name, program))
-            self.refresh_library()
-            self.library.value = saved_label(m.ProgramEntry(kind, name))  # type: ignore[arg-type]
-            self.refresh()
+            entries: list[m.ProgramEntry] = list(self.request(m.ListPrograms()))
+            picked = saved_label(m.ProgramEntry(kind, name))  # type: ignore[arg-type]
+            self.ui(lambda: self._saved(entries, picked))
 
         self.submit(f"{kind.capitalize()} not saved", job)
 
@@ -274,11 +305,22 @@ class ProgramPanel:
 
         def insert() -> None:
             program = self.request(m.LoadProgram(entry.kind, entry.name))
-            self.editor.take(program)
-            self.refresh()
-            self.changed()
+            self.ui(lambda: self._take(program))
 
         self.submit(f"{entry.kind.capitalize()} not inserted", insert)
+
+    def _saved(self, entries: list[m.ProgramEntry], picked: str) -> None:
+        self._show_library(entries, picked)
+        self.refresh()
+
+    def _take(self, program: m.Program) -> None:
+        try:
+            self.editor.take(program)
+        except PathError as exc:
+            self.on_error(str(exc))
+            return
+        self.refresh()
+        self.changed()
 
     # -- drawing -----------------------------------------------------------------------------------
     def _show_primitive(self, primitive: str) -> None:
@@ -295,8 +337,9 @@ class ProgramPanel:
         if action is None:
             return
         self._show_primitive(action.primitive)
+        specs = ACTION_ARGS[action.primitive]
         for name, handle in self.args[action.primitive].items():
-            handle.value = arg_text(action.args.get(name))
+            handle.value = arg_text(name, specs[name], action.args.get(name))
         self.label.value = action.name
         q = self.ends.get(self.editor.step_path(self.editor.task, self.editor.action))
         if q:

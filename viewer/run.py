@@ -5,6 +5,7 @@ settings window (paper §2.2 step 6).
 
 from __future__ import annotations
 
+import re
 from collections.abc import Callable, Sequence
 from typing import Any
 
@@ -41,12 +42,25 @@ def status_text(st: m.SessionState | None, replay: str = "") -> str:
     return f"**{st.phase}**: ready to run"
 
 
+STEP_PART = re.compile(r"(nodes|tasks|actions)\[(\d+)\]")
+STEP_WORD = {"nodes": "node", "tasks": "task", "actions": "action"}
+
+
+def step_words(step: str) -> str:
+    """A step as the server names it (`tasks[1].actions[0]`, 0-based) in the words and numbers the
+    pendants' tables use (`task 2, action 1`)."""
+    found = STEP_PART.findall(step)
+    if not found:
+        return step
+    return ", ".join(f"{STEP_WORD[kind]} {int(k) + 1}" for kind, k in found)
+
+
 def status_detail(st: m.SessionState | None) -> str:
     """What the run says besides its progress: the step that runs, why it ended early, warnings."""
     if st is None:
         return ""
     parts = []
-    doing = " · ".join(x for x in (st.task, st.action) if x) or st.step
+    doing = " · ".join(x for x in (st.task, st.action) if x) or step_words(st.step)
     if doing and st.phase in phases.GOING:  # the step of a task or path that runs now
         parts.append(f"⏵ {escape_html(doing)}")
     if st.reason and st.phase in ("aborted", "failed"):

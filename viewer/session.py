@@ -261,7 +261,8 @@ class SessionController(TabState, Dispatcher):
         self.path = JointPathEditor(model.links)
         self.cart = CartesianPathEditor() if "cartesian_path" in model.command_levels else None
         joints = [link.joint for link in model.links]
-        self.direct = DirectInputEditor(joints) if "direct_input" in model.command_levels else None
+        direct = "direct_input" in model.command_levels
+        self.direct = DirectInputEditor(joints, lambda: self.initial) if direct else None
         self.program = ProgramEditor(joints) if "task" in model.command_levels else None
         if isinstance(snap.command, m.JointPath):
             self.path.load(snap.command)

@@ -102,8 +102,9 @@ def numbers_text(values: Sequence[float]) -> str:
     return ", ".join(fmt(float(x)) for x in values)
 
 
-def param_label(p: Parameter) -> str:
-    return labelled(short_name(p), p.unit)
+def param_label(p: Parameter, whole_name: bool = False) -> str:
+    """`kp_pos [1/s]` under its component; `joint3.ctrl.kp_pos [1/s]` among others' (a search)."""
+    return labelled(p.name if whole_name else short_name(p), p.unit)
 
 
 def param_hint(p: Parameter, default: float | None = None) -> str:
@@ -121,8 +122,8 @@ def param_hint(p: Parameter, default: float | None = None) -> str:
     return " ".join(parts)
 
 
-def var_label(v: Variable) -> str:
-    return labelled(short_name(v), v.unit)
+def var_label(v: Variable, whole_name: bool = False) -> str:
+    return labelled(v.name if whole_name else short_name(v), v.unit)
 
 
 def var_hint(v: Variable) -> str:
