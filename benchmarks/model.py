@@ -85,7 +85,7 @@ def joint_error(data: np.ndarray, ref: np.ndarray, cols: list[str], n: int) -> n
 #: Convergence cases (issue 17's defect 5): (model, target rad, speed %, acceleration %); the slow
 #: small Spider move starts from its home, the target is relative to it.
 CONVERGENCE_CASES = {
-    "puma_fast_large": ("puma560", (2.5, -2.0, 2.0, 2.5, 1.5, 3.0), 100.0, 100.0),
+    "puma_fast_large": ("puma560", (2.5, 2.0, -2.0, 2.5, 1.5, 3.0), 100.0, 100.0),
     "spider_slow_small": ("spider", (0.05, -0.04, 0.03, 0.05, -0.05, 0.04, 0.05), 20.0, 20.0),
 }
 REST_S = 4.0  # simulated after the move ends: the limit cycle at rest is measured over its last REST_WINDOW_S

@@ -10,7 +10,9 @@ parameter, and `anchor = "end"` measures the origin from the link's end.
 
 from __future__ import annotations
 
+import json
 import math
+import struct
 from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -19,7 +21,7 @@ import msgspec
 import numpy as np
 
 from .environment import Obstacle
-from .kinematics import quat_from_matrix, rot_rpy
+from .kinematics import matrix_from_quat, quat_from_matrix, rot_rpy
 from .model import ModelDescription, Shape
 
 WORLD = "world"
@@ -129,6 +131,82 @@ def solids(model: ModelDescription, values: Mapping[str, float]) -> Iterator[Sol
         if 0 <= shape.link < len(model.links):
             now = effective_shape(shape, model, values, defaults)
             yield Solid(k, model.links[shape.link].name, shape, shape_geometry(now))
+
+
+def box_corners(lo: Sequence[float] | np.ndarray, hi: Sequence[float] | np.ndarray) -> np.ndarray:
+    """The 8 corners (8 x 3) of the axis-aligned box from `lo` to `hi`."""
+    lo, hi = np.asarray(lo, dtype=float), np.asarray(hi, dtype=float)
+    pick = np.array([[i, j, k] for i in (0, 1) for j in (0, 1) for k in (0, 1)], dtype=bool)
+    return np.where(pick, hi, lo)
+
+
+def solid_corners(
+    geom: ShapeGeometry, mesh_bounds: tuple[np.ndarray, np.ndarray] | None = None
+) -> np.ndarray:
+    """The corners (8 x 3) of a box around the solid, in its parent frame: what framing it in a view
+    needs. A mesh's box is `mesh_bounds` (the low and high corners of its coordinates, `glb_bounds`)
+    scaled and turned as drawn; without them the mesh stands for its origin (one row)."""
+    if geom.kind == "mesh":
+        if mesh_bounds is None:
+            return np.asarray(geom.position, dtype=float).reshape(1, 3)
+        scale = np.asarray(geom.dimensions, dtype=float)
+        box = box_corners(np.asarray(mesh_bounds[0]) * scale, np.asarray(mesh_bounds[1]) * scale)
+    elif geom.kind == "box":
+        box = box_corners(-np.asarray(geom.dimensions) / 2, np.asarray(geom.dimensions) / 2)
+    elif geom.kind == "sphere":
+        box = box_corners(np.full(3, -geom.radius), np.full(3, geom.radius))
+    else:  # cylinder, pipe: the axis along the local z of wxyz
+        half = np.array([geom.radius, geom.radius, geom.length / 2])
+        box = box_corners(-half, half)
+    return box @ matrix_from_quat(geom.wxyz).T + np.asarray(geom.position, dtype=float)
+
+
+def glb_bounds(data: bytes) -> tuple[np.ndarray, np.ndarray] | None:
+    """Low and high corners of a box holding a binary glTF's vertices in its own frame, or None when
+    it has none or is not one. Read from the `min` and `max` every POSITION accessor carries (glTF 2.0
+    requires them), turned by the transforms of the nodes that place each mesh (so a turned part's box
+    is a little larger than the tightest); no vertex is decoded."""
+    corners: list[np.ndarray] = []
+    try:
+        magic, _version, _length, size, kind = struct.unpack_from("<4sIII4s", data, 0)
+        if magic != b"glTF" or kind != b"JSON":
+            return None
+        doc = json.loads(data[20 : 20 + size])
+        accessors, meshes, nodes = doc.get("accessors", []), doc.get("meshes", []), doc.get("nodes", [])
+        scenes = doc.get("scenes", [])
+        roots = scenes[doc.get("scene", 0)].get("nodes", []) if scenes else []
+        todo = [(int(n), np.eye(4)) for n in roots]
+        seen: set[int] = set()  # a glTF node has one parent at most: a node met again is a loop
+        while todo:
+            index, parent = todo.pop()
+            if index in seen:
+                continue
+            seen.add(index)
+            node = nodes[index]
+            here = parent @ _node_matrix(node)
+            for prim in meshes[node["mesh"]].get("primitives", []) if "mesh" in node else []:
+                acc = accessors[prim["attributes"]["POSITION"]]
+                box = box_corners(acc["min"][:3], acc["max"][:3])
+                corners.append(box @ here[:3, :3].T + here[:3, 3])
+            todo += [(int(c), here) for c in node.get("children", [])]
+    except (struct.error, ValueError, KeyError, IndexError, TypeError, AttributeError):
+        return None
+    if not corners:
+        return None
+    every = np.concatenate(corners)
+    return every.min(axis=0), every.max(axis=0)
+
+
+def _node_matrix(node: Mapping[str, Any]) -> np.ndarray:
+    """A glTF node's local transform (4 x 4): its `matrix` (column-major), or T R S."""
+    if "matrix" in node:
+        return np.asarray(node["matrix"], dtype=float).reshape(4, 4).T
+    out = np.eye(4)
+    x, y, z, w = (float(v) for v in node.get("rotation", (0.0, 0.0, 0.0, 1.0)))
+    scale = np.asarray(node.get("scale", (1.0, 1.0, 1.0)), dtype=float)
+    out[:3, :3] = matrix_from_quat((w, x, y, z)) * scale
+    out[:3, 3] = node.get("translation", (0.0, 0.0, 0.0))
+    return out
 
 
 def obstacle_solids(obstacles: Sequence[Obstacle]) -> Iterator[Solid]:

@@ -54,20 +54,32 @@ def test_imported_masses_and_inertias_match_the_urdf(model_id: str) -> None:
         assert np.abs(np.array(theirs) - np.array(ours)).max() < 1e-9
 
 
+#: The PUMA 560's joint ranges (deg) in its standard DH convention: the qlim of Corke's Robotics Toolbox
+#: (roboticstoolbox-python models/DH/Puma560.py, MATLAB mdl_puma560.m; limits from Wang & Chen, IEEE
+#: Trans. RA 7(4) 1991), whose DH table exudyn's ManipulatorPuma560 repeats.
+PUMA_QLIM_DEG = [(-160, 160), (-45, 225), (-225, 45), (-110, 170), (-100, 100), (-266, 266)]
+
+
 def test_the_puma_file_holds_exudyns_puma_560() -> None:
     """The PUMA's rows in its model file are exudyn.robotics' DH table and link data, converted: the
-    standard DH row [theta, d, a, alpha] is Rx(alpha), length a, final (0, d sin alpha, d cos alpha)."""
+    standard DH row [theta, d, a, alpha] is Rx(alpha), length a, final (0, d sin alpha, d cos alpha).
+    Its joint ranges are the Robotics Toolbox's for the same DH table (exudyn's jointLimits are in
+    another convention: its joint 2 down to -170 deg would put the upper arm through the pedestal)."""
     from exudyn.robotics.models import ManipulatorPuma560
 
     spec = models.get_model("puma560").spec
-    for lk, ref in zip(spec.links, ManipulatorPuma560()["links"], strict=True):
+    for lk, ref, qlim in zip(spec.links, ManipulatorPuma560()["links"], PUMA_QLIM_DEG, strict=True):
         theta, dd, a, alpha = (float(v) for v in ref["stdDH"])
         final = np.array([0.0, dd * math.sin(alpha), dd * math.cos(alpha)])
         assert lk.rpy == (alpha, 0.0, 0.0) and lk.length == a
         assert np.allclose(lk.final, final, atol=1e-15)
         assert np.allclose(lk.com, np.asarray(ref["COM"], float) + np.array([a, 0, 0]) + final, atol=1e-15)
         assert np.allclose(lk.inertia, np.diag(np.asarray(ref["inertia"], float)))
-        assert lk.mass == ref["mass"] and [lk.joint_min, lk.joint_max] == list(ref["jointLimits"])
+        assert lk.mass == ref["mass"]
+        assert [lk.joint_min, lk.joint_max] == pytest.approx([math.radians(v) for v in qlim], abs=1e-12)
+    # the Toolbox's named postures are inside them: zero ('L'), ready (arm up), stretched
+    for q in ([0.0] * 6, [0, math.pi / 2, -math.pi / 2, 0, 0, 0], [0, 0, -math.pi / 2, 0, 0, 0]):
+        assert all(lk.joint_min <= v <= lk.joint_max for lk, v in zip(spec.links, q, strict=True))
 
 
 # -- refusals --------------------------------------------------------------------------------------

@@ -534,11 +534,11 @@ def test_a_load_resolver_error_shows_in_the_pose_reached(spider):
 
 
 def puma_fast_move(values: dict | None = None, substeps: int | None = None) -> tuple[np.ndarray, list]:
-    """The PUMA at 100 % speed and acceleration to (2.5, -2, 2, 2.5, 1.5, 3): motor 1 passes 150 rad/s."""
+    """The PUMA at 100 % speed and acceleration to (2.5, 2, -2, 2.5, 1.5, 3): motor 1 passes 150 rad/s."""
     pkg = get_model("puma560")
     sim = pkg.build(values or {})
     sim.set_initial([0.0] * 6)
-    sim.set_joint_path([([2.5, -2.0, 2.0, 2.5, 1.5, 3.0], 100, 100)])
+    sim.set_joint_path([([2.5, 2.0, -2.0, 2.5, 1.5, 3.0], 100, 100)])
     try:
         data = run(sim, sim.path_duration() + 0.3, out=0.002, substeps=substeps)
     finally:

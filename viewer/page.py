@@ -83,7 +83,6 @@ class ModelPage:
         self.scene.q = list(c.initial)
         self.scene.build()
         self.scene.show_obstacles(c.obstacles)
-        self.reach = self.scene.extent()
         self.trace = ToolTrace(client.scene)
         self.look("Fit arm")
 
@@ -130,8 +129,9 @@ class ModelPage:
         self.show_editable()
 
     def look(self, view: str) -> None:
-        """A camera preset of the toolbar's View buttons."""
-        camera.apply(self.client.camera, camera.preset(view, self.reach))
+        """A camera preset of the toolbar's View buttons: the arm as it stands now, framed."""
+        fov, aspect = camera.lens(self.client.camera)
+        camera.apply(self.client.camera, camera.preset(view, self.scene.corners(), fov, aspect))
 
     def _warn(self, title: str) -> Callable[[str], None]:
         return lambda message: self.c.notify(title, message, "warning")

@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 from simecs.mesh import shapes
 from simecs.mesh.environment import Obstacle
-from simecs.mesh.kinematics import link_poses
+from simecs.mesh.kinematics import link_poses, matrix_from_quat
 from simecs.mesh.model import ModelDescription, Shape
 from simecs.mesh.shapes import ShapeGeometry
 
@@ -53,6 +53,8 @@ class ArmScene:
         self._listed: list[Obstacle] = []  # the obstacles drawn, where their list puts them
         self._moved: dict[int, np.ndarray] = {}  # where a run's grasps put some (as last sent)
         self.q: list[float] = [0.0] * len(model.links)
+        self.poses: np.ndarray | None = None  # the link poses last shown (`corners`)
+        self._mesh_bounds: dict[str, tuple[np.ndarray, np.ndarray] | None] | None = None
 
     # -- building ------------------------------------------------------------------------------
     def build(self) -> None:
@@ -191,12 +193,34 @@ class ArmScene:
 
     def apply_poses(self, poses: np.ndarray) -> None:
         """Set link frame poses from rows in `columns.POSE_FIELDS` order (x, y, z, qw, qx, qy, qz)."""
+        self.poses = np.array(poses[: len(self.model.links)], dtype=float)  # what `corners` frames
         for frame, row in zip(self.frames, poses, strict=False):
             frame.position = row[:3]
             frame.wxyz = row[3:7]
 
+    def corners(self) -> np.ndarray:
+        """World corners (n x 3) of boxes around the arm's solids as last posed (the links' and the
+        base's, not the environment's): what the View presets frame."""
+        poses = self.poses
+        if poses is None or len(poses) < len(self.model.links):
+            poses = link_poses(self.model, self.values, self.q)
+        if self._mesh_bounds is None:
+            self._mesh_bounds = {name: shapes.glb_bounds(data) for name, data in self.meshes.items()}
+        names = {link.name: i for i, link in enumerate(self.model.links)}
+        out = [np.zeros((0, 3))]
+        for n, solid in enumerate(shapes.solids(self.model, self.values)):
+            if n < len(self.model.environment) or not solid.geometry.visible:  # the environment comes first
+                continue
+            box = shapes.solid_corners(solid.geometry, self._mesh_bounds.get(solid.geometry.mesh))
+            if solid.frame != shapes.WORLD:
+                row = poses[names[solid.frame]]
+                box = box @ matrix_from_quat(row[3:7]).T + row[:3]
+            out.append(box)
+        return np.concatenate(out)
+
     def extent(self) -> float:
-        """About how far the arm reaches from the origin (for placing the camera)."""
+        """About how far the arm reaches from the origin (the Cartesian gizmo's size; the View
+        presets frame `corners`)."""
         poses = link_poses(self.model, self.values, [0.0] * len(self.model.links))
         far = float(np.max(np.linalg.norm(poses[:, :3], axis=1))) if len(poses) else 0.0
         biggest = max([max(s.length, 2 * s.radius, s.width, s.height) for s in self.model.shapes] or [0.0])
