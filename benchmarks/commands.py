@@ -10,6 +10,17 @@
   seed 0.3 rad (per joint, random sign) away from the posture it was made from; `ik_ms_p50` its median;
 - `expand_ms`: planning a 20-action mission (four tasks of joint, line, point-to-point, wait and home
   moves) from the initial pose, median of 5;
+- `cartesian_plan_ms_max`: the longest planning (`Planner.plan`, what `set_command` runs) of the
+  Cartesian paths a teach pendant builds, each the median of PLAN_REPEATS (target: at most 1000 ms,
+  planned or refused): from the model's default pose (where a new session starts) Teach, then a
+  PENDANT_LINE m LIN at 100 % along each of DIRECTIONS; the same at 2 % and a PTP there, along the one
+  the joint limits slowed most; a LIN and a PTP to a pose 5 m from the arm's base, and to one at EDGE
+  of its reach bound (past what it reaches: the solver refuses it); and from the standard posture a
+  path of the protocol's most nodes (PENDANT_NODES: back and forth along the first line the arm can
+  follow there, every tenth node a PTP, every third at 2 %); `cartesian_plan_ms_1000_nodes` is that
+  path's time;
+- `cartesian_lin_slowed`: the largest `CommandPlan.slowed` of those LINs at 100 % (how much the joint
+  limits time-scaled it; 0 when all were refused);
 - `rtf_cartesian`: simulated s per wall s of the LIN run, as fast as possible (one core, best of 3);
 - `open_loop_torque_error`: |mean tau_motor - kt * i| / (kt * i) over 5-30 ms after an open-loop
   current step of 1 A on joint 3 (the ripple, detent and current loop stay in), while the motor is
@@ -31,6 +42,10 @@ import numpy as np
 
 LINE_LENGTH = 0.5
 RTF_REPEATS = 3
+PLAN_REPEATS = 3
+PENDANT_LINE = 0.15
+PENDANT_NODES = 1000
+EDGE = 0.995  # of the reach bound: a pose past the arm's workspace that only the solver can refuse
 POSTURES = {
     "spider": [0.5, 0.2, -0.3, -0.5, -0.3, -0.2, 0.7],
     "puma560": [0.2, -0.7, 0.5, 0.5, 1.0, 1.2],
@@ -187,6 +202,76 @@ def _mission(model_id: str) -> dict[str, float]:
     return {"expand_ms": float(statistics.median(times) * 1000)}
 
 
+def _pendant(model_id: str) -> dict[str, float]:
+    from simecs import models
+    from simecs.mesh import messages as m
+    from simecs.mesh.kinematics import rpy_of
+    from simecs.models.planner import Planner
+
+    pkg = models.get_model(model_id)
+    values = pkg.check_values({})
+
+    class Start(NamedTuple):
+        """A planner from a pose, and the tool pose there (what Teach records)."""
+
+        planner: Any
+        p: np.ndarray
+        rpy: list[float]
+
+        def node(self, d: np.ndarray, sp: float = 100.0, move: str = "lin") -> m.CartesianNode:
+            return m.CartesianNode([float(x) for x in self.p + d], self.rpy, move, sp)  # type: ignore[arg-type]
+
+        def plan_ms(self, nodes: list[m.CartesianNode]) -> tuple[float, Any]:
+            """The median planning time of the path (ms), and its plan (None: refused)."""
+            times, plan = [], None
+            for _ in range(PLAN_REPEATS):
+                t0 = time.perf_counter()
+                try:
+                    plan = self.planner.plan(m.CartesianPath(nodes))
+                except models.CommandError:
+                    plan = None
+                times.append(time.perf_counter() - t0)
+            return statistics.median(times) * 1000, plan
+
+    def start(q: list[float]) -> Start:
+        planner = Planner(pkg, values, q, 60.0)
+        p, R = planner.kin.tool_pose(planner.q0)
+        return Start(planner, p, [float(x) for x in rpy_of(R)])
+
+    home = start(list(pkg.home()))  # where a new session starts
+    teach = home.node(np.zeros(3))
+    figures: dict[str, tuple[float, Any]] = {}
+    slowed: dict[int, float] = {}
+    steps = [PENDANT_LINE * np.asarray(d, float) / np.linalg.norm(d) for d in DIRECTIONS]
+    for k, step in enumerate(steps):
+        figures[f"lin_100_{k}"] = home.plan_ms([teach, home.node(step)])
+        plan = figures[f"lin_100_{k}"][1]
+        if plan is not None:
+            slowed[k] = float(plan.summary(60.0).slowed)
+    d = steps[max(slowed, key=slowed.__getitem__)] if slowed else steps[0]  # the most slowed
+    figures["lin_2"] = home.plan_ms([teach, home.node(d, 2.0)])
+    figures["ptp"] = home.plan_ms([teach, home.node(d, move="ptp")])
+    kin = home.planner.kin
+    away = (home.p - kin.base) / np.linalg.norm(home.p - kin.base)
+    for name, dist in (("far", 5.0), ("edge", EDGE * kin.reach)):
+        target = kin.base + dist * away - home.p
+        figures[f"{name}_lin"] = home.plan_ms([teach, home.node(target)])
+        figures[f"{name}_ptp"] = home.plan_ms([teach, home.node(target, move="ptp")])
+    standard = start(POSTURES[model_id])
+    ds = next((step for step in steps if standard.plan_ms([standard.node(step)])[1] is not None), steps[0])
+    figures["nodes_1000"] = standard.plan_ms(
+        [
+            standard.node(ds * (k % 2), 2.0 if k % 3 == 2 else 100.0, "ptp" if k % 10 == 9 else "lin")
+            for k in range(PENDANT_NODES)
+        ]
+    )
+    return {
+        "cartesian_plan_ms_max": max(ms for ms, _plan in figures.values()),
+        "cartesian_plan_ms_1000_nodes": figures["nodes_1000"][0],
+        "cartesian_lin_slowed": max(slowed.values(), default=0.0),
+    }
+
+
 def _open_loop(model_id: str) -> dict[str, float]:
     from simecs.mesh import messages as m
 
@@ -218,7 +303,7 @@ def run_commands_bench(as_json: bool = False) -> dict[str, Any]:
     per_model: dict[str, dict[str, float]] = {}
     for model_id in POSTURES:
         figures: dict[str, float] = {}
-        for part in (_lin, _ik, _mission, _open_loop):
+        for part in (_lin, _ik, _mission, _pendant, _open_loop):
             figures.update(part(model_id))
         per_model[model_id] = figures
     worst_is_low = {"rtf_cartesian", "ik_solved_fraction", "open_loop_torque_ratio_300ms"}

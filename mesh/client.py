@@ -255,9 +255,10 @@ class SessionClient:
         """Replace what the arm can touch in this session; the list as stored."""
         return self.command(m.SetObstacles(list(obstacles)))
 
-    def run(self) -> str:
-        """Start a run; returns its run id."""
-        return self.command(m.Run()).run_id
+    def run(self, until_stopped: bool = False) -> str:
+        """Start a run; returns its run id. `until_stopped`: a real-time run that lasts until `stop`
+        (at most open_run_s), holding the initial pose without a command: to jog an idle arm."""
+        return self.command(m.Run(until_stopped=until_stopped)).run_id
 
     def replay(self, recording: str, speed: float = 1.0, paused: bool = False) -> str:
         """Start a run that replays `recording` (of this session's model); returns its run id."""
@@ -271,6 +272,10 @@ class SessionClient:
 
     def resume(self) -> Any:
         return self.command(m.Resume())
+
+    def stop(self) -> Any:
+        """End the run going now as finished, its results kept (abort ends it as aborted)."""
+        return self.command(m.Stop())
 
     def abort(self) -> Any:
         return self.command(m.Abort())

@@ -235,7 +235,7 @@ _TABLE = (
         kind="put",
         writer="proxy",
         payload="RunControl",
-        meaning="pause, resume, abort or seek, to the worker of the session's run",
+        meaning="pause, resume, stop, abort or seek, to the worker of the session's run",
     ),
     KeySpec(
         name="run_status",

@@ -55,7 +55,8 @@ _TABLE = (
         "count",
         "proxy",
         "bad_request",
-        "rows of one run's expanded reference (Cartesian samples at the control period, signal samples)",
+        "rows of one run's expanded reference (Cartesian and joint moves: where they curve or accelerate, "
+        "at most one per ms; signal samples)",
     ),
     Limit(
         "programs_per_user",
@@ -94,6 +95,16 @@ _TABLE = (
         "--max-runs-per-user",
     ),
     Limit("run_queue", 16, "count", "proxy", "busy", "runs waiting for a simulator", "--max-queue"),
+    Limit(
+        "open_run_s",
+        600,
+        "s",
+        "proxy",
+        "the run ends as finished, its reason naming the bound",
+        "simulated (= wall) s a run until stopped lasts at most; less when its results would exceed "
+        "results_bytes_per_run at its output_interval",
+        "--open-run-s",
+    ),
     Limit(
         "results_bytes_per_user",
         2 * GiB,

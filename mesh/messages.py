@@ -190,6 +190,16 @@ class SetObstacles(Command, tag="set_obstacles"):
 class Run(Command, tag="run"):
     """Assign the command: start a run with the session's values, pose, command and settings."""
 
+    until_stopped: Annotated[
+        bool,
+        Meta(
+            description="a run until stopped (to jog an idle arm and teach poses): paced in real time "
+            "whatever the settings say, it follows the command if the session has one (then holds its "
+            "last set point), else holds the initial pose, and lasts until `stop`, at most open_run_s "
+            "(PROTOCOL.md §4.1); settings.stop_time is not used"
+        ),
+    ] = False
+
 
 class Replay(Command, tag="replay"):
     """Start a run that replays a recording of this session's model instead of simulating."""
@@ -213,6 +223,10 @@ class Resume(Command, tag="resume"):
 
 class Abort(Command, tag="abort"):
     pass
+
+
+class Stop(Command, tag="stop"):
+    """End the run now as `finished`, its results up to now kept (`abort` ends it as `aborted`)."""
 
 
 class Seek(Command, tag="seek"):
@@ -285,6 +299,15 @@ class PlanStep(Record):
             "[] when not known before the run (a direct input of motor currents)",
         ),
     ] = []
+    slowed: Annotated[
+        float,
+        Meta(
+            ge=1.0,
+            description="how much longer the step takes than its Cartesian speed and acceleration "
+            "percentages asked, because a joint's traj.max_speed or traj.max_acc would be exceeded: "
+            "the line was time-scaled to them (1.0 = not slowed; only lin moves are)",
+        ),
+    ] = 1.0
 
 
 #: Rows of a direct input's preview in a plan (SignalPreview).
@@ -328,6 +351,14 @@ class CommandPlan(Record):
     signals: Annotated[
         SignalPreview | None, Meta(description="direct_input: its signals as expanded; null otherwise")
     ] = None
+    slowed: Annotated[
+        float,
+        Meta(
+            ge=1.0,
+            description="the largest PlanStep.slowed: how much the joint limits slowed the step they "
+            "slowed most (1.0 = every step as fast as its percentages asked)",
+        ),
+    ] = 1.0
 
 
 class GetSession(Command, tag="get_session"):
@@ -350,6 +381,7 @@ SessionCommand = (
     | Pause
     | Resume
     | Abort
+    | Stop
     | Seek
     | SaveParamSet
     | LoadParamSet
@@ -457,6 +489,9 @@ class RunInfo(Record):
     attempt: Annotated[
         int, Meta(ge=1, description="2+: restarted from the start after its host was lost")
     ] = 1
+    until_stopped: Annotated[
+        bool, Meta(description="a run until stopped (Run.until_stopped): stop_time is its bound")
+    ] = False
 
 
 class SessionSnapshot(Message, tag="session"):
@@ -520,6 +555,9 @@ class RunRequest(Message, tag="run_request"):
     attempt: Annotated[int, Meta(ge=1, description="2+: the run restarted after its host was lost")] = 1
     restarted: Annotated[Text, Meta(description="attempt 2+: why the run started again")] = ""
     obstacles: Annotated[ObstacleList, Meta(description="what the arm can touch in this run")] = []
+    until_stopped: Annotated[
+        bool, Meta(description="a run until stopped (Run.until_stopped): settings.stop_time is its bound")
+    ] = False
 
 
 class Accepted(Record):
@@ -530,7 +568,7 @@ class Accepted(Record):
 
 
 class RunControl(Message, tag="run_control"):
-    op: Literal["pause", "resume", "abort", "seek"]
+    op: Literal["pause", "resume", "stop", "abort", "seek"]
     run_id: Name
     time: Annotated[Seconds, Meta(description="seek target in s (replay runs)")] = 0.0
     attempt: Annotated[int, Meta(ge=0, description="the run's attempt it is for; 0 = whichever")] = 0
@@ -570,6 +608,10 @@ class RunContext(Record):
     ] = 1
     restarted: Annotated[Text, Meta(description="attempt 2+: why the run started again")] = ""
     obstacles: Annotated[ObstacleList, Meta(description="what the arm could touch in the run")] = []
+    until_stopped: Annotated[
+        bool,
+        Meta(description="a run until stopped (Run.until_stopped): settings.stop_time was its bound"),
+    ] = False
 
 
 class RunLayout(Message, tag="layout"):
@@ -738,6 +780,7 @@ REPLIES: dict[type, Any] = {
     Pause: str,
     Resume: str,
     Abort: str,
+    Stop: str,
     Seek: str,
     SaveParamSet: str,
     LoadParamSet: dict[str, float],

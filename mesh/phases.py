@@ -3,6 +3,7 @@ viewer uses to enable its buttons, and the tests and PROTOCOL.md read.
 
     created --edit--> configured --run/replay--> queued --started--> running <--> paused
     queued/running/paused --finished|aborted|failed--> that phase --run/replay--> queued ...
+    running/paused --stop--> finished (results kept), --abort--> aborted
     running/paused --restarted (its host lost)--> queued
     any phase --closed--> closed
 """
@@ -56,6 +57,7 @@ ALLOWED: dict[str, tuple[tuple[str, ...], str]] = {
     "replay": (EDITABLE, "a run is already {phase} in this session"),
     "pause": (("running",), "nothing to pause: the session is {phase}"),
     "resume": (("paused",), "nothing to resume: the session is {phase}"),
+    "stop": (GOING, "nothing to stop: the session is {phase}"),
     "abort": (UNDER_WAY, "nothing to abort: the session is {phase}"),
     "seek": (GOING, "nothing to seek in: the session is {phase}"),
     "save_param_set": (OPEN, ""),

@@ -26,7 +26,8 @@ GROUPS: list[tuple[str, list[str]]] = [
         "commands",
         ["SetParams", "ResetParams", "SetInitial", "SetCommand", "SetSettings", "SetObstacles", "Run"]
         + ["Replay", "Pause"]
-        + ["Resume", "Abort", "Seek", "SaveParamSet", "LoadParamSet", "DeleteParamSet", "ListParamSets"]
+        + ["Resume", "Abort", "Stop", "Seek", "SaveParamSet", "LoadParamSet", "DeleteParamSet"]
+        + ["ListParamSets"]
         + ["SaveProgram", "LoadProgram", "DeleteProgram", "ListPrograms", "ProgramEntry"]
         + [
             "GetSession",

@@ -1,11 +1,18 @@
 """A robot command of any level (paper §2.1) turned into what the drives follow, checked before a run.
 
 A joint path stays a table of trapezoid segments (drive.traj_eval, exact). Every other level becomes a
-sampled reference table (drive.ref_eval): Cartesian `lin` moves are sampled every REFERENCE_PERIOD
-through inverse kinematics and handed to the joint-independent cascade as joint set points; joint
-moves (a `ptp` node, move_joints, home) are their trapezoids sampled where they curve; direct inputs
-are expanded by signals.py. Actions, tasks and missions expand into those lower levels; the payload
-changes of set_payload and the grasps and releases become events of the run.
+sampled reference table (drive.ref_eval, linear between rows): a Cartesian `lin` move is planned in
+geometry first and in time second. Its joint solutions are found along the line at a spacing its
+accuracy needs (ArmKinematics.walk_line: a cubic Hermite curve through them stays within
+LIN_TOLERANCE of the line), whatever its speed; then a path-velocity profile moves along that curve
+as fast as the Cartesian maxima times the node's percentages allow, slowed where a joint's
+traj.max_speed or traj.max_acc would be exceeded (`slowed` says by how much); the rows are that
+curve at the times the profile gives, as many as keep the linear interpolation between them within
+LIN_TOLERANCE of the line and within PROFILE_LAG of the profile. So the cost of a line grows with its
+geometry, not with its duration. Joint moves (a `ptp` node, move_joints, home) are their trapezoids
+sampled where they curve; direct inputs are expanded by signals.py. Actions, tasks and missions expand
+into those lower levels; the payload changes of set_payload and the grasps and releases become events
+of the run.
 
 Everything that can be known before the run is checked here, so a command the arm cannot carry out
 is refused as a whole before anything runs, naming the field inside the command (CommandError).
@@ -22,6 +29,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+from numba import njit
 from simecs.mesh import messages as m
 from simecs.mesh import scene_state
 from simecs.mesh.codec import DecodeError
@@ -36,20 +44,47 @@ from . import drive as dr
 from .chain_dynamics import chain_frames
 from .description import ArmDescription
 from .errors import CommandError
-from .ik import ArmKinematics, orientation_error
+from .ik import (
+    LINE_JUMP,
+    LINE_KNOTS,
+    LINE_SINGULAR,
+    ArmKinematics,
+    IKResult,
+    LineWalk,
+    orientation_error,
+    turned,
+)
+from .jit import CACHE as _CACHE
+from .jit import FAST as _FAST
 from .mechanics import chain_arrays
 
-#: s between the samples of a Cartesian reference (and of the curved parts of sampled joint moves).
+#: s: the closest two rows of a sampled reference may be (where a move curves fast; slow or straight
+#: stretches take fewer rows, spaced by accuracy).
 REFERENCE_PERIOD = 1e-3
 #: Smallest singular value of the 6 x n tool Jacobian a `lin` move may pass through.
 SINGULAR_SIGMA = 1e-3
-#: Largest distance (m) and angle (rad) between a `lin` sample's pose and the arm's pose after IK.
+#: Largest distance (m) and angle (rad) between the planned pose of a `lin` move and its line, at any
+#: row of the reference and between two rows (the linear interpolation of drive.ref_eval).
 LIN_TOLERANCE = 1e-6
+#: How far (m, or rad) along its path a sampled reference's linear interpolation may lag or lead its
+#: speed profile where that accelerates: a timing error, not a path error (it sets how many rows an
+#: acceleration takes; the drives follow the set points to a fraction of a millimetre at best).
+PROFILE_LAG = 1e-5
+#: Largest distance (m) and turn (rad) between two joint solutions of a `lin` move (closer where the
+#: accuracy needs it).
+LIN_KNOT_STEP = 0.05
+LIN_KNOT_TURN = 0.1
+#: Most joint solutions one `lin` move may take (a line that needs more passes too close to a
+#: singularity to be followed).
+LIN_MAX_KNOTS = 4096
 #: Points of the planned tool path returned to clients.
 TOOL_PATH_POINTS = 1000
 #: s between the set points a path is checked at against the obstacles (before a run): at 1 m/s a
 #: sphere moves 2 mm between two, a fifth of the thinnest one.
 PATH_CHECK_PERIOD = 2e-3
+#: m: how far a point of the arm may move between two of those checks of a reference table (whose
+#: rows may be far apart in time on a slow move): the same 2 mm.
+PATH_CHECK_STEP = 2e-3
 
 
 @dataclass
@@ -61,6 +96,7 @@ class PlanStep:
     task: str = ""
     action: str = ""
     q_end: list[float] = field(default_factory=list)  # the joint set points when it ends ([]: not known)
+    slowed: float = 1.0  # its duration over the one its Cartesian percentages asked (joint limits)
 
 
 @dataclass
@@ -111,9 +147,13 @@ class Plan:
             out[times >= row[0] - 1e-12] = row[4] > 0.0
         return out
 
-    def joint_samples(self, q0: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray] | None:
-        """(times, joint positions) of the set points every dt s from 0 to the plan's end; None when a
-        joint follows a speed or a current (its position is not known before the run)."""
+    def joint_samples(
+        self, q0: np.ndarray, dt: float, turn: float = math.inf
+    ) -> tuple[np.ndarray, np.ndarray] | None:
+        """(times, joint positions) of the set points every dt s from 0 to the plan's end (a joint
+        path), or the reference table's rows with points between them where the joints turn by more
+        than `turn` rad together (a slow move's rows may be seconds apart); None when a joint follows
+        a speed or a current (its position is not known before the run)."""
         if self.segments is not None:
             times = np.append(np.arange(0.0, self.duration, dt), self.duration)
             qs = np.empty((times.shape[0], q0.shape[0]))
@@ -126,7 +166,12 @@ class Plan:
         if np.any((self.jmode == dr.JM_SPEED) | (self.jmode == dr.JM_CURRENT)):
             return None
         n = q0.shape[0]
-        return self.tab[:, 0].copy(), self.tab[:, 1 : 1 + n].copy()
+        t, qs = self.tab[:, 0], self.tab[:, 1 : 1 + n]
+        if t.shape[0] < 2 or not math.isfinite(turn):
+            return t.copy(), qs.copy()
+        row, frac = _cut(np.ceil(np.abs(np.diff(qs, axis=0)).sum(axis=1) / turn))
+        times = np.append(t[row] + frac * (t[row + 1] - t[row]), t[-1])
+        return times, np.vstack([qs[row] + frac[:, None] * (qs[row + 1] - qs[row]), qs[-1:]])
 
     def step_at(self, t: float) -> PlanStep | None:
         """The step running at simulated time t (the last one once all are done). A run's worker asks
@@ -145,11 +190,15 @@ class Plan:
             end_pose=self.end_pose,
             kind=self.kind,
             duration=self.duration,
-            steps=[m.PlanStep(s.path, s.what, s.start, s.end, s.task, s.action, s.q_end) for s in self.steps],
+            steps=[
+                m.PlanStep(s.path, s.what, s.start, s.end, s.task, s.action, s.q_end, s.slowed)
+                for s in self.steps
+            ],
             final_q=[float(x) for x in self.final_q],
             tool_path=[[float(x) for x in p] for p in self.tool_path],
             stop_time_cuts=self.duration > stop_time + 1e-9,
             signals=self._preview(),
+            slowed=max([1.0, *(s.slowed for s in self.steps)]),
         )
 
     def _preview(self) -> m.SignalPreview | None:
@@ -184,11 +233,247 @@ def _trapezoid(T: float, ta: float, tau: np.ndarray) -> tuple[np.ndarray, np.nda
     return s, sd
 
 
-def _trapezoid_times(T: float, ta: float) -> np.ndarray:
-    """Sample times of a trapezoid: every period where it curves, its corners where it is straight."""
-    k_acc = max(1, math.ceil(ta / REFERENCE_PERIOD))
-    acc = np.linspace(0.0, ta, k_acc + 1)
+def _trapezoid_times(T: float, ta: float, motion: float) -> np.ndarray:
+    """Sample times of a trapezoid: its corners where it is straight and, where it curves, as many as
+    keep the linear interpolation between them within PROFILE_LAG of it for a point `motion` m
+    away at the end (a slow acceleration takes few), at most one every REFERENCE_PERIOD."""
+    k_acc = math.ceil(ta / REFERENCE_PERIOD)
+    if 0.0 < ta < T:  # s'' = 1 / ((T - ta) ta); the chord of s'' t^2 / 2 over dt is off by s'' dt^2 / 8
+        k_acc = min(k_acc, math.ceil(ta * math.sqrt(motion / ((T - ta) * ta) / (8.0 * PROFILE_LAG))))
+    acc = np.linspace(0.0, ta, max(1, k_acc) + 1)
     return np.unique(np.concatenate([acc, T - acc]))
+
+
+# ---- a line in time: a path-velocity profile along its joint curve -----------------------------------
+def _line_rows(
+    walk: LineWalk,
+    lower: np.ndarray,
+    upper: np.ndarray,
+    vmax: np.ndarray,
+    amax: np.ndarray,
+    vs: float,
+    as_: float,
+    along: float,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+    """(times, joint positions, joint speeds, the duration the Cartesian maxima asked for) of the rows
+    of a walked line: the fastest profile of the line parameter s that starts and ends at rest, keeps
+    `vs` and `as_` (the Cartesian maxima times the node's percentages, per unit s) and every joint's
+    `vmax` and `amax`. Where no joint limit binds it is exactly the Cartesian trapezoid (its corners
+    are points of the grid); where one does the tool slows there, and only there.
+
+    The grid cuts each knot segment so that the joint-space chord of a piece stays within half
+    LIN_TOLERANCE of the curve (its error falls with the square of its length), the curve being within
+    the other half of the line: the rows drive.ref_eval interpolates linearly. `along` (line
+    parameter) bounds how far that interpolation may lag the profile where it accelerates."""
+    ta = min(vs / as_, math.sqrt(1.0 / as_))
+    asked = max(ta, 1.0 / vs, 1.0 / (as_ * ta)) + ta
+    tab, over = _line_table(
+        walk.s,
+        walk.q,
+        walk.dq,
+        walk.chord,
+        LIN_TOLERANCE / 2,
+        0.5 * as_ * ta * ta,
+        lower,
+        upper,
+        vmax,
+        amax,
+        vs,
+        as_,
+        along,
+        REFERENCE_PERIOD,
+    )
+    n = walk.q.shape[1]
+    t, qs, qds = tab[:, 0], tab[:, 1 : 1 + n], tab[:, 1 + n :]
+    if over > 1.0:  # the profile keeps the joint speeds at the grid's points; between them a hair more
+        t, qds = t * over, qds / over
+    return t, qs, qds, asked
+
+
+@njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
+def _line_table(S, Q, D, chord, tol, s_acc, lower, upper, vmax, amax, vs, as_, along, period):
+    """_line_grid, _path_profile and _profile_rows in one call (one array back to Python): the rows
+    [t, q, qd] and the largest joint speed over its vmax among them."""
+    grid = _line_grid(S, chord, tol, s_acc)
+    u = _path_profile(S, Q, D, grid, vmax, amax, vs, as_)
+    return _profile_rows(S, Q, D, grid, u, lower, upper, vmax, along, period)
+
+
+@njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
+def _line_grid(S, chord, tol, s_acc):
+    """The points of the line parameter the profile and the rows use: each knot segment cut into
+    ceil(sqrt(chord / tol)) equal pieces (a chord's error falls with the square of its length), the
+    trapezoid's corners s_acc and 1 - s_acc and the middle (so at least three points), sorted, none
+    within 1e-12 of another."""
+    K = S.shape[0]
+    pieces = np.empty(K - 1, dtype=np.int64)
+    total = 4
+    for k in range(K - 1):
+        pieces[k] = max(1, math.ceil(math.sqrt(max(chord[k, 0], chord[k, 1]) / tol)))
+        total += pieces[k]
+    g = np.empty(total)
+    i = 0
+    for k in range(K - 1):
+        for r in range(pieces[k]):
+            g[i] = S[k] + (S[k + 1] - S[k]) * r / pieces[k]
+            i += 1
+    g[i], g[i + 1], g[i + 2], g[i + 3] = 1.0, 0.5, s_acc, 1.0 - s_acc
+    g = np.sort(g)
+    keep = 1
+    for i in range(1, total):
+        if g[i] > g[keep - 1] + 1e-12:
+            g[keep] = g[i]
+            keep += 1
+    g[0] = 0.0
+    g[keep - 1] = 1.0
+    return g[:keep].copy()
+
+
+@njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
+def _hermite(S, Q, D, k, s, q, dq, ddq):
+    """The cubic Hermite curve through knots k and k + 1 (positions Q, slopes D) at s: q, dq/ds and
+    d2q/ds2."""
+    h = S[k + 1] - S[k]
+    t = (s - S[k]) / h
+    t2 = t * t
+    t3 = t2 * t
+    a0, a1, b0, b1 = 2.0 * t3 - 3.0 * t2 + 1.0, -2.0 * t3 + 3.0 * t2, t3 - 2.0 * t2 + t, t3 - t2
+    da0, db0, db1 = 6.0 * t2 - 6.0 * t, 3.0 * t2 - 4.0 * t + 1.0, 3.0 * t2 - 2.0 * t
+    dda0, ddb0, ddb1 = 12.0 * t - 6.0, 6.0 * t - 4.0, 6.0 * t - 2.0
+    for j in range(q.shape[0]):
+        x0, x1, m0, m1 = Q[k, j], Q[k + 1, j], D[k, j], D[k + 1, j]
+        q[j] = a0 * x0 + a1 * x1 + h * (b0 * m0 + b1 * m1)
+        dq[j] = da0 * (x0 - x1) / h + db0 * m0 + db1 * m1
+        ddq[j] = dda0 * (x0 - x1) / (h * h) + (ddb0 * m0 + ddb1 * m1) / h
+
+
+@njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
+def _path_profile(S, Q, D, grid, vmax, amax, vs, as_):
+    """u = (ds/dt)^2 at each grid point: the fastest profile from rest to rest with |s''| <= as_,
+    ds/dt <= vs, and per joint |q'| ds/dt <= vmax and |q'| |s''| + |q''| (ds/dt)^2 <= amax (q' = dq/ds
+    of the Hermite curve; its second term bounds the joint acceleration whatever the signs). s'' is
+    constant between two grid points, each bound checked at both: a forward pass accelerates as
+    hard as it allows, a backward pass brakes as hard as it allows."""
+    N = grid.shape[0]
+    n = Q.shape[1]
+    K = S.shape[0]
+    b = np.empty((N, n))
+    c = np.empty((N, n))
+    top = np.empty(N)
+    q = np.empty(n)
+    dq = np.empty(n)
+    ddq = np.empty(n)
+    k = 0
+    for i in range(N):
+        s = grid[i]
+        while k < K - 2 and s > S[k + 1]:
+            k += 1
+        _hermite(S, Q, D, k, s, q, dq, ddq)
+        for j in range(n):
+            b[i, j] = abs(dq[j])
+            c[i, j] = abs(ddq[j])
+        if k < K - 2 and s == S[k + 1]:  # an inner knot: the curvature on both sides
+            _hermite(S, Q, D, k + 1, s, q, dq, ddq)
+            for j in range(n):
+                c[i, j] = max(c[i, j], abs(ddq[j]))
+        x = vs * vs
+        for j in range(n):
+            if b[i, j] * b[i, j] * x > vmax[j] * vmax[j]:
+                x = (vmax[j] / b[i, j]) ** 2
+            if c[i, j] * x > amax[j]:
+                x = amax[j] / c[i, j]
+        top[i] = x
+    u = np.zeros(N)
+    for i in range(N - 1):
+        d2 = 2.0 * (grid[i + 1] - grid[i])
+        g = as_
+        for j in range(n):
+            if b[i, j] > 0.0:
+                g = min(g, (amax[j] - c[i, j] * u[i]) / b[i, j])
+        x = min(top[i + 1], u[i] + d2 * max(g, 0.0))
+        for j in range(n):
+            if b[i + 1, j] > 0.0:
+                x = min(x, (u[i] + d2 * amax[j] / b[i + 1, j]) / (1.0 + d2 * c[i + 1, j] / b[i + 1, j]))
+        u[i + 1] = x
+    u[N - 1] = 0.0
+    for i in range(N - 2, -1, -1):
+        d2 = 2.0 * (grid[i + 1] - grid[i])
+        g = as_
+        for j in range(n):
+            if b[i + 1, j] > 0.0:
+                g = min(g, (amax[j] - c[i + 1, j] * u[i + 1]) / b[i + 1, j])
+        x = min(u[i], u[i + 1] + d2 * max(g, 0.0))
+        for j in range(n):
+            if b[i, j] > 0.0:
+                x = min(x, (u[i + 1] + d2 * amax[j] / b[i, j]) / (1.0 + d2 * c[i, j] / b[i, j]))
+        u[i] = x
+    return u
+
+
+@njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
+def _profile_rows(S, Q, D, grid, u, lower, upper, vmax, along, period):
+    """The rows [t, q, qd] of the profile u on the grid: each grid point, and where s'' is not 0 as
+    many more as keep the linear interpolation of s(t) within `along` of it (at most one per
+    `period`); q on the Hermite curve, qd = q' ds/dt. Also the largest joint speed over its vmax, of
+    the rows and of the chords between them."""
+    N = grid.shape[0]
+    n = Q.shape[1]
+    K = S.shape[0]
+    dt = np.empty(N - 1)
+    pieces = np.empty(N - 1, dtype=np.int64)
+    total = 1
+    for i in range(N - 1):
+        d = grid[i + 1] - grid[i]
+        dt[i] = 2.0 * d / (math.sqrt(u[i]) + math.sqrt(u[i + 1]))
+        sdd = abs(u[i + 1] - u[i]) / (2.0 * d)
+        p = math.ceil(dt[i] * math.sqrt(sdd / (8.0 * along)))
+        pieces[i] = max(1, min(p, math.floor(dt[i] / period)))
+        total += pieces[i]
+    tab = np.empty((total, 1 + 2 * n))
+    t = tab[:, 0]
+    qs = tab[:, 1 : 1 + n]
+    qds = tab[:, 1 + n :]
+    q = np.empty(n)
+    dq = np.empty(n)
+    ddq = np.empty(n)
+    row = 0
+    k = 0
+    now = 0.0
+    for i in range(N - 1):
+        v0 = math.sqrt(u[i])
+        sdd = (u[i + 1] - u[i]) / (2.0 * (grid[i + 1] - grid[i]))
+        for r in range(pieces[i]):
+            tau = dt[i] * r / pieces[i]
+            s = min(max(grid[i] + v0 * tau + 0.5 * sdd * tau * tau, grid[i]), grid[i + 1])
+            while k < K - 2 and s > S[k + 1]:
+                k += 1
+            _hermite(S, Q, D, k, s, q, dq, ddq)
+            sd = v0 + sdd * tau
+            t[row] = now + tau
+            for j in range(n):
+                qs[row, j] = min(max(q[j], lower[j]), upper[j])
+                qds[row, j] = dq[j] * sd
+            row += 1
+        now += dt[i]
+    t[row] = now
+    for j in range(n):
+        qs[row, j] = Q[K - 1, j]
+        qds[row, j] = 0.0
+    over = 0.0
+    for r in range(total):
+        for j in range(n):
+            over = max(over, abs(qds[r, j]) / vmax[j])
+            if r > 0:
+                over = max(over, abs(qs[r, j] - qs[r - 1, j]) / (t[r] - t[r - 1]) / vmax[j])
+    return tab, over
+
+
+def _cut(pieces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Interval k cut into pieces[k] equal parts (at least 1): for each part, its interval and where
+    it starts in it (0 <= fraction < 1)."""
+    count = np.maximum(1, pieces).astype(np.int64)
+    k = np.repeat(np.arange(count.shape[0]), count)
+    return k, (np.arange(k.shape[0]) - np.repeat(np.cumsum(count) - count, count)) / count[k]
 
 
 def _where(path: str, sub: str) -> str:
@@ -199,8 +484,10 @@ class _Reference:
     """A reference table being built move by move: rows [t, q, qd], the set point moving on, and the
     world the arm moves in (objects grasped and released on the way)."""
 
-    def __init__(self, q0: np.ndarray, max_rows: int, obstacles: Sequence[Obstacle]) -> None:
+    def __init__(self, q0: np.ndarray, max_rows: int, obstacles: Sequence[Obstacle], reach: float) -> None:
+        """`reach`: the farthest a point of the arm is from its base (how far a joint turn moves it)."""
         self.n = q0.shape[0]
+        self.reach = reach
         self.t = 0.0
         self.q = q0.copy()
         self.max_rows = max_rows
@@ -233,7 +520,7 @@ class _Reference:
         T, ta = float(row[1]), float(row[2])
         if T <= 0.0:
             return
-        times = _trapezoid_times(T, ta)
+        times = _trapezoid_times(T, ta, self.reach * float(np.sum(np.abs(dest - self.q))))
         s, sd = _trapezoid(T, ta, times)
         dq = dest - self.q
         self.add(path, times, self.q + s[:, None] * dq, sd[:, None] * dq)
@@ -289,7 +576,7 @@ class Planner:
         field is `initial` or the step's path under `command`. A path that follows speeds or currents
         is not known before the run: None. While a node sets a force the tool may touch (it is meant
         to push); the last link (the gripper's) passes through the objects the command grasps."""
-        sampled = plan.joint_samples(self.q0, PATH_CHECK_PERIOD)
+        sampled = plan.joint_samples(self.q0, PATH_CHECK_PERIOD, PATH_CHECK_STEP / self.kin.reach)
         if sampled is None or not self.obstacles:
             return None
         times, qs = sampled
@@ -347,7 +634,7 @@ class Planner:
             return self._joint_path(command)
         if isinstance(command, m.DirectInput):
             return self._direct_input(command)
-        ref = _Reference(self.q0, self.max_rows, self.obstacles)
+        ref = _Reference(self.q0, self.max_rows, self.obstacles, self.kin.reach)
         steps: list[PlanStep] = []
         forces = []
         if isinstance(command, m.CartesianPath):
@@ -357,14 +644,13 @@ class Planner:
                 forces.append([t0, *(axis / np.linalg.norm(axis)), node.force])
                 path = f"nodes[{i}]"
                 target = rot_rpy(node.rpy)
+                position = np.asarray(node.position, float)
+                slowed = 1.0
                 if node.move == "lin":
-                    position = np.asarray(node.position, float)
-                    self._lin(ref, path, position, target, node.speed_pct, node.acc_pct, f"{path}.speed_pct")
+                    slowed = self._lin(ref, path, position, target, node.speed_pct, node.acc_pct)
                 else:
-                    self._ptp(
-                        ref, path, np.asarray(node.position, float), target, node.speed_pct, node.acc_pct
-                    )
-                steps.append(PlanStep(path, node.move, t0, ref.t, q_end=_floats(ref.q)))
+                    self._ptp(ref, path, position, target, node.speed_pct, node.acc_pct)
+                steps.append(PlanStep(path, node.move, t0, ref.t, q_end=_floats(ref.q), slowed=slowed))
         else:
             steps.extend(self._action(ref, act, path, task) for path, task, act in _actions_of(command))
         tab = ref.table()
@@ -455,35 +741,65 @@ class Planner:
         return np.asarray(q, dtype=float)
 
     def _ptp(self, ref: _Reference, path: str, p1: np.ndarray, R1: np.ndarray, sp: float, ac: float) -> None:
+        self._within_reach(path, p1)
         res = self.kin.solve_near(p1, R1, ref.q)
         if not res.ok:
-            p, R = self.kin.tool_pose(res.q)
-            raise CommandError(
-                path,
-                f"the pose cannot be reached ({res.reason}); the closest pose the arm reaches is "
-                f"position {_fmt(p)} m, rpy {_fmt(rpy_of(R))} rad",
-            )
+            raise self._unreachable(path, res)
         ref.joint_move(path, res.q, self.vmax * sp / 100, self.amax * ac / 100)
 
-    def _lin(
-        self,
-        ref: _Reference,
-        path: str,
-        p1: np.ndarray,
-        R1: np.ndarray,
-        sp: float,
-        ac: float,
-        speed_field: str,
-    ) -> None:
-        """A straight line in position, slerp in orientation, one trapezoid in the path parameter
-        that keeps the cart.* maxima; every sample solved by IK from the previous one (so among the
-        Spider's postures for a pose, the one closest to where the arm just was)."""
+    def _within_reach(self, path: str, p1: np.ndarray, p0: np.ndarray | None = None) -> None:
+        """Refuse a target farther from the arm's base than it reaches (no solver needed), and say
+        where a line from p0 leaves that sphere."""
+        d, reach = self.kin.from_base(p1), self.kin.reach
+        if d <= reach:
+            return
+        why = (
+            f"the pose is out of reach: {_metres(d, reach)} from the arm's base, the arm reaches "
+            f"{_metres(reach, d)}"
+        )
+        if p0 is not None:
+            a, b = p0 - self.kin.base, p1 - p0
+            ab, bb = float(a @ b), float(b @ b)
+            s = (-ab + math.sqrt(max(ab * ab - bb * (float(a @ a) - reach * reach), 0.0))) / bb
+            why += f"; the line leaves the workspace by {100 * min(max(s, 0.0), 1.0):.0f} % of its length"
+        raise CommandError(path, why)
+
+    def _unreachable(self, path: str, res: IKResult) -> CommandError:
+        p, R = self.kin.tool_pose(res.q)
+        return CommandError(
+            path,
+            f"the pose cannot be reached ({res.reason}); the closest pose the arm reaches is "
+            f"position {_fmt(p)} m, rpy {_fmt(rpy_of(R))} rad",
+        )
+
+    def _lin(self, ref: _Reference, path: str, p1: np.ndarray, R1: np.ndarray, sp: float, ac: float) -> float:
+        """A straight line in position, slerp in orientation: planned in geometry (the joint solutions
+        along it, ArmKinematics.walk_line, each nearest the one before, so among the Spider's postures
+        for a pose the one closest to where the arm just was), then in time (_line_rows). Returns how
+        much the joint limits slowed it: its duration over the Cartesian trapezoid's (1 = not)."""
         p0, R0 = self.kin.tool_pose(ref.q)
         dp = p1 - p0
         rot = orientation_error(R0, R1)  # R1 = exp(rot) R0, world frame
         length, angle = float(np.linalg.norm(dp)), float(np.linalg.norm(rot))
         if length < 1e-12 and angle < 1e-12:
-            return
+            return 1.0
+        self._within_reach(path, p1, p0)
+        walk = self.kin.walk_line(
+            ref.q,
+            p1,
+            R1,
+            tol_pos=LIN_TOLERANCE / 2,  # the other half: the chords between rows (_line_rows)
+            tol_rot=LIN_TOLERANCE / 2,
+            step=LIN_KNOT_STEP,
+            turn=LIN_KNOT_TURN,
+            sigma_min=SINGULAR_SIGMA,
+            max_knots=LIN_MAX_KNOTS,
+        )
+        if not walk.ok:
+            target = self.kin.solve_near(p1, R1, walk.q_at)
+            if not target.ok:  # the target itself: out of reach is said as out of reach
+                raise self._unreachable(path, target)
+            raise self._walk_refusal(path, walk, p0, dp, R0, rot)
         v = self.values
         rates, accs = [], []
         if length > 0:
@@ -492,55 +808,79 @@ class Planner:
         if angle > 0:
             rates.append(v["cart.max_rot_speed"] * sp / 100 / angle)
             accs.append(v["cart.max_rot_acc"] * ac / 100 / angle)
-        vs, as_ = min(rates), min(accs)
-        ta = min(vs / as_, math.sqrt(1.0 / as_))
-        T = max(ta, 1.0 / vs, 1.0 / (as_ * ta)) + ta
-        k = max(2, math.ceil(T / REFERENCE_PERIOD))
-        times = np.linspace(0.0, T, k + 1)
-        s, _ = _trapezoid(T, ta, times)
-        qs = np.empty((k + 1, self.n))
-        qs[0] = ref.q
-        sigma = np.empty(k + 1)
-        sigma[0] = self.kin.sigma_min(ref.q)
-        if sigma[0] < SINGULAR_SIGMA:
-            raise CommandError(path, f"the line starts at a singular posture ({_posture(ref.q)})")
-        for i in range(1, k + 1):
-            p = p0 + s[i] * dp
-            R = _rotvec_matrix(s[i] * rot) @ R0
-            res = self.kin.solve(p, R, qs[i - 1], tol_pos=1e-10, tol_rot=1e-10, max_iter=50)
-            pct = 100.0 * s[i]
-            if res.position_error > LIN_TOLERANCE or res.rotation_error > LIN_TOLERANCE:
-                limited = [
-                    self.names[j]
-                    for j in range(self.n)
-                    if min(res.q[j] - self.lower[j], self.upper[j] - res.q[j]) < 1e-6
-                ]
-                why = f"{', '.join(limited)} at its limit" if limited else "out of the arm's reach"
-                raise CommandError(
+        along = PROFILE_LAG / max(length, angle)  # in line parameter
+        times, qs, qds, asked = _line_rows(
+            walk, self.lower, self.upper, self.vmax, self.amax, min(rates), min(accs), along
+        )
+        ref.add(path, times, qs, qds)
+        slowed = float(times[-1]) / asked
+        return slowed if slowed > 1.0 + 1e-9 else 1.0
+
+    def _walk_refusal(
+        self,
+        path: str,
+        walk: LineWalk,
+        p0: np.ndarray,
+        dp: np.ndarray,
+        R0: np.ndarray,
+        rot: np.ndarray,
+    ) -> CommandError:
+        """Why a reachable target's line cannot be followed, where (percent of its length) and in which
+        posture: a joint limit or the workspace's edge on the way, a singularity (or a jump to
+        another posture, which needs an unbounded joint speed)."""
+        s = walk.at
+        pct = 100.0 * s
+        p = p0 + s * dp
+        if walk.status == LINE_SINGULAR and s == 0.0:
+            return CommandError(path, f"the line starts at a singular posture ({_posture(walk.q_at)})")
+        if walk.status == LINE_SINGULAR:
+            return CommandError(
+                path,
+                f"the line crosses a singularity at {pct:.0f} % of its length, at position {_fmt(p)} m "
+                f"({_posture(walk.q_at)}): split it with a ptp move",
+            )
+        if walk.status == LINE_JUMP:
+            limited = self._at_limit(walk.q[-1])
+            if limited:
+                return CommandError(
                     path,
                     f"the line leaves the workspace at {pct:.0f} % of its length, at position {_fmt(p)} m "
-                    f"({why}); the pose closest to it is {res.position_error * 1000:.3g} mm away",
+                    f"({', '.join(limited)} at its limit): the arm would have to jump to another posture "
+                    "to follow it; split it with a ptp move",
                 )
-            qs[i] = res.q
-            sigma[i] = self.kin.sigma_min(res.q)
-            if sigma[i] < SINGULAR_SIGMA:
-                raise CommandError(
-                    path,
-                    f"the line crosses a singularity at {pct:.0f} % of its length, at position {_fmt(p)} m "
-                    f"({_posture(res.q)}): split it with a ptp move",
-                )
-        qds = np.asarray(np.gradient(qs, times, axis=0))
-        qds[0] = 0.0
-        qds[-1] = 0.0
-        peak = np.abs(qds) / self.vmax
-        if np.max(peak) > 1.0 + 1e-6:
-            i, j = (int(x) for x in np.unravel_index(int(np.argmax(peak)), peak.shape))
-            raise CommandError(
-                speed_field,
-                f"{self.names[j]} would need {abs(qds[i, j]):.3g} rad/s at {100 * s[i]:.0f} % of the line, "
-                f"above its traj.max_speed of {self.vmax[j]:.3g} rad/s: lower speed_pct",
+            return CommandError(
+                path,
+                f"the line crosses a singularity at {pct:.0f} % of its length, at position {_fmt(p)} m "
+                f"({_posture(walk.q_at)}): the joints would need an unbounded speed there; split it "
+                "with a ptp move",
             )
-        ref.add(path, times, qs, qds)
+        if walk.status == LINE_KNOTS:
+            return CommandError(
+                path,
+                f"the line passes too close to a singularity after {pct:.0f} % of its length (more than "
+                f"{LIN_MAX_KNOTS:,} joint solutions to follow it within {LIN_TOLERANCE:g} m): split it "
+                "with a ptp move",
+            )
+        res = self.kin.solve(p, turned(s * rot, R0), walk.q_at, tol_pos=1e-10, tol_rot=1e-10, max_iter=50)
+        if res.ok:
+            return CommandError(
+                path,
+                f"the line cannot be followed at {pct:.0f} % of its length, at position {_fmt(p)} m: the arm "
+                f"would have to jump to another posture ({_posture(res.q)}); split it with a ptp move",
+            )
+        limited = self._at_limit(res.q)
+        why = f"{', '.join(limited)} at its limit" if limited else "out of the arm's reach"
+        return CommandError(
+            path,
+            f"the line leaves the workspace at {pct:.0f} % of its length, at position {_fmt(p)} m "
+            f"({why}); the pose closest to it is {res.position_error * 1000:.3g} mm and "
+            f"{res.rotation_error:.3g} rad away",
+        )
+
+    def _at_limit(self, q: np.ndarray) -> list[str]:
+        return [
+            self.names[j] for j in range(self.n) if min(q[j] - self.lower[j], self.upper[j] - q[j]) < 1e-6
+        ]
 
     # ---- actions ----
     def _action(self, ref: _Reference, act: m.Action, path: str, task: str) -> PlanStep:
@@ -548,6 +888,7 @@ class Planner:
         t0 = ref.t
         sp = float(args.get("speed_pct", 100.0))
         ac = float(args.get("acc_pct", 100.0))
+        slowed = 1.0
         if act.primitive == "move_joints":
             dest = self._joints(list(args["q"]), _where(path, "args.q"))
             ref.joint_move(path, dest, self.vmax * sp / 100, self.amax * ac / 100)
@@ -555,7 +896,7 @@ class Planner:
             position = np.asarray(args["position"], dtype=float)
             R = rot_rpy(args["rpy"]) if "rpy" in args else self.kin.tool_pose(ref.q)[1]
             if act.primitive == "move_linear":
-                self._lin(ref, path, position, R, sp, ac, _where(path, "args.speed_pct"))
+                slowed = self._lin(ref, path, position, R, sp, ac)
             else:
                 self._ptp(ref, path, position, R, sp, ac)
         elif act.primitive == "wait":
@@ -573,7 +914,14 @@ class Planner:
         elif act.primitive == "release":
             self._release(ref, _where(path, "primitive"))
         return PlanStep(
-            path or "action", act.primitive, t0, ref.t, task, act.name or act.primitive, _floats(ref.q)
+            path or "action",
+            act.primitive,
+            t0,
+            ref.t,
+            task,
+            act.name or act.primitive,
+            _floats(ref.q),
+            slowed,
         )
 
     def _last_frame(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -658,7 +1006,7 @@ class Planner:
         idx = np.unique(
             np.linspace(0, qs.shape[0] - 1, min(TOOL_PATH_POINTS, qs.shape[0])).round().astype(int)
         )
-        return np.array([self.kin.tool_pose(qs[i])[0] for i in idx])
+        return self.kin.tool_positions(qs[idx])
 
 
 def _actions_of(program: m.Action | m.Task | m.Mission) -> list[tuple[str, str, m.Action]]:
@@ -674,14 +1022,12 @@ def _actions_of(program: m.Action | m.Task | m.Mission) -> list[tuple[str, str, 
     ]
 
 
-def _rotvec_matrix(r: np.ndarray) -> np.ndarray:
-    """exp([r]x): the rotation by |r| about r (Rodrigues)."""
-    angle = float(np.linalg.norm(r))
-    if angle < 1e-15:
-        return np.eye(3)
-    k = r / angle
-    K = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
-    return np.eye(3) + math.sin(angle) * K + (1.0 - math.cos(angle)) * (K @ K)
+def _metres(x: float, other: float) -> str:
+    """x in m with as many decimals (2 to 6) as it takes to differ from `other` once rounded."""
+    dec = 2
+    while dec < 6 and round(x, dec) == round(other, dec):
+        dec += 1
+    return f"{x:.{dec}f} m"
 
 
 def _fmt(v: np.ndarray) -> str:
@@ -693,7 +1039,8 @@ def _posture(q: np.ndarray) -> str:
 
 
 def warmup() -> None:
-    """Compile (or load from numba's cache) the kinematics kernels: a line and a reach on the Spider."""
+    """Compile (or load from numba's cache) the kinematics kernels: a line and a reach on the Spider,
+    and a pose just beyond its reach (the closest-pose search a refusal runs)."""
     from . import get_model
 
     pkg = get_model("spider")
@@ -705,3 +1052,7 @@ def warmup() -> None:
         m.CartesianNode([float(p[0]), float(p[1]), float(p[2]) - 0.01], rpy, move) for move in ("lin", "ptp")
     ]
     planner.plan(m.CartesianPath(nodes))
+    try:
+        planner.plan(m.CartesianPath([m.CartesianNode([0.0, 2.2, 0.3], rpy, "ptp")]))
+    except CommandError:
+        pass

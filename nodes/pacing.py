@@ -18,7 +18,7 @@ MAX_FRAME_S = 0.1  # faster pacing: bigger frames (fewer, larger), still a few m
 # A paced run simulates this many frames per solver call and sends them each at its time. Every wake-up
 # of a sleeping worker costs its simulation cold caches: measured on our 2-core VMs, a paced Spider run
 # takes 42-44 ms of CPU per simulated s in 25 ms calls, 35.5 in 50 ms calls (and 28 never sleeping).
-# Jogging, pause and seek act between calls (50 ms in real time).
+# Jogging, pause and seek act between calls (50 ms in real time); abort and stop between frames.
 FRAMES_PER_SOLVE = 2
 
 

@@ -28,13 +28,23 @@ from simecs.mesh.model import DocPage, ModelDescription, check_joints
 from simecs.mesh.runtime import Binary, Node, NotMine, Request, RequestError, main_for, mesh_from_args
 
 from .library import ModelLibrary
-from .quotas import QuotaCheck, Quotas
-from .runs import LAST_REPORT_GRACE_S, RunTracker
+from .quotas import FLOAT_BYTES, QuotaCheck, Quotas
+from .runs import LAST_REPORT_GRACE_S, RunTracker, open_settings
 from .sessions import SessionRecord, SessionStore
 from .user_library import UserLibrary
 
 #: How long before a host's model that could not be fetched (or was refused) is asked for again.
 MODEL_RETRY_S = 60.0
+#: The longest stop_time a run may have (RunSettings.stop_time): a run until stopped's bound too.
+MAX_STOP_TIME_S = 3600.0
+
+
+def _open_run_s(text: str) -> float:
+    """--open-run-s: a time in (0, 3600] s (a run's stop_time cannot be longer)."""
+    value = float(text)
+    if not 0.0 < value <= MAX_STOP_TIME_S:
+        raise argparse.ArgumentTypeError(f"{text} s is outside (0, {MAX_STOP_TIME_S:g}] s")
+    return value
 
 
 class Proxy(Node):
@@ -51,10 +61,12 @@ class Proxy(Node):
         max_queue: int = limits.limit("run_queue"),
         quotas: Quotas | None = None,
         session_idle_s: float = limits.limit("session_idle_s"),
+        open_run_s: float = limits.limit("open_run_s"),
     ) -> None:
         super().__init__(mesh, node_id)
         data = Path(data_dir)
         self.session_idle_s = session_idle_s
+        self.open_run_s = min(open_run_s, MAX_STOP_TIME_S)
         self._expiry_checked = 0.0
         self.lock = threading.RLock()
         self.library: ModelLibrary | None = None
@@ -78,6 +90,7 @@ class Proxy(Node):
             m.Run: self._run,
             m.Pause: self.runs.pause,
             m.Resume: self.runs.resume,
+            m.Stop: self.runs.stop,
             m.Abort: self.runs.abort,
             m.Seek: self.runs.seek,
             **self.user_library.handlers(),
@@ -112,6 +125,12 @@ class Proxy(Node):
             default=float(limits.limit("session_idle_s")),
             help="close a session idle this long (its results go with it)",
         )
+        parser.add_argument(
+            "--open-run-s",
+            type=_open_run_s,
+            default=float(limits.limit("open_run_s")),
+            help="the longest a run until stopped lasts, in s (at most 3600)",
+        )
 
     @classmethod
     def from_args(cls, args: argparse.Namespace) -> Proxy:
@@ -129,6 +148,7 @@ class Proxy(Node):
             args.max_queue,
             quotas,
             args.session_idle_s,
+            args.open_run_s,
         )
 
     def status_detail(self) -> dict[str, Any]:
@@ -293,15 +313,20 @@ class Proxy(Node):
             if why:
                 raise RequestError("conflict", why)
             command = cmd.command if isinstance(cmd, m.SetCommand) else rec.command
+            open_run = isinstance(cmd, m.Run) and cmd.until_stopped
             model_id, values, initial, stop_time = (
                 rec.model_id,
                 dict(rec.values),
                 list(rec.initial),
-                rec.settings.stop_time,
+                self._open_settings(rec).stop_time if open_run else rec.settings.stop_time,
             )
             # a run's path is checked against the obstacles, unless the user asks for the contact
             check = isinstance(cmd, m.Run) and rec.settings.collisions == "refuse"
             obstacles = list(rec.obstacles)
+        # A run until stopped without a command holds the initial pose: the arm must not touch there.
+        levels = self.models.describe(model_id).command_levels if command is None and open_run else []
+        if check and "joint_path" in levels:
+            command = m.JointPath([m.PathNode(initial)])  # planned as a hold
         if command is None:
             return None
         return self.models.plan(model_id, values, initial, command, stop_time, obstacles, check)
@@ -404,14 +429,28 @@ class Proxy(Node):
 
     # -- runs ----------------------------------------------------------------------------------------
     def _run(self, rec: SessionRecord, cmd: m.Run) -> m.RunStarted:
-        if rec.command is None:
-            raise RequestError("bad_request", "no command assigned: set_command first", "command")
-        why = m.control_refusal(rec.command, rec.settings.control_system)
+        if rec.command is None and not cmd.until_stopped:
+            raise RequestError(
+                "bad_request",
+                "no command assigned: set_command first (or run until_stopped: the arm holds its pose)",
+                "command",
+            )
+        why = m.control_refusal(rec.command, rec.settings.control_system) if rec.command else ""
         if why:
             raise RequestError("bad_request", why, "settings.control_system")
-        self.quota.new_run(rec, rec.settings, rec.settings.stop_time)
-        request = self.runs.request(rec, f"r{rec.run_counter + 1}")
-        return self.runs.begin(rec, request, rec.settings.stop_time)
+        settings = self._open_settings(rec) if cmd.until_stopped else rec.settings
+        self.quota.new_run(rec, settings, settings.stop_time)
+        request = self.runs.request(rec, f"r{rec.run_counter + 1}", settings, until_stopped=cmd.until_stopped)
+        return self.runs.begin(rec, request, settings.stop_time)
+
+    def _open_settings(self, rec: SessionRecord) -> m.RunSettings:
+        """The settings of a run until stopped of `rec`: real time, and as long as open_run_s allows
+        and its results fit results_bytes_per_run (and samples_per_run) at its output_interval."""
+        interval = rec.settings.output_interval
+        row_bytes = self._columns(rec.model_id) * FLOAT_BYTES
+        samples = min(limits.limit("samples_per_run"), limits.limit("results_bytes_per_run") // row_bytes - 1)
+        bound = max(min(self.open_run_s, samples * interval), interval)
+        return open_settings(rec.settings, bound)
 
     def _recording(self, user: str, name: str) -> m.RecordingInfo:
         try:

@@ -232,6 +232,7 @@ class RecordingsLibrary:
             int(rows.shape[0]),
             reason,
             recording=name,
+            until_stopped=rec.layout.context.until_stopped,
         )
         layout = rec.layout
         return results_reply(

@@ -35,6 +35,12 @@ HUB_AWAY_S = 120.0
 log = logging.getLogger("simecs.proxy")
 
 
+def open_settings(settings: m.RunSettings, bound: float) -> m.RunSettings:
+    """The settings a run until stopped runs with: paced in real time whatever the session's say (it
+    is jogged in wall time), and `bound` s long at most (open_run_s, PROTOCOL.md §4.1)."""
+    return msgspec.structs.replace(settings, pacing="realtime", factor=1.0, stop_time=bound)
+
+
 class RunTracker:
     """The run lifecycle of every session, admission included. Methods are called with the proxy's lock
     held, except the report handlers, which take it."""
@@ -62,6 +68,9 @@ class RunTracker:
         self.suspended: dict[tuple[str, str], str] = {}
         #: The request of each session's run going: what a restart on another host sends again.
         self.going: dict[str, m.RunRequest] = {}
+        #: Runs told to stop: session id -> run id. The stop is repeated on the run's reports until it
+        #: ends (a worker that had just started may have missed the first).
+        self.stopping: dict[str, str] = {}
         self.hub: HubLink | None = None  # set once the proxy's session is open
         self._hub_check: threading.Thread | None = None
 
@@ -72,6 +81,7 @@ class RunTracker:
         settings: m.RunSettings | None = None,
         recording: str = "",
         paused: bool = False,
+        until_stopped: bool = False,
     ) -> m.RunRequest:
         """The request of run `run_id` of `rec` as the session stands (a replay: of `recording`)."""
         return m.RunRequest(
@@ -87,7 +97,18 @@ class RunTracker:
             recording=recording,
             paused=paused,
             obstacles=list(rec.obstacles),
+            until_stopped=until_stopped,
         )
+
+    def again(self, rec: SessionRecord) -> m.RunRequest:
+        """The request of `rec`'s current run made again from the session (the proxy restarted since it
+        was sent): its settings cannot have changed while it was under way, and its list entry says
+        whether it replays a recording or runs until stopped (its stop_time then is the bound)."""
+        run_id = rec.state.run_id
+        info = rec.run_info(run_id)
+        if info is not None and info.until_stopped:
+            return self.request(rec, run_id, open_settings(rec.settings, info.stop_time), until_stopped=True)
+        return self.request(rec, run_id, recording=info.recording if info is not None else "")
 
     def begin(self, rec: SessionRecord, request: m.RunRequest, stop_time: float) -> m.RunStarted:
         """A new run of `rec`: queued now, started when admission finds it a slot."""
@@ -95,7 +116,16 @@ class RunTracker:
             raise RequestError("conflict", "the previous run is still being handed to a simulator")
         self.admission.enqueue(rec, request)  # refuses with busy when the server is full
         rec.run_counter += 1
-        rec.add_run(m.RunInfo(request.run_id, "queued", stop_time, 0.0, recording=request.recording))
+        rec.add_run(
+            m.RunInfo(
+                request.run_id,
+                "queued",
+                stop_time,
+                0.0,
+                recording=request.recording,
+                until_stopped=request.until_stopped,
+            )
+        )
         queued = phases.after(rec.phase, "queued")
         rec.state = m.SessionState(session=rec.id, phase=queued, seq=rec.state.seq, run_id=request.run_id)  # type: ignore[arg-type]
         self.store.publish_state(rec)
@@ -147,6 +177,7 @@ class RunTracker:
 
     def end_run(self, rec: SessionRecord, phase: str, reason: str = "") -> None:
         self.going.pop(rec.id, None)
+        self.stopping.pop(rec.id, None)
         self.admission.hosts.release(rec.state.host, rec.id, rec.state.run_id)
         rec.active_at = time.time()  # a run that ends is activity: idle expiry counts from here
         self.run_info(rec, rec.state.run_id, phase=phase, reason=reason, sim_time=rec.state.sim_time)
@@ -181,6 +212,12 @@ class RunTracker:
         self.control(rec, "seek", cmd.time)
         return rec.state.run_id
 
+    def stop(self, rec: SessionRecord, cmd: m.Stop) -> str:
+        """End the run going now as finished (the worker ends it within a frame, its results kept)."""
+        self.stopping[rec.id] = rec.state.run_id
+        self.control(rec, "stop")
+        return rec.state.run_id
+
     def abort(self, rec: SessionRecord, cmd: m.Abort) -> str:
         if rec.phase == "queued" and rec.starting:
             rec.abort_run = rec.state.run_id  # _handed_over() stops it if a simulator took it
@@ -209,9 +246,7 @@ class RunTracker:
                 elif rec.phase == "queued" and mine:  # it was being handed over when the proxy stopped
                     self.started(rec)
                 elif rec.phase == "queued":
-                    info = rec.run_info(rec.state.run_id)
-                    recording = info.recording if info is not None else ""
-                    self.admission.requeue(rec, self.request(rec, rec.state.run_id, recording=recording))
+                    self.admission.requeue(rec, self.again(rec))
                 else:
                     self.store.publish_state(rec)
                     self.store.publish_params(rec, [])
@@ -256,6 +291,8 @@ class RunTracker:
                 or (rec is None and self.orphans.get(sid) == (user, st.run_id))
             ):
                 self.send_control(user, sid, st.run_id, "abort")  # in case the first was missed
+            elif st.phase not in phases.ENDED and self.stopping.get(sid) == st.run_id:
+                self.send_control(user, sid, st.run_id, "stop")  # in case the first was missed
             if st.phase in phases.ENDED and self.orphans.get(sid) == (user, st.run_id):
                 del self.orphans[sid]
                 self.admission.update()
@@ -381,9 +418,13 @@ class RunTracker:
         for rec in list(self.store):
             if rec.state.host != host or rec.phase not in phases.GOING:
                 continue
-            request = self.going.get(rec.id) or self.request(rec, rec.state.run_id)
+            request = self.going.get(rec.id) or self.again(rec)
             at = rec.state.sim_time
             why = f"simulator host {host} was lost at t = {at:.2f} s"
+            if self.stopping.get(rec.id) == rec.state.run_id:  # the user ended it: not run again
+                self.log.warning("session %s run %s: %s while being stopped", rec.id, request.run_id, why)
+                self.end_run(rec, "failed", f"{why} while it was being stopped: its results went with it")
+                continue
             self.log.warning(
                 "session %s run %s: %s; restarting it on another host", rec.id, rec.state.run_id, why
             )

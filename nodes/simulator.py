@@ -311,6 +311,7 @@ class Simulator(Node):
                 self.log.warning(
                     "run %s: its stored context is unreadable (%s): sent without it", run.run_id, exc
                 )
+        info.until_stopped = context is not None and context.until_stopped
         return results_reply(data, run.columns, run.units, req.parameters, run.run_index, info, context)
 
 

@@ -59,8 +59,6 @@ class SimulationSource:
         from simecs.models.contact import ContactLog
         from simecs.models.planner import Planner
 
-        if req.command is None:
-            raise ValueError("the session has no command")
         self.req = req
         self.model_id = req.model_id
         package = models.get_model(req.model_id)
@@ -68,7 +66,8 @@ class SimulationSource:
             planner = Planner(
                 package, req.values, req.initial, req.settings.stop_time, obstacles=req.obstacles
             )
-            self.plan = planner.plan(req.command)
+            # Without a command (a run until stopped) the arm holds its initial pose, at rest.
+            self.plan = planner.plan(req.command) if req.command is not None else None
         except models.CommandError as exc:
             field = f"command.{exc.field}" if exc.field else "command"
             raise ValueError(f"{field}: {exc.reason}") from None
@@ -86,11 +85,13 @@ class SimulationSource:
             attempt=req.attempt,
             restarted=req.restarted,
             obstacles=list(req.obstacles),
+            until_stopped=req.until_stopped,
         )
         self.sim.set_obstacles(req.obstacles)
         self.contacts = ContactLog(self.columns, [ob.name for ob in req.obstacles], self.sim.n)
         self.sim.set_initial(req.initial)
-        self.plan.apply(self.sim)
+        if self.plan is not None:
+            self.plan.apply(self.sim)
         self.kin, self.vmax = planner.kin, planner.vmax
 
     @property
@@ -126,7 +127,7 @@ class SimulationSource:
 
     def step_at(self, t: float) -> tuple[str, str, str]:
         """(step, task, action) of the command at simulated time t: what SessionState shows."""
-        step = self.plan.step_at(t)
+        step = self.plan.step_at(t) if self.plan is not None else None
         return (step.path, step.task, step.action) if step is not None else ("", "", "")
 
     def jog(self, msg: m.JogInput | None, horizon: float) -> str:
@@ -185,7 +186,9 @@ class RecordingSource:
         self.model_id = rec.layout.model_id
         self.columns, self.units = list(rec.layout.columns), list(rec.layout.units)
         self.rows = rec.rows
-        self.stop_time = rec.layout.stop_time or float(self.rows[-1, 0])
+        # A run until stopped was set its bound, not its end: its replay ends with its rows.
+        last = float(self.rows[-1, 0])
+        self.stop_time = last if rec.layout.context.until_stopped else rec.layout.stop_time or last
         self.output_interval = rec.layout.output_interval
         self.context = rec.context(req.recording)
         self.context.attempt, self.context.restarted = req.attempt, req.restarted

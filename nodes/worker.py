@@ -49,7 +49,7 @@ log = logging.getLogger("simecs.worker")
 
 
 class Control:
-    """Pause, resume, abort and seek, as the proxy sends them on the session's control key."""
+    """Pause, resume, stop, abort and seek, as the proxy sends them on the session's control key."""
 
     def __init__(self, run_id: str, paused: bool, seal: Seal, attempt: int = 1) -> None:
         self.run_id, self.attempt = run_id, attempt
@@ -58,6 +58,7 @@ class Control:
         if paused:
             self.paused.set()
         self.aborted = threading.Event()
+        self.stopped = threading.Event()  # end the run as finished, its results kept
         self.wake = threading.Event()
         self.seek_to: float | None = None
 
@@ -76,6 +77,8 @@ class Control:
             self.paused.clear()
         elif ctl.op == "seek":
             self.seek_to = ctl.time
+        elif ctl.op == "stop":
+            self.stopped.set()
         else:
             self.aborted.set()
         self.wake.set()
@@ -177,6 +180,7 @@ class Run:
         self.token = z.liveliness().declare_token(keys.run_token(u, s, req.run_id))
         self.seq = 0
         self.final_sent = False
+        self.stopped_at: float | None = None  # simulated s where a stop ended the run
 
     @property
     def stop_time(self) -> float:
@@ -241,7 +245,15 @@ class Run:
             self._loop(source)
             if self.control.aborted.is_set():
                 return "aborted", "aborted by the user"
-            return source.end()
+            if self.stopped_at is not None:
+                return "finished", f"stopped by the user at t = {self.stopped_at:.3f} s"
+            phase, reason = source.end()
+            if req.until_stopped and phase == "finished" and not reason:
+                reason = (
+                    f"a run until stopped lasts at most {source.stop_time:g} s here (open_run_s, or what "
+                    "results_bytes_per_run holds at its output_interval): it ended there"
+                )
+            return phase, reason
         finally:
             if self.hil is not None:
                 summary = self.hil.summary()
@@ -263,11 +275,11 @@ class Run:
         t = source.time
         if not ctl.paused.is_set():
             self.status("running")
-        while not source.finished and not ctl.aborted.is_set():
+        while not source.finished and not ctl.aborted.is_set() and self.stopped_at is None:
             moved = False
-            if ctl.paused.is_set():
+            if ctl.paused.is_set() and not ctl.stopped.is_set():
                 self.status("paused")
-                while ctl.paused.is_set() and not ctl.aborted.is_set():
+                while ctl.paused.is_set() and not ctl.aborted.is_set() and not ctl.stopped.is_set():
                     ctl.sleep(0.5)
                     if self._seek(source):
                         moved = True
@@ -275,7 +287,8 @@ class Run:
                 if ctl.aborted.is_set():
                     break
                 moved = True
-                self.status("running")
+                if not ctl.stopped.is_set():  # a stopped run goes from paused to its end
+                    self.status("running")
             # Every pending seek goes before the next chunk: one that came with a resume too (the
             # thread descheduled between a look and the pause check must not play a chunk first).
             moved = self._seek(source) or moved
@@ -285,7 +298,8 @@ class Run:
             step_wall, step_t = time.monotonic(), source.time
             if pacer.paced:  # jogging is telemanipulation: runs paced in wall time only
                 self.jogging.apply(source, solve)
-            until = min(source.time + solve, source.stop_time)
+            # Told to stop: one more frame, the run's last (a finished run's final frame holds samples).
+            until = min(source.time + (frame if ctl.stopped.is_set() else solve), source.stop_time)
             rows = self.hil.advance(until) if self.hil is not None else source.advance(until)
             t = source.time
             if rows.size and not np.all(np.isfinite(rows)):
@@ -297,8 +311,13 @@ class Run:
             for k, (part, t_part) in enumerate(parts):
                 self.chunks.append(part)
                 self.samples += part.shape[0]
-                self.publish(part, final=source.finished and k == len(parts) - 1)
+                # A stop that came ends the run with the call's last frame (its rows are the run's).
+                last = k == len(parts) - 1 and (source.finished or ctl.stopped.is_set())
+                self.publish(part, final=last)
                 self.sim_time = t_part
+                if last and not source.finished:  # stopped: the run lasted until its last sample
+                    self.stopped_at = self.sim_time = float(part[-1, 0])
+                    break
                 step = source.step_at(t_part)
                 if step != last_step:  # a step begins: said at once, however short
                     self.status("running")
@@ -308,6 +327,8 @@ class Run:
                     ctl.sleep(ahead)
                 if ctl.aborted.is_set():
                     break  # what the call simulated beyond the frames sent is not the run's
+            if self.stopped_at is not None:
+                break
             if not parts:
                 self.sim_time = t
             t = self.sim_time

@@ -34,6 +34,7 @@ OPS = (
     "pause",
     "resume",
     "abort",
+    "stop",
     "seek",
     "save_param_set",
     "load_param_set",
@@ -169,6 +170,8 @@ class SessionCommands:
                 body["command"] = self.other_level(level)
         elif op == "set_settings":
             body["settings"] = self.settings()
+        elif op == "run" and self.draw.chance(0.25):
+            body["until_stopped"] = True  # real time until stopped: the clean-up aborts what is left
         elif op == "replay":
             name = self.draw.pick(
                 [*UPLOAD_NAMES[:8], keys.recording_name(self.t.victim_session, self.t.victim_run_id)]

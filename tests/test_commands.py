@@ -270,7 +270,7 @@ def test_every_refusal_names_its_field_and_changes_nothing(service: Service) -> 
         (
             m.CartesianPath([m.CartesianNode(list(p0), rpy0, "lin"), m.CartesianNode(far, rpy0, "lin")]),
             "command.nodes[1]",
-            "leaves the workspace",
+            "out of reach",
         ),
         (
             m.DirectInput("open_loop", {"joint2": m.StepSignal(amplitude=99.0)}),
@@ -310,12 +310,16 @@ def test_every_refusal_names_its_field_and_changes_nothing(service: Service) -> 
         assert (e.code, e.field) == ("bad_request", field), (command.kind, e.field, e.error.message)
         assert words in e.error.message, (field, e.error.message)
     assert s.snapshot().command == m.JointPath([m.PathNode(SPIDER_Q0, 50.0, 50.0)])
-    # A command that fitted when it was set but no longer does once a value changed is refused at run.
-    s.set_command(m.Action("move_linear", {"position": list(p0 + np.array([0.0, 0.0, -0.03]))}))
+    # A line too fast for the joints is not refused: it is time-scaled to them, and says by how much.
+    down = m.Action("move_linear", {"position": list(p0 + np.array([0.0, 0.0, -0.03]))})
     s.set_params({f"joint{j}.traj.max_speed": 0.01 for j in range(1, 8)})
+    plan = s.set_command(down)
+    assert plan.slowed > 2.0 and plan.steps[0].slowed == plan.slowed
+    # A command that fitted when it was set but no longer does once a value changed is refused at run.
+    s.set_params({f"link{j}.length": 0.1 for j in range(1, 8)})  # the arm now reaches 0.8 m
     with pytest.raises(RemoteError) as err:
         s.run()
-    assert err.value.field == "command.args.speed_pct" and "traj.max_speed" in err.value.error.message
+    assert err.value.field == "command" and "out of reach" in err.value.error.message
     assert s.snapshot().runs == []
     with pytest.raises(RemoteError) as err:
         s.load_program("task", "nothing")

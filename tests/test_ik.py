@@ -12,7 +12,7 @@ import pytest
 from scipy.optimize import minimize
 from simecs.mesh.kinematics import link_frames, quat_from_matrix, rot_rpy, rpy_of
 from simecs.models import ModelPackage, chain_dynamics, chain_kinematics, get_model
-from simecs.models.ik import ArmKinematics, IKResult, orientation_error
+from simecs.models.ik import ArmKinematics, IKResult, orientation_error, turned
 from simecs.models.mechanics import chain_arrays, tool_point
 
 MODELS = ["spider", "puma560"]
@@ -331,5 +331,6 @@ def test_orientation_error_is_the_rotation_vector() -> None:
             e = orientation_error(R_now, R_target)
             assert np.linalg.norm(e) == pytest.approx(th, abs=1e-9)
             assert np.max(np.abs(rodrigues(e) @ R_now - R_target)) < 1e-9
+            assert np.max(np.abs(turned(e, R_now) - R_target)) < 1e-9  # the inverse (lines slerp with it)
             if th < math.pi - 1e-6:
                 assert np.allclose(e, e_true, atol=1e-8)

@@ -1,5 +1,6 @@
 """Live jogging (telemanipulation) of a real-time run over the `jog` key: a joint and a Cartesian jog
-move the arm while their messages come, and the deadman stops it when they stop."""
+move the arm while their messages come, and the deadman stops it when they stop. An idle arm is jogged
+in a run until stopped (real time, no command needed), which `stop` ends as finished."""
 
 from __future__ import annotations
 
@@ -7,14 +8,16 @@ import threading
 import time
 
 import numpy as np
-from simecs.mesh import codec, keys
+import pytest
+from simecs.mesh import codec, frames, keys, phases
 from simecs.mesh import messages as m
-from simecs.mesh.client import SessionClient
+from simecs.mesh.client import RemoteError, SessionClient
 
 from tests.conftest import Service, wait_until
 from tests.test_commands import SPIDER_Q0, kinematics
 
 HOLD = m.JointPath([m.PathNode(SPIDER_Q0)])  # the arm holds its initial pose: only the jog moves it
+ENDED = ["finished", "failed", "aborted"]
 
 
 def jog_for(s: SessionClient, run_id: str, seconds: float, **fields: object) -> None:
@@ -98,3 +101,89 @@ def test_jog_messages_to_a_run_paced_as_fast_as_possible_change_nothing(service:
         thread.join()
     _, rows = s.results(run_id, ["joint1.q_ref"])
     assert np.allclose(rows[:, 1], rows[0, 1])
+
+
+def sim_time_past(s: SessionClient, t: float, what: str) -> m.SessionState:
+    """The session's state once its run has simulated past `t` s (still running)."""
+
+    def past() -> m.SessionState | None:
+        state = s.snapshot().state
+        assert state.phase in ("queued", "running"), state
+        return state if state.phase == "running" and state.sim_time > t else None
+
+    return wait_until(past, timeout=60, what=what)
+
+
+def test_an_idle_arm_is_jogged_in_a_run_until_stopped_and_stop_finishes_it(service: Service) -> None:
+    """No command, settings that say fast and 0.2 s: the run goes on in real time, holding the pose,
+    until `stop`; a jog of joint 2 moves it at the jog's speed and the pose then holds."""
+    s = service.client.create_session("ann", "spider")
+    s.set_initial(SPIDER_Q0)
+    s.set_settings(stop_time=0.2, output_interval=0.002, pacing="fast")
+    with pytest.raises(RemoteError) as err:  # a timed run still needs a command
+        s.run()
+    assert err.value.code == "bad_request" and err.value.field == "command"
+    with pytest.raises(RemoteError) as err:
+        s.stop()
+    assert err.value.code == "conflict" and err.value.error.message == phases.refusal("stop", "configured")
+
+    full: list[frames.Frame] = []
+    layouts: list[m.RunLayout] = []
+    with s.watch(on_full=full.append, on_layout=layouts.append):
+        run_id = s.run(until_stopped=True)
+        sim_time_past(s, 0.3, "the run under way")
+        jog_for(s, run_id, 0.5, qd=[0.0, 0.2, 0.0, 0.0, 0.0, 0.0, 0.0])
+        jogged = s.snapshot().state.sim_time
+        # past its settings' stop_time, and held for a while after the jog (deadman 0.25 s)
+        before = sim_time_past(s, max(jogged + 0.8, 1.2), "the run going on after the jog")
+        assert before.rtf < 1.5, before  # real time (fast runs the Spider at several times that)
+        assert s.stop() == run_id
+        end = s.wait_for(ENDED, 30, run_id)
+        wait_until(lambda: full and full[-1].final, timeout=10, what="the final frame")
+    assert end.phase == "finished" and end.reason.startswith("stopped by the user at t = "), end
+
+    layout = next(lay for lay in layouts if lay.run_id == run_id)
+    assert layout.context.until_stopped and layout.context.settings.pacing == "realtime"
+    assert layout.stop_time > 60.0  # the bound (open_run_s, or what the results may hold), not 0.2 s
+    info = next(r for r in s.runs() if r.run_id == run_id)
+    assert info.until_stopped and info.phase == "finished" and info.stop_time == layout.stop_time
+    # paced in wall time: simulated time never ran ahead of the wall clock (one solver call at most)
+    mine = [f for f in full if f.run_index == layout.run_index and f.rows.shape[0]]
+    assert mine[-1].final, "a stopped run's final frame holds its last samples"
+    went = mine[-1].rows[-1, 0] - mine[0].rows[-1, 0]
+    assert went <= (mine[-1].wall_ns - mine[0].wall_ns) / 1e9 + 0.1, went
+
+    att, rows = s.results_of(run_id, ["joint2.q_ref", "joint2.q", "joint1.q_ref"])
+    assert att.run.until_stopped and att.run.phase == "finished" and att.run.reason == end.reason
+    t, ref, q = rows[:, 0], rows[:, 1], rows[:, 2]
+    assert t[-1] > 1.0 and abs(t[-1] - info.sim_time) < 1e-6 and abs(t[-1] - end.sim_time) < 1e-6
+    assert np.allclose(rows[:, 3], SPIDER_Q0[0])  # the other joints hold their initial pose
+    slope = np.diff(ref) / np.diff(t)
+    assert slope.max() < 0.2 + 1e-6
+    moving = np.nonzero(slope > 0.1)[0]
+    span = t[moving[-1] + 1] - t[moving[0]]
+    moved = ref[-1] - SPIDER_Q0[1]
+    assert 0.05 < moved < 0.2, f"joint2 jogged {moved:.3f} rad in ~0.5 s at 0.2 rad/s"
+    assert abs(moved - 0.2 * span) < 0.005, (moved, span)  # the jog's speed for as long as it lasted
+    held = t > t[moving[-1] + 1]
+    assert np.ptp(ref[held]) < 1e-9 and t[-1] - t[moving[-1] + 1] > 0.3  # then the pose holds
+    assert abs(q[-1] - ref[-1]) < 5e-3
+
+
+def test_stop_finishes_a_timed_run_early_even_paused(service: Service) -> None:
+    s = service.client.create_session("ann", "spider")
+    run_id = running(s, 5.0)
+    sim_time_past(s, 0.3, "the run under way")
+    s.pause()
+    s.wait_for(["paused"], 30, run_id)
+    assert s.stop() == run_id
+    end = s.wait_for(ENDED, 30, run_id)
+    assert end.phase == "finished" and end.reason.startswith("stopped by the user at t = "), end
+    info = next(r for r in s.runs() if r.run_id == run_id)
+    assert info.phase == "finished" and info.stop_time == 5.0 and not info.until_stopped
+    assert 0.3 < info.sim_time < 5.0 and info.reason == end.reason
+    _, rows = s.results(run_id, ["joint1.q"])
+    assert abs(rows[-1, 0] - info.sim_time) < 1e-6 and rows.shape[0] == info.samples
+    with pytest.raises(RemoteError) as err:  # nothing runs any more
+        s.stop()
+    assert err.value.code == "conflict" and err.value.error.message == phases.refusal("stop", "finished")

@@ -58,6 +58,18 @@ def test_a_user_holds_at_most_their_quota_and_idle_sessions_expire_with_their_re
     assert b1.id not in {e.session for e in client.list_sessions("ann")}
 
 
+def test_a_run_until_stopped_ends_at_its_bound(mesh: Mesh) -> None:
+    """An operator's --open-run-s bounds a run until stopped: it ends there as finished, saying why."""
+    start_bounded_service(mesh, "--open-run-s", "1")
+    s = mesh.client().create_session("ann", "spider")  # no command: the arm holds its pose
+    run = s.run(until_stopped=True)
+    end = s.wait_for(["finished", "failed", "aborted"], 60, run)
+    assert end.phase == "finished" and "a run until stopped lasts at most 1 s here" in end.reason, end
+    assert "open_run_s" in end.reason
+    info = next(r for r in s.runs() if r.run_id == run)
+    assert info.until_stopped and info.stop_time == 1.0 and abs(info.sim_time - 1.0) < 1e-6
+
+
 def mcap_bytes(payload: bytes, compression: CompressionType = CompressionType.ZSTD) -> bytes:
     buf = io.BytesIO()
     w = Writer(buf, compression=compression, chunk_size=len(payload) + 1024)
