@@ -236,7 +236,7 @@ def use_case(mesh: Mesh, browser: Any) -> None:
     wait_until(
         lambda: abs(session.snapshot().initial[1] - math.radians(20)) < 1e-3, timeout=10, what="initial pose"
     )
-    page.get_by_role("button", name="Close initialisation").click()
+    page.get_by_role("tab", name="Joint path").click()  # the pendant's tab beside the initial pose
 
     # 5. a 2-node joint path in the teach pendant
     page.get_by_role("button", name="Teach").click()

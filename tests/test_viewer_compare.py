@@ -97,7 +97,7 @@ def compare_walk(mesh: Mesh, browser: Any) -> None:
     chart = wait_until(lambda: next((c for c in charts(page) if len(c["labels"]) == 3), None), what="3 runs")
     assert chart["y"][0] is not None and chart["y"][1] > chart["y"][0], chart  # drawn, not blank
     ends = dict(zip(chart["labels"], chart["ends"], strict=True))
-    assert ends["joint1.q (r2)"] == ends["joint1.q [rad]"] == 1.0
+    assert ends["joint1.q (r2)"] == ends["joint1.q [deg]"] == 1.0  # angles in degrees, as the pendants
     assert abs(ends["joint1.q (r1)"] - aborted) < 0.01, (ends, aborted)  # not held flat to 1 s
     page.get_by_text("Recordings to compare", exact=True).locator("visible=true").first.click()
     mark = compare.recording_key(recorded)
@@ -119,17 +119,17 @@ def compare_walk(mesh: Mesh, browser: Any) -> None:
     text_appears(page, "at 0.500 s")
     _, rows = session.results("r3", ["joint1.q"], t0=0.5, t1=0.5)
     assert rows.shape[0] == 1
-    text_appears(page, f"{rows[0, 1]:.6g}")  # r3's joint1.q at the cursor, as the server has it
+    text_appears(page, f"{math.degrees(rows[0, 1]):.6g}")  # r3's joint1.q at the cursor, in degrees
     chart = wait_until(
         lambda: next((c for c in charts(page) if "cursor" in c["labels"]), None), what="cursor"
     )
     assert chart["y"][0] is not None, chart
     assert abs(rows[0, 1]) > math.radians(1)  # the arm had moved: the pose shown is not the start
-    # angles in degrees, chosen once in the plots dock: the plot and the values at the cursor follow
+    # angles in radians, chosen once in the plots dock: the plot and the values at the cursor follow
     page.get_by_label("Angles in").click()
-    page.get_by_role("option", name="deg", exact=True).click()
-    text_appears(page, "joint1.q [deg]")
-    text_appears(page, f"{math.degrees(rows[0, 1]):.6g}")
+    page.get_by_role("option", name="rad", exact=True).click()
+    text_appears(page, "joint1.q [rad]")
+    text_appears(page, f"{rows[0, 1]:.6g}")
     page.wait_for_timeout(1500)  # the chart redrawn in its new range
     page.screenshot(path=str(SHOTS / "compare_1600x900.png"))
     # one variable against another: each run's curve, and a dot at the cursor

@@ -1063,7 +1063,13 @@ def test_plot_dock_opens_and_closes_with_its_plots(server: Any) -> None:
         batch=server.atomic,
     )
     placed: list[Any] = []
-    dock = plot_dock.PlotDock(server.gui, {}, actions, placed.append)
+
+    def place() -> tuple[Any, Any]:  # what the page does on a wide screen: a column of their own
+        panel = server.gui.add_panel()
+        placed.append(panel)
+        return panel, panel.add_tab("Plots")
+
+    dock = plot_dock.PlotDock(server.gui, {}, actions, place)
     a = dock.open("joint1.q", ["joint1.q", "joint2.q"])
     b = dock.open("joint2.q", ["joint1.q", "joint2.q"])
     assert (a.number, b.number) == (1, 2) and dock.get(2) is b and dock.plotted() == {"joint1.q", "joint2.q"}
@@ -1894,9 +1900,11 @@ def test_runs_compared_on_every_plot_with_a_time_cursor_that_poses_the_arm(serve
         ctl.drain()
         assert plot.cursor == 0.5
         assert np.allclose(page.scene.frames[0].position, [0.5, 1.0, 1.5])  # the fake's pose.link1.x/y/z
-        assert "| joint1.q [rad] | 0.5 | 0.5 | 0.5 |" in cmp.values.content
+        assert "| joint1.q [deg] | 28.6479 | 28.6479 | 28.6479 |" in cmp.values.content  # degrees first
         plot.redraw(ctl.stream.live)
         assert plot.chart.series[-1]["label"] == "cursor"
+        page.plots.angle_choice.value = "rad"
+        assert plot.angles == "rad" and "| joint1.q [rad] | 0.5 | 0.5 | 0.5 |" in cmp.values.content
         # angles in degrees, chosen once: every plot and the values read at the cursor; remembered
         page.plots.angle_choice.value = "deg"
         assert (
@@ -2027,31 +2035,50 @@ def test_the_path_duration_is_shown_and_a_run_cut_short_by_its_stop_time_says_so
     assert told[0].kind == "ok" and "before its command" not in told[0].body
 
 
-def test_the_jog_panel_resends_a_held_jog_and_stops_it() -> None:
+def test_a_held_jog_is_resent_until_let_go_and_an_idle_arm_is_jogged_in_a_run_until_stopped() -> None:
+    """Issue 32: jogging as on a pendant. A hold moves the axis, the release stops it at once (and
+    hold messages that stop coming do too); an idle arm gets a run until stopped, ended as finished."""
     ctl, sc, got = attached()
-    assert "running" in ctl.jog.start("joint", "joint1", 1.0)  # nothing runs yet
-    sc.watched["on_state"](state(sc, "running", sim_time=0.1))
+    ctl.path.teach([0.0, 0.0, 0.0])
+    ctl.edits.command_changed()
+    # idle: the first hold asks for a run until stopped (edits first), once
+    assert ctl.jog.hold("joint", "joint1", 1.0) == ""
+    assert ctl.jog.hold("joint", "joint1", 1.0) == ""
     ctl.drain()
-    ctl.settings = m.RunSettings(pacing="fast")
-    assert "wall time" in ctl.jog.start("joint", "joint1", 1.0)
-    ctl.settings = m.RunSettings(pacing="realtime")
+    runs = sc.of(m.Run)
+    assert len(runs) == 1 and runs[0].until_stopped and sc.of(m.SetCommand)
+    assert not sc.jogs  # nothing is sent before the run runs
+    sc.watched["on_state"](state(sc, "paused", sim_time=0.1))
+    assert "Resume" in ctl.jog.hold("joint", "joint1", 1.0)
+    sc.watched["on_state"](state(sc, "running", seq=11, sim_time=0.1))
+    ctl.settings = m.RunSettings(pacing="fast")  # a timed run paced fast cannot be jogged...
+    lay = layout(sc, ctl.model, "r1")
+    sc.watched["on_layout"](lay)
+    assert "wall time" in ctl.jog.hold("joint", "joint1", 1.0)
+    lay.context.until_stopped = True  # ...a run until stopped always can (it runs in real time)
     ctl.jog.speed_pct = 40.0
-    assert ctl.jog.start("joint", "joint2", -1.0) == ""
-    wait_until(lambda: len(sc.jogs) >= 3, timeout=2.0, what="three jog messages")
+    assert ctl.jog.hold("joint", "joint2", -1.0) == ""
+    wait_until(lambda: len(sc.jogs) >= 2, timeout=2.0, what="the held jog re-sent")
     first = sc.jogs[0]
     assert first.run_id == "r1" and first.space == "joint" and first.speed_pct == 40.0
     assert first.qd[1] < 0 and all(v == 0 for k, v in enumerate(first.qd) if k != 1)
-    ctl.jog.stop()
+    ctl.jog.release()  # let go: a zero velocity at once
     sent = len(sc.jogs)
     assert not any(sc.jogs[-1].qd) and ctl.jog.label == ""
     time.sleep(0.3)
-    assert len(sc.jogs) == sent  # nothing after Stop
-    assert ctl.jog.start("cartesian", "z", -1.0) == ""
+    assert len(sc.jogs) == sent  # nothing after the release
+    # hold messages that stop coming (a release the page did not report) end the jog by themselves
+    assert ctl.jog.hold("cartesian", "z", -1.0) == ""
     wait_until(lambda: len(sc.jogs) > sent, timeout=2.0, what="a Cartesian jog")
-    assert sc.jogs[-1].twist[2] < 0 and sc.jogs[-1].space == "cartesian"
-    sc.watched["on_state"](state(sc, "finished", seq=11, sim_time=1.0))  # the run ended: the jog ends
+    assert sc.jogs[sent].twist[2] < 0 and sc.jogs[sent].space == "cartesian"
+    wait_until(lambda: ctl.jog.active is None, timeout=2.0, what="the jog let go without hold messages")
+    assert not any(sc.jogs[-1].qd)
+    # Stop jogging ends the run until stopped as finished (stop, not abort)
+    assert ctl.jog.finish() == ""
     ctl.drain()
-    wait_until(lambda: ctl.jog.active is None, timeout=2.0, what="jog ended with its run")
+    assert isinstance(sc.sent[-1], m.Stop)
+    sc.watched["on_state"](state(sc, "finished", seq=12, sim_time=1.0))
+    assert "no run until stopped" in ctl.jog.finish()
     ctl.close()
 
 
@@ -2257,3 +2284,13 @@ def test_a_command_another_client_set_shows_in_its_pendant_and_an_echo_changes_n
     finally:
         tab.close()
         page.remove()
+
+
+def test_the_digital_readout_shows_joints_and_tool_in_the_tabs_angle_unit() -> None:
+    """Issue 32: the joints (in the tab's angle unit) and the tool pose, always in the run bar."""
+    from simecs.viewer.readout import readout_text
+
+    deg = readout_text(["joint1", "joint2"], [math.pi / 2, -1e-9], [0.5, 0.0, 1.25, 0.0, H, 0.0], "deg")
+    assert "**joints [deg]** 1:90.0 2:0" in deg and "x 500 y 0 z 1250 · r 0 p 90.0 y 0" in deg
+    rad = readout_text(["joint1"], [math.pi / 2], None, "rad")
+    assert "1:1.571" in rad and "tool" not in rad

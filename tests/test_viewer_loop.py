@@ -101,7 +101,7 @@ def test_every_callback_of_a_loaded_page_runs_on_the_tabs_loop(server: Any) -> N
     would run on viser's thread pool, beside the tab's events (the race this issue removes)."""
     tab, _client, page, _sc = loaded_tab(server, arm())
     try:
-        page.toggle_init()
+        page.show_init()
         page.open_settings()
         page.toggle_docs()
         page.open_plot("joint1.q")

@@ -225,6 +225,25 @@ def install_page_rules(client: Any) -> None:
     )
 
 
+def show_tab(client: Any, label: str) -> None:
+    """Bring the tab labelled `label` to the front (viser lets Python add tabs, not pick one)."""
+    run_js(
+        client,
+        f"""(() => {{
+  let tries = 0;
+  const pick = () => {{  // the tab may be on its way (added in the same batch): looked for a while
+    const tab = Array.from(document.querySelectorAll('[role="tab"]')).find(
+      (t) => t.textContent.trim() === {json.dumps(label)});
+    if (tab) {{  // a dock's tab activates on Enter (a press starts a drag), the trees' on a click
+      tab.dispatchEvent(new KeyboardEvent('keydown', {{key: 'Enter', bubbles: true}}));
+      if (tab.getAttribute('aria-selected') !== 'true') tab.click();
+    }} else if (++tries < 40) setTimeout(pick, 50);
+  }};
+  pick();
+}})();""",
+    )
+
+
 def tell_phase(client: Any, phase: str) -> None:
     """The session's phase, for the page's keys (Space, Esc: `install_page_rules`)."""
     run_js(client, f"window.__simecsPhase = {json.dumps(phase)};")

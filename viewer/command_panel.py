@@ -19,13 +19,17 @@ from . import events as ev
 from .cartesian_pendant import CartesianPendant
 from .direct_pendant import DirectInputPanel
 from .jog_panel import JogPanel
+from .joints import InitPanel
 from .layout import Layout
 from .obstacles import ObstaclePanel
+from .path import clamp_to_limits
 from .pendant import PendantPanel
 from .program import LEVELS
 from .program_pendant import ProgramPanel
 from .scene import ArmScene
 from .session import SessionController
+
+INIT_TAB = "Initial pose"  # the pendant's tab of one slider per joint (paper §5.2 initialisation panel)
 
 
 class CommandPanel:
@@ -37,7 +41,6 @@ class CommandPanel:
         c: SessionController,
         scene: ArmScene,
         layout: Layout,
-        toolbar: Any,
         warn: Callable[[str], Callable[[str], None]],
     ) -> None:
         model = c.model
@@ -107,7 +110,19 @@ class CommandPanel:
             self.obstacles = ObstaclePanel(
                 gui, c.obstacles, model.obstacles, c.edits.set_obstacles, warn("Obstacles")
             )
-        layout.place_command(self.panel, toolbar)
+        with self.panel.add_tab(INIT_TAB):  # what the toolbar's Initialise brings to the front
+            self.init = InitPanel(
+                gui, model.links, model.init_equations, c.initial, c.edits.set_initial, self._zero_initial
+            )
+        layout.place_command(self.panel)
+
+    def _zero_initial(self) -> None:
+        model = self.c.model
+        if model is None:
+            return
+        q = clamp_to_limits([0.0] * len(model.links), model.links)
+        self.init.sliders.set_q(q)
+        self.c.edits.set_initial(q)
 
     def show_plan(self, event: ev.PlanChanged | None = None) -> None:
         """The session's command as the server planned it, on its pendant and as a tool path in 3D
@@ -150,7 +165,8 @@ class CommandPanel:
         self.scene.show_tool_path([])
 
     def show_editable(self) -> None:
-        """The command cannot change while a run is under way."""
+        """The command and the initial pose cannot change while a run is under way."""
+        self.init.sliders.set_disabled(bool(self.c.refusal("set_initial")))
         locked = bool(self.c.refusal("set_command"))
         if self.pendant is not None:
             self.pendant.set_disabled(locked)

@@ -74,6 +74,7 @@ class StateShown:
 
     state: m.SessionState | None
     replay: str = ""
+    until_stopped: bool = False  # the run runs until stopped: its time counts, its progress does not
 
 
 @dataclass

@@ -1,14 +1,15 @@
-"""Where each region of a tab goes (issue: a layout that never hides the arm).
+"""Where each region of a tab goes (issue: a layout that never hides the arm, nor the run's controls).
 
-Every region is docked around the 3D view, none floats over it: the model's trees on the left edge,
-the session's toolbar and the command pendant stacked on the right edge, the documentation under the
-trees, the plots in a column of their own on a wide screen and under the trees on a narrow one. The
-user may drag, resize and minimise any of them (viser's dock); these are the places they start in.
-Modals (the models list, the run settings) are the only things drawn over the view, and only while
-the user answers them.
+The model's trees (and the toolbar above them) dock on the left edge; the command pendant on the
+right edge, with the initial pose and the documentation docked above it while they are open; the run
+bar floats at the foot of the 3D view, sized to its content, so its buttons are never scrolled
+away. The plots get a column of their own between the arm and the pendant on a wide screen, and a tab
+beside the trees on a narrow one: no stack of small docks that each scroll. The user may drag, resize
+and minimise any of them (viser's dock); these are the places they start in. Modals (the models list,
+the run settings) are the only things drawn over the view, and only while the user answers them.
 
 The widths follow the browser's viewport, read when the tab connects (`browser.recall`), so the 3D
-view keeps at least `MIN_VIEW_PX` at 1024×768 and half the screen at 1920×1080.
+view keeps at least `MIN_VIEW_PX` at 1024×768, and a plot real room on a wide screen.
 """
 
 from __future__ import annotations
@@ -33,27 +34,19 @@ class Layout:
 
     @property
     def left_px(self) -> int:
-        """The trees (parameters, variables, results) and, below them, documentation."""
-        return 380 if self.wide else max(260, min(300, (self.width - MIN_VIEW_PX) // 2))
+        """The trees (parameters, variables, results) and the toolbar above them."""
+        return 360 if self.wide else max(260, min(300, (self.width - MIN_VIEW_PX) // 2))
 
     @property
     def right_px(self) -> int:
-        """The toolbar and the command pendant."""
-        return 440 if self.wide else max(300, min(360, self.width - MIN_VIEW_PX - self.left_px))
+        """The command pendant (and above it, while open, the initial pose and the documentation)."""
+        return 420 if self.wide else max(300, min(360, self.width - MIN_VIEW_PX - self.left_px))
 
     @property
     def plots_px(self) -> int:
-        """The plot column on a wide screen (a narrow one stacks the plots under the trees)."""
-        return max(380, min(560, self.width - self.left_px - self.right_px - 560))
-
-    # -- placing the regions --------------------------------------------------------------------
-    def place_main(self, gui: Any) -> None:
-        gui.main_panel.dock_left()
-        gui.main_panel.set_width(self.left_px)
-
-    def place_toolbar(self, panel: Any) -> None:
-        panel.dock_right()
-        panel.set_width(self.right_px)
+        """The plot column on a wide screen: more than half of what the trees and the pendant leave."""
+        free = self.width - self.left_px - self.right_px
+        return max(420, min(760, int(0.55 * free)))
 
     @property
     def run_bar_px(self) -> int:
@@ -62,25 +55,27 @@ class Layout:
         view = self.width - self.left_px - self.right_px - (self.plots_px if self.wide else 0)
         return max(300, min(460, view - 24))
 
+    # -- placing the regions --------------------------------------------------------------------
+    def place_main(self, gui: Any) -> None:
+        gui.main_panel.dock_left()
+        gui.main_panel.set_width(self.left_px)
+
     def place_run_bar(self, panel: Any) -> None:
         """Bottom left of the 3D view, clear of the docks (floating: its height follows its content,
         so nothing in it is ever scrolled away)."""
         panel.float(x=12, y=-12, width=self.run_bar_px)
 
-    def place_command(self, panel: Any, toolbar: Any) -> None:
-        """The command pendant, under the toolbar: beside the arm it moves."""
-        panel.dock_below(toolbar)
+    def place_command(self, panel: Any) -> None:
+        """The command pendant on the right edge, beside the arm it moves."""
+        panel.dock_right()
+        panel.set_width(self.right_px)
 
-    def place_init(self, panel: Any, toolbar: Any) -> None:
-        """The initial-pose sliders between the toolbar and the command pendant: beside the arm."""
-        panel.dock_below(toolbar)
+    def place_beside_pendant(self, panel: Any, pendant: Any) -> None:
+        """The initial-pose sliders or the documentation, above the pendant while open: the trees
+        keep their column."""
+        panel.dock_above(pendant)
 
-    def place_docs(self, panel: Any, gui: Any) -> None:
-        panel.dock_below(gui.main_panel)
-
-    def place_plots(self, panel: Any, gui: Any) -> None:
-        if self.wide:
-            panel.dock_right()  # the innermost right column, beside the pendant
-            panel.set_width(self.plots_px)
-        else:
-            panel.dock_below(gui.main_panel)
+    def place_plots(self, panel: Any) -> None:
+        """The plots' own column on a wide screen, between the arm and the pendant."""
+        panel.dock_right()  # the innermost right column: placed after the pendant's
+        panel.set_width(self.plots_px)

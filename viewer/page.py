@@ -14,18 +14,17 @@ from typing import Any
 
 from simecs.mesh.codec import DecodeError
 
-from . import camera
+from . import browser, camera
 from . import events as ev
-from .command_panel import CommandPanel
+from .command_panel import INIT_TAB, CommandPanel
 from .compare_panel import ComparePanel
 from .docs import DocsWindow
-from .joints import InitPanel
 from .layout import Layout
 from .markup import escape_html
 from .params import ParamPanel, VariablePanel
-from .path import clamp_to_limits
 from .plot_dock import PlotDock
 from .plots import Plot, PlotActions
+from .readout import readout_text
 from .results import ResultsPanel
 from .run import SettingsWindow, settings_from_form
 from .scene import ArmScene
@@ -38,7 +37,7 @@ MAX_RESTORED_PLOTS = 8  # plots a reloaded tab opens again at most
 class ModelPage:
     """Everything drawn for the controller's model."""
 
-    def __init__(self, client: Any, controller: SessionController, layout: Layout, toolbar: Any) -> None:
+    def __init__(self, client: Any, controller: SessionController, layout: Layout) -> None:
         c = controller
         model = c.model
         assert model is not None and c.stream is not None and c.path is not None and c.session is not None
@@ -46,18 +45,16 @@ class ModelPage:
         self.gui = gui = client.gui
         self.c = c
         self.layout = layout
-        self.toolbar = toolbar  # the toolbar's panel: the pendant and the pose sliders dock below it
         self.handles: list[Any] = []
-        self.init_panel: Any = None
-        self.init_widget: InitPanel | None = None
         self.docs: DocsWindow | None = None
+        self._show_plots = True  # a plot opening brings the plots' tab to the front (not on a reload)
         self.settings: SettingsWindow | None = None
 
         self.header = gui.add_markdown(
             f"**{escape_html(model.name)}**  \nuser `{c.user}` · session `{c.session.id[:8]}…`  \n"
             f"<small>{escape_html(model.summary)}</small>"
         )
-        tabs = gui.add_tab_group()
+        self.tabs = tabs = gui.add_tab_group()
         self.handles += [self.header, tabs]
         with tabs.add_tab("Parameters"):
             self.params = ParamPanel(
@@ -86,7 +83,7 @@ class ModelPage:
         self.trace = ToolTrace(client.scene)
         self.look("Fit arm")
 
-        self.commands = CommandPanel(client, c, self.scene, layout, toolbar, self._warn)
+        self.commands = CommandPanel(client, c, self.scene, layout, self._warn)
         self.handles.append(self.commands)
 
         actions = PlotActions(
@@ -97,7 +94,7 @@ class ModelPage:
             variable_names=lambda: sorted(c.streamed),
             batch=client.atomic,
         )
-        self.plots = PlotDock(gui, c.stream.units, actions, lambda panel: layout.place_plots(panel, gui))
+        self.plots = PlotDock(gui, c.stream.units, actions, self._place_plots)
         with results_tab:
             self.compare = ComparePanel(gui, c, self.plots, self.scene, self.results.selected)
             self.compare.show_runs(c.runs)
@@ -128,6 +125,31 @@ class ModelPage:
         }
         self.show_editable()
 
+    def readout(self) -> str:
+        """The digital readout of the arm as shown (the pose Teach records), in the tab's angle unit."""
+        c, model = self.c, self.c.model
+        assert model is not None
+        q = list(c.shown_q)
+        try:
+            pose = c.tool_pose(q)
+            tool: list[float] | None = [*pose.position, *pose.rpy]
+        except Exception:  # a pose the description cannot place (a model without a tool frame)
+            tool = None
+        return readout_text([link.joint for link in model.links], q, tool, self.plots.angles)
+
+    def _place_plots(self) -> tuple[Any, Any]:
+        """Where the plots go: a column of their own beside the arm on a wide screen, else a tab
+        beside the trees, shown at once (no stack of small docks that each scroll)."""
+        if self.layout.wide:
+            panel = self.gui.add_panel()
+            tab = panel.add_tab("Plots")
+            self.layout.place_plots(panel)
+            return panel, tab
+        tab = self.tabs.add_tab("Plots")
+        if self._show_plots:
+            browser.show_tab(self.client, "Plots")
+        return tab, tab
+
     def look(self, view: str) -> None:
         """A camera preset of the toolbar's View buttons: the arm as it stands now, framed."""
         fov, aspect = camera.lens(self.client.camera)
@@ -145,8 +167,6 @@ class ModelPage:
     def show_editable(self) -> None:
         """The command and the initial pose cannot change while a run is under way."""
         self.commands.show_editable()
-        if self.init_widget is not None:
-            self.init_widget.sliders.set_disabled(bool(self.c.refusal("set_initial")))
 
     def _state_shown(self, event: ev.StateShown) -> None:
         self.show_editable()
@@ -211,7 +231,7 @@ class ModelPage:
         for k, names in enumerate(plots[:MAX_RESTORED_PLOTS] if isinstance(plots, list) else []):
             names = [n for n in names if isinstance(n, str) and n in known] if isinstance(names, list) else []
             if names:
-                plot = self.open_plot(names[0])
+                plot = self.open_plot(names[0], show=False)  # the tab shown before the reload stays
                 for name in names[1:]:
                     plot.add(name)
                 x = x_axes[k] if k < len(x_axes) else None
@@ -230,8 +250,9 @@ class ModelPage:
         self.variables.show_streamed(event.streamed)
         self.plots.set_choices(sorted(event.streamed))
 
-    def open_plot(self, name: str) -> Plot:
+    def open_plot(self, name: str, show: bool = True) -> Plot:
         """A new plot of `name` (paper §5.2: plots open from the variable tree)."""
+        self._show_plots = show
         plot = self.plots.open(name, sorted(self.c.streamed | {name}))
         self.c.edits.ensure_streamed(name)
         if self.c.results.wants_full(name):
@@ -290,36 +311,11 @@ class ModelPage:
         self.commands.show_plan()
 
     # -- windows -----------------------------------------------------------------------------------
-    def toggle_init(self) -> None:
-        c, model = self.c, self.c.model
-        assert model is not None
-        if self.init_panel is not None:
-            self.init_panel.remove()
-            self.init_panel, self.init_widget = None, None
-            return
-        self.init_panel = self.gui.add_panel()
-        with self.init_panel.add_tab("Initialisation"):
-            self.init_widget = InitPanel(
-                self.gui,
-                model.links,
-                model.init_equations,
-                c.initial,
-                c.edits.set_initial,
-                self._zero_initial,
-            )
-            close = self.gui.add_button("Close initialisation", color="gray")
-            close.on_click(lambda _e: self.toggle_init())
-        self.layout.place_init(self.init_panel, self.toolbar)
-        self.show_editable()
-        c.preview(list(c.initial))
-
-    def _zero_initial(self) -> None:
-        model = self.c.model
-        if model is None or self.init_widget is None:
-            return
-        q = clamp_to_limits([0.0] * len(model.links), model.links)
-        self.init_widget.sliders.set_q(q)
-        self.c.edits.set_initial(q)
+    def show_init(self) -> None:
+        """The initial pose's sliders (a tab of the pendant's column) to the front, the arm at that
+        pose (paper §5.2: the initialisation panel)."""
+        browser.show_tab(self.client, INIT_TAB)
+        self.c.preview(list(self.c.initial))
 
     def open_settings(self) -> None:
         if self.settings is not None:
@@ -347,7 +343,7 @@ class ModelPage:
                 model.docs,
                 model.doc_root,
                 self.c.fetch_doc,
-                lambda p: self.layout.place_docs(p, self.gui),
+                lambda p: self.layout.place_beside_pendant(p, self.commands.panel),
             )
         if self.docs.is_open:
             self.docs.close()
@@ -360,7 +356,7 @@ class ModelPage:
         if self.settings is not None:
             self.settings.close()
         self.plots.remove()
-        for h in [self.init_panel, *self.handles]:
+        for h in self.handles:
             if h is None:
                 continue
             try:

@@ -15,22 +15,26 @@ from .series import LiveBuffer
 log = logging.getLogger("simecs.viewer")
 
 
-class PlotDock:
-    """The open plots of a tab, docked where the layout says: the dock appears with the first plot
-    and goes with the last; plots are known by their number (what the session controller's events
-    name)."""
+#: Where the plots go: a tab to fill (a context) and the handle whose removal takes them away.
+PlotsPlace = Callable[[], tuple[Any, Any]]
 
-    def __init__(
-        self, gui: Any, units: dict[str, str], actions: PlotActions, place: Callable[[Any], None]
-    ) -> None:
+
+class PlotDock:
+    """The open plots of a tab, where the layout puts them (`place()`: a column of their own on a wide
+    screen, a tab beside the trees on a narrow one): they appear with the first plot and go with the
+    last; plots are known by their number (what the session controller's events name)."""
+
+    def __init__(self, gui: Any, units: dict[str, str], actions: PlotActions, place: PlotsPlace) -> None:
         self.gui = gui
-        self.place = place  # docks the plots' panel (layout.py)
+        self.place = place
         self.units = units
         self.actions = actions
         self.plots: dict[int, Plot] = {}
         self.live_label = ""  # the run shown live, named in each plot's title
         self.stop_time = 0.0  # its span (0: not known)
-        self.angles = "rad"  # angles shown in rad or deg: one choice for every plot (units.py)
+        #: Angles in rad or deg: one choice for every plot (units.py); degrees at first, as the
+        #: pendants' sliders and fields (issue 32, 9: one unit a user sees everywhere).
+        self.angles = "deg"
         self.on_angles: Callable[[str], None] = lambda _a: None
         self.angle_choice: Any = None  # the dropdown, while the dock is shown
         self.counter = 0
@@ -39,8 +43,7 @@ class PlotDock:
 
     def open(self, name: str, choices: Sequence[str]) -> Plot:
         if self.panel is None:
-            self.panel = self.gui.add_panel()
-            self.tab = self.panel.add_tab("Plots")
+            self.panel, self.tab = self.place()
             with self.tab:
                 self.angle_choice = self.gui.add_dropdown(
                     "Angles in",
@@ -49,7 +52,6 @@ class PlotDock:
                     hint="every plot and the cursor",
                 )
                 self.angle_choice.on_update(lambda e: self.set_angles(str(e.target.value)))
-            self.place(self.panel)
         self.counter += 1
         with self.tab:
             plot = Plot(self.gui, self.counter, [name], self.units, self.actions, self.live_label)

@@ -26,9 +26,10 @@ TOOLBAR = ("Models", "Initialise", "Settings", "Documentation")
 RUN_BUTTONS = {"Run": "run", "Pause": "pause", "Resume": "resume", "Abort": "abort"}
 
 
-def status_text(st: m.SessionState | None, replay: str = "") -> str:
+def status_text(st: m.SessionState | None, replay: str = "", until_stopped: bool = False) -> str:
     """One line a user can read at a glance: phase, which run (a replay names its recording), time,
-    progress, speed. The run bar shows it; what else the run says is `status_detail`'s."""
+    progress (a run until stopped has none: it says so), speed. The run bar shows it; what else the
+    run says is `status_detail`'s."""
     if st is None:
         return "_No session: choose a model (Models)._"
     what = f"run {st.run_id}" if st.run_id else ""
@@ -37,7 +38,8 @@ def status_text(st: m.SessionState | None, replay: str = "") -> str:
     if st.phase == "queued":
         return f"**queued** {what}: position {st.queue_position} (the server is busy with other runs)"
     if st.phase in (*phases.GOING, *phases.ENDED):
-        progress = f"t = {st.sim_time:.3f} s · {st.progress * 100:.0f} % · RTF {st.rtf:.2f}"
+        done = "until stopped" if until_stopped else f"{st.progress * 100:.0f} %"
+        progress = f"t = {st.sim_time:.3f} s · {done} · RTF {st.rtf:.2f}"
         return f"**{st.phase}** {what} · {progress}"
     return f"**{st.phase}**: ready to run"
 
@@ -84,8 +86,10 @@ RUN_BAR_HINT = (
 class RunBar:
     """The run's controls, which never hide (paper §3.2 Time Presentation): the status line, the
     progress bar and Run, Pause, Resume, Abort, in a window of their own floating at the foot of the
-    3D view, sized to its content (so never scrolled away, whatever the docks around it do). A button
-    that does not apply now says why when clicked; the line after the status says which apply."""
+    3D view, sized to its content (so never scrolled away, whatever the docks around it do), and
+    under them what the run says besides its progress (the step that runs, why it ended, warnings).
+    A button that does not apply now says why when clicked; the line under the status says which
+    apply."""
 
     def __init__(self, gui: Any, on_run: Callable[[str], None]) -> None:
         self.panel = gui.add_panel()
@@ -94,15 +98,26 @@ class RunBar:
             self.progress = gui.add_progress_bar(0.0, animated=False)
             self.buttons = gui.add_button_group("Run", tuple(RUN_BUTTONS), hint=RUN_BAR_HINT)
             self.buttons.on_click(lambda e: on_run(RUN_BUTTONS[str(e.target.value)]))
+            self.readout = gui.add_markdown("")  # the arm's joints and tool, as shown (readout.py)
+            self.detail = gui.add_markdown("")
 
-    def show(self, st: m.SessionState | None, replay: str = "") -> None:
+    def show_readout(self, text: str) -> None:
+        if self.readout.content != text:
+            self.readout.content = text
+
+    def show(self, st: m.SessionState | None, replay: str = "", until_stopped: bool = False) -> None:
         ops = applicable(st.phase) if st is not None else []
-        line = status_text(st, replay)
+        line = status_text(st, replay, until_stopped)
         if st is not None:
-            line += "  \n<small>" + (" or ".join(ops) if ops else "nothing to do now") + "</small>"
+            line += "  \n<small>now: " + (" or ".join(ops) if ops else "nothing to do") + "</small>"
         if self.status.content != line:
             self.status.content = line
+        detail = status_detail(st)
+        if self.detail.content != detail:
+            self.detail.content = detail
         progress = 0.0 if st is None else max(0.0, min(100.0, st.progress * 100.0))
+        if until_stopped and st is not None and st.phase in phases.GOING:
+            progress = 100.0  # a run until stopped: the bar says it goes, not how far
         if abs(self.progress.value - progress) > 1e-6:
             self.progress.value = progress
         running = st is not None and st.phase in phases.UNDER_WAY and st.phase != "paused"
@@ -114,30 +129,14 @@ class RunBar:
 
 
 class Toolbar:
-    """The session's docked panel, above the command pendant: what the run says besides its progress
-    (the step that runs, why it ended, warnings), the windows to open and the camera presets. The run
-    bar (`RunBar`) is separate, so its buttons are always in sight. `on_window` and `on_view` get
-    the clicked label."""
+    """The paper's toolbar (§5.2), at the top of the trees' column: the windows to open and the camera
+    presets. `on_window` and `on_view` get the clicked label."""
 
-    def __init__(
-        self,
-        gui: Any,
-        on_window: Callable[[str], None],
-        on_view: Callable[[str], None],
-    ) -> None:
-        self.panel = gui.add_panel()
-        tab = self.panel.add_tab("Session")
-        with tab:
-            self.detail = gui.add_markdown("")
-            self.windows = gui.add_button_group("Windows", TOOLBAR)
-            self.windows.on_click(lambda e: on_window(e.target.value))
-            self.views = gui.add_button_group("View", VIEWS)
-            self.views.on_click(lambda e: on_view(e.target.value))
-
-    def show(self, st: m.SessionState | None) -> None:
-        detail = status_detail(st)
-        if self.detail.content != detail:
-            self.detail.content = detail
+    def __init__(self, gui: Any, on_window: Callable[[str], None], on_view: Callable[[str], None]) -> None:
+        self.windows = gui.add_button_group("Windows", TOOLBAR)
+        self.windows.on_click(lambda e: on_window(e.target.value))
+        self.views = gui.add_button_group("View", VIEWS)
+        self.views.on_click(lambda e: on_view(e.target.value))
 
 
 def settings_from_form(

@@ -96,6 +96,26 @@ class RunControl:
         t.notify("Run", f"Run **{started.run_id}** assigned.")
         t.submit("Results", self.refresh_runs, "io")
 
+    def open_run(self) -> None:
+        """A run until stopped, for jogging the idle arm (real time, holding the initial pose or
+        following the command): the pending edits go first, as for Run."""
+        t = self.t
+
+        def job() -> None:
+            sc = self.c.session
+            if sc is None:
+                return
+            self.edits.flush()
+            started: m.RunStarted = self.edits.command(m.Run(until_stopped=True))
+            t.notify("Jog", f"Run **{started.run_id}** holds the arm until you press Stop jogging.")
+            t.submit("Results", self.refresh_runs, "io")
+
+        t.submit("Jog refused", job)
+
+    def finish_run(self) -> None:
+        """End the run going now as finished (stop: its results kept, not aborted)."""
+        self.t.submit("Stop refused", lambda: self.edits.command(m.Stop()))
+
     def shown(self, run_id: str) -> None:
         """A live frame of `run_id` was shown: log the first one of a run started here."""
         if run_id and run_id == self._timing:
@@ -127,7 +147,7 @@ class RunControl:
         def replaying() -> None:
             c.recordings[started.run_id] = recording
             st = c.state
-            t.emit(ev.StateShown(st, c.replay_of(st.run_id) if st is not None else ""))
+            t.emit(ev.StateShown(st, c.replay_of(st.run_id) if st is not None else "", c.until_stopped()))
 
         t.on_loop(replaying)
         t.notify("Replay", f"Replaying **{recording}** as run **{started.run_id}** of this session.")

@@ -75,7 +75,7 @@ class SessionController(TabState, Dispatcher):
         self._remembered = ""  # the session the tab had, reopened once its user logged in
         self.edits = Edits(self, self, self.preview, sync_delay_s)
         self.control = RunControl(self, self, self.edits, self.refresh_runs)
-        self.jog = JogControl(self, lambda: self.closed)
+        self.jog = JogControl(self, lambda: self.closed, self.control.open_run, self.control.finish_run)
         self.opening = Opening(self, self, host, self.identity, self.attach, self)
         self.results = ResultsIO(self, self, self.identity, self.control.replay, self._replay_in_new_session)
         self.live_frames = 0  # frames shown (diagnostics)
@@ -349,7 +349,8 @@ class SessionController(TabState, Dispatcher):
 
     def show_state(self) -> None:
         st = self.state
-        self.emit(ev.StateShown(st, self.replay_of(st.run_id) if st is not None else ""))
+        replay = self.replay_of(st.run_id) if st is not None else ""
+        self.emit(ev.StateShown(st, replay, self.until_stopped()))
 
     def on_params(self, pv: m.ParamValues) -> None:
         if self._mine(pv.session) and pv.values != self.values:

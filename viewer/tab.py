@@ -32,6 +32,7 @@ from .session import SessionController
 
 log = logging.getLogger("simecs.viewer")
 BEAT_EVERY = 10  # ticks (about a second) between the beats that tell the page the server is here
+READOUT_EVERY = 2  # ticks between refreshes of the digital readout (5 a second)
 VIEW_KEPT_EVERY = 10  # ticks (about a second) between looks at what the tab shows, kept for a reload
 
 
@@ -104,7 +105,7 @@ class Tab:
         gui.configure_theme(show_share_button=False, control_width="large", show_logo=False)
         gui.set_panel_label("simecs")
         self.client.scene.set_up_direction("+z")
-        self.toolbar = Toolbar(gui, self._on_window, self._on_view)
+        self.toolbar = Toolbar(gui, self._on_window, self._on_view)  # in the main panel, at its top
         self.run_bar = RunBar(gui, self.controller.control.run_action)
         self.place_frame()
         browser.install_doc_links(self.client, LINK_PREFIX)
@@ -112,10 +113,8 @@ class Tab:
         browser.install_page_rules(self.client)
 
     def place_frame(self) -> None:
-        """The trees' panel, the toolbar and the run bar where this viewport's layout puts them."""
+        """The trees' panel and the run bar where this viewport's layout puts them."""
         self.layout.place_main(self.gui)
-        if self.toolbar is not None:
-            self.layout.place_toolbar(self.toolbar.panel)
         if self.run_bar is not None:
             self.layout.place_run_bar(self.run_bar.panel)
 
@@ -132,6 +131,8 @@ class Tab:
         page, stream = self.page, self.controller.stream
         if page is not None and stream is not None:
             page.plots.redraw(stream.live)
+        if page is not None and self.run_bar is not None and self._ticks % READOUT_EVERY == 0:
+            self.run_bar.show_readout(page.readout())
         self._ticks += 1
         if self._ticks % BEAT_EVERY == 0:
             browser.beat(self.client)
@@ -162,18 +163,15 @@ class Tab:
         if self.page is not None:
             self.page.remove()
             self.page = None
-        assert self.toolbar is not None
-        self.page = ModelPage(self.client, self.controller, self.layout, self.toolbar.panel)
+        self.page = ModelPage(self.client, self.controller, self.layout)
         view, self.remembered_view = self.remembered_view, {}
         if view.get("session") == event.session:  # a reload of this session: as it was
             self.page.restore(view)
         browser.set_title(self.client, f"simecs · {event.model.name}")
 
     def _show_state(self, event: ev.StateShown) -> None:
-        if self.toolbar is not None:
-            self.toolbar.show(event.state)
         if self.run_bar is not None:
-            self.run_bar.show(event.state, event.replay)
+            self.run_bar.show(event.state, event.replay, event.until_stopped)
         browser.tell_phase(self.client, event.state.phase if event.state is not None else "")
 
     def _show_library(self, event: ev.LibraryListed) -> None:
@@ -217,7 +215,7 @@ class Tab:
             return
         with self.client.atomic():
             if name == "Initialise":
-                page.toggle_init()
+                page.show_init()
             elif name == "Settings":
                 page.open_settings()
             elif name == "Documentation":

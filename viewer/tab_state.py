@@ -68,6 +68,17 @@ class TabState:
         assert self.session is not None
         return self.replay_of(run_id) or keys.recording_name(self.session.id, run_id)
 
+    def until_stopped(self) -> bool:
+        """The run going (or last shown) runs until stopped (its layout says so): its stop time is
+        only a bound, and its progress means little."""
+        st, layout = self.state, self.stream.layout if self.stream is not None else None
+        return (
+            st is not None
+            and layout is not None
+            and layout.run_id == st.run_id
+            and layout.context.until_stopped
+        )
+
     def editor(self, kind: str) -> Editor | None:
         """The pendant's command of level `kind` (None: this viewer does not edit that level)."""
         if kind in LEVELS:

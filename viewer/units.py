@@ -1,8 +1,9 @@
 """Angles in degrees or radians, chosen once per tab (issue 12: "units (deg/rad) chosen once").
 
 The server's variables are SI (rad, rad/s); the pendants take degrees. The plots and the values read
-at the time cursor show angles in what the user picked in the plots dock; the tab remembers it over
-reloads. Parameters, CSV files and recordings stay SI: they are what the server stores.
+at the time cursor show angles in what the user picked in the plots dock, degrees until then (as the
+pendants: one unit the user sees everywhere); the tab remembers it over reloads. Parameters, CSV
+files and recordings stay SI: they are what the server stores.
 """
 
 from __future__ import annotations
