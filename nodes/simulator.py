@@ -124,11 +124,7 @@ class Simulator(Node):
         for ep in self.mesh.connect:
             cmd += ["--connect", ep]
         cmd += ["--cpu", self.cpu_choice]  # where its zenoh threads go (mesh.affinity)
-        env = dict(os.environ)
-        # A worker is one single-threaded simulation: BLAS thread pools (numpy's and scipy's OpenBLAS)
-        # would only spin on the other cores after the planner's linear algebra, taking CPU from runs.
-        for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
-            env.setdefault(var, "1")
+        env = dict(os.environ)  # BLAS on one thread, as every node's (nodes/__init__.py)
         env["SIMECS_SERVICE_KEY_FILE"] = str(seals.key_file(self.mesh.service_key_file))
         if self.mesh_config_path:
             env["SIMECS_MESH_CONFIG"] = self.mesh_config_path
