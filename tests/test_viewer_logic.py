@@ -1173,7 +1173,7 @@ def test_status_line_and_run_buttons() -> None:
     assert run.status_detail(doing) == "⏵ back · home"  # the step that runs, beside the run bar
     unnamed = msgspec.structs.replace(doing, task="", action="")
     assert run.status_detail(unnamed) == "⏵ task 2, action 1"  # counted as the tables count (issue 32, 9)
-    assert run.step_words("nodes[0]") == "node 1" and run.step_words("signals") == "signals"
+    assert path.step_words("nodes[0]") == "node 1" and path.step_words("signals") == "signals"
     failed = m.SessionState("s" * 22, "failed", run_id="r2", reason="diverged: 2*pi*f")
     assert "diverged" not in run.status_text(failed)  # the reason is in the session panel, as written:
     assert r"diverged: 2\*pi\*f" in run.status_detail(failed)  # stars, not emphasis (issue 32, 9)
@@ -2021,6 +2021,10 @@ def test_the_path_duration_is_shown_and_a_run_cut_short_by_its_stop_time_says_so
     assert plan is not None and plan.duration == 2.5 and ctl.edits.plan is plan
     assert "ends the run before the path is done (2.50 s)" in path.plan_text(plan, 1.0)
     assert path.plan_text(plan, 5.0) == "Path duration **2.50 s** (stop time 5 s)."
+    # a line too fast for a joint is time-scaled by the server, not refused: the pendant says so
+    steps = [m.PlanStep("nodes[0]", "lin", 0.0, 1.0), m.PlanStep("nodes[1]", "lin", 1.0, 2.5, slowed=1.23)]
+    slowed = m.CommandPlan("cartesian_path", 2.5, steps, [0.0], slowed=1.23)
+    assert "Slowed **×1.23** (node 2) to keep every joint within its speed" in path.plan_text(slowed, 5.0)
     sc.watched["on_state"](state(sc, "finished", sim_time=1.0, rtf=2.0))
     ctl.drain()
     told = [n for n in got.of(events.Notice) if n.title == "Run r1 finished"]

@@ -8,6 +8,7 @@ No GUI here: `pendant.py` draws it, the session controller owns it, tests use it
 from __future__ import annotations
 
 import math
+import re
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any, Generic, Protocol, TypeVar
@@ -241,11 +242,43 @@ def plan_text(plan: m.CommandPlan | None, stop_time: float, what: str = "path") 
     if plan is None:
         return f"_{what.capitalize()} duration: known once the {what} is sent._"
     if plan.duration > stop_time + 1e-9:
-        return (
+        text = (
             f"**Warning:** the stop time ({stop_time:g} s) ends the run before the {what} is done "
             f"({plan.duration:.2f} s): raise it in Settings."
         )
-    return f"{what.capitalize()} duration **{plan.duration:.2f} s** (stop time {stop_time:g} s)."
+    else:
+        text = f"{what.capitalize()} duration **{plan.duration:.2f} s** (stop time {stop_time:g} s)."
+    return text + slowed_text(plan)
+
+
+#: A plan slowed by less than this is said to keep the speeds asked for.
+SLOWED_NOTED = 1.005
+
+
+def slowed_text(plan: m.CommandPlan) -> str:
+    """What the server slowed to keep every joint within its speed and acceleration limits (a move
+    too fast for a joint is time-scaled, not refused): which steps, and by how much at most."""
+    if plan.slowed < SLOWED_NOTED:
+        return ""
+    steps = [s for s in plan.steps if s.slowed >= SLOWED_NOTED]
+    where = ", ".join(step_words(s.step) for s in steps[:4]) + (" …" if len(steps) > 4 else "")
+    return (
+        f"  \nSlowed **×{plan.slowed:.2f}** ({where}) to keep every joint within its speed and "
+        "acceleration limits."
+    )
+
+
+STEP_PART = re.compile(r"(nodes|tasks|actions)\[(\d+)\]")
+STEP_WORD = {"nodes": "node", "tasks": "task", "actions": "action"}
+
+
+def step_words(step: str) -> str:
+    """A step as the server names it (`tasks[1].actions[0]`, 0-based) in the words and numbers the
+    pendants' tables use (`task 2, action 1`)."""
+    found = STEP_PART.findall(step)
+    if not found:
+        return step
+    return ", ".join(f"{STEP_WORD[kind]} {int(k) + 1}" for kind, k in found)
 
 
 def ended_early(plan: m.CommandPlan | None, sim_time: float) -> str:

@@ -5,7 +5,6 @@ settings window (paper §2.2 step 6).
 
 from __future__ import annotations
 
-import re
 from collections.abc import Callable, Sequence
 from typing import Any
 
@@ -16,6 +15,7 @@ from simecs.mesh.model import CONTROL_SYSTEM_TITLES
 
 from .camera import VIEWS
 from .markup import escape_html, escape_text
+from .path import step_words
 
 PACING = {"real time": "realtime", "N x real time": "scaled", "as fast as possible": "fast"}
 PACING_LABEL = {v: k for k, v in PACING.items()}
@@ -42,19 +42,6 @@ def status_text(st: m.SessionState | None, replay: str = "", until_stopped: bool
         progress = f"t = {st.sim_time:.3f} s · {done} · RTF {st.rtf:.2f}"
         return f"**{st.phase}** {what} · {progress}"
     return f"**{st.phase}**: ready to run"
-
-
-STEP_PART = re.compile(r"(nodes|tasks|actions)\[(\d+)\]")
-STEP_WORD = {"nodes": "node", "tasks": "task", "actions": "action"}
-
-
-def step_words(step: str) -> str:
-    """A step as the server names it (`tasks[1].actions[0]`, 0-based) in the words and numbers the
-    pendants' tables use (`task 2, action 1`)."""
-    found = STEP_PART.findall(step)
-    if not found:
-        return step
-    return ", ".join(f"{STEP_WORD[kind]} {int(k) + 1}" for kind, k in found)
 
 
 def status_detail(st: m.SessionState | None) -> str:
