@@ -330,6 +330,21 @@ class SignalPreview(Record):
     ]
 
 
+#: Samples of a plan's motion (PlannedMotion) at most.
+MOTION_POINTS = 200
+
+
+class PlannedMotion(Record):
+    """The joint set points of a command over its duration, for a preview of the move before it runs
+    (a client animates its arm along them): evenly spaced in time, at most 200 (MOTION_POINTS)."""
+
+    t: Annotated[list[float], Meta(max_length=MOTION_POINTS, description="s, increasing from 0")]
+    q: Annotated[
+        list[Annotated[list[float], Meta(max_length=64)]],
+        Meta(max_length=MOTION_POINTS, description="rad, the joint set points at each t, one per joint"),
+    ]
+
+
 class CommandPlan(Record):
     """Reply data of `set_command`: the command as the server expanded it for the session's model,
     values and initial pose."""
@@ -359,6 +374,13 @@ class CommandPlan(Record):
             "slowed most (1.0 = every step as fast as its percentages asked)",
         ),
     ] = 1.0
+    motion: Annotated[
+        PlannedMotion | None,
+        Meta(
+            description="the joint set points over the command, for a preview; null when positions are "
+            "not known before the run (a joint follows a speed or a motor current)"
+        ),
+    ] = None
 
 
 class GetSession(Command, tag="get_session"):
@@ -492,6 +514,14 @@ class RunInfo(Record):
     until_stopped: Annotated[
         bool, Meta(description="a run until stopped (Run.until_stopped): stop_time is its bound")
     ] = False
+    jogged_s: Annotated[
+        float,
+        Meta(
+            ge=0.0,
+            description="simulated s during which a jog moved the arm (JogInput, §5.4): 0 = never "
+            "jogged; a replay: the recorded run's",
+        ),
+    ] = 0.0
 
 
 class SessionSnapshot(Message, tag="session"):
@@ -592,6 +622,7 @@ class RunStatus(Message, tag="run_status"):
     attempt: Annotated[
         int, Meta(ge=1, description="the attempt of the run reporting (RunRequest.attempt)")
     ] = 1
+    jogged_s: Annotated[float, Meta(ge=0.0, description="simulated s jogged so far (RunInfo.jogged_s)")] = 0.0
 
 
 class RunContext(Record):
@@ -742,6 +773,14 @@ class RecordingInfo(Record):
     bytes: Annotated[int, Meta(ge=0)]
     recovered: bool = False
     stop_time: Annotated[float, Meta(ge=0.0, description="s, as the run was set")] = 0.0
+    created: Annotated[
+        str,
+        Meta(
+            max_length=32,
+            description="when it was made, UTC ISO 8601 (2026-11-27T16:18:42Z): its run's start, "
+            "else the file's last change",
+        ),
+    ] = ""
 
 
 class RecordingList(Message, tag="recordings"):

@@ -38,6 +38,7 @@ GROUPS: list[tuple[str, list[str]]] = [
             "CommandPlan",
             "PlanStep",
             "SignalPreview",
+            "PlannedMotion",
         ],
     ),
     (

@@ -130,6 +130,7 @@ class Plan:
     end_pose: list[float] = field(default_factory=list)
     signalled: list[tuple[str, int]] = field(default_factory=list)  # direct input: (joint, index)
     signal_unit: m.SignalUnit = "A"
+    q0: np.ndarray | None = None  # the initial pose it was planned from (Planner.plan)
 
     def apply(self, sim: Any) -> None:
         """Hand the plan to a `Simulation` for its next run."""
@@ -199,7 +200,20 @@ class Plan:
             stop_time_cuts=self.duration > stop_time + 1e-9,
             signals=self._preview(),
             slowed=max([1.0, *(s.slowed for s in self.steps)]),
+            motion=self._motion(),
         )
+
+    def _motion(self) -> m.PlannedMotion | None:
+        """The joint set points at MOTION_POINTS even times over the command (only a reply needs it)."""
+        if self.q0 is None or self.duration <= 0.0:
+            return None
+        sampled = self.joint_samples(self.q0, self.duration / (m.MOTION_POINTS - 1))
+        if sampled is None:
+            return None
+        times, qs = sampled
+        t = np.linspace(0.0, self.duration, m.MOTION_POINTS)
+        q = np.column_stack([np.interp(t, times, qs[:, j]) for j in range(qs.shape[1])])
+        return m.PlannedMotion(_floats(t), [_floats(row) for row in q])
 
     def _preview(self) -> m.SignalPreview | None:
         """A direct input's signals as expanded, sampled for a client (only a reply needs it: a run
@@ -569,6 +583,7 @@ class Planner:
         """The plan of `command`, or CommandError naming what is wrong with it."""
         plan = self._plan(command)
         plan.start_pose, plan.end_pose = self.pose(self.q0), self.pose(plan.final_q)
+        plan.q0 = self.q0.copy()
         return plan
 
     def collision(self, plan: Plan) -> tuple[str, str] | None:

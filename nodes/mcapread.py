@@ -10,6 +10,7 @@ import json
 import math
 import os
 import struct
+import time
 import zlib
 from collections.abc import Iterator
 from dataclasses import dataclass, field
@@ -309,6 +310,12 @@ class Recording:
     def params(self) -> dict[str, float]:
         return dict(self.layout.context.values)
 
+    @property
+    def jogged_s(self) -> float:
+        """Simulated s during which a jog moved the arm, as the run's last report said (`simecs.end`);
+        0 when the file does not say (not jogged, closed without its end, or written before)."""
+        return _float(self.metadata.get(fmt.META_END, {}).get("jogged_s", "0"))
+
     def context(self, recording: str = "") -> m.RunContext:
         """What produced the recorded run; `recording`: the name it is replayed under."""
         return msgspec.structs.replace(
@@ -460,7 +467,30 @@ def info(path: str | os.PathLike[str]) -> m.RecordingInfo:
         bytes=p.stat().st_size,
         recovered=fmt.META_RECOVERY in meta,
         stop_time=_float(run.get("stop_time", "0")),
+        created=created_of(run, p),
     )
+
+
+def created_of(run_meta: dict[str, str], path: str | os.PathLike[str]) -> str:
+    """When a recording was made (RecordingInfo.created): its `created_ns`, else the file's mtime."""
+    try:
+        ns = int(run_meta.get("created_ns", ""))
+    except ValueError:
+        ns = 0
+    if not 0 < ns < 2**63:
+        try:
+            ns = os.stat(path).st_mtime_ns
+        except OSError:
+            return ""
+    return iso_utc(ns)
+
+
+def iso_utc(ns: int) -> str:
+    """A time in ns since the Unix epoch as UTC ISO 8601 to the second: 2026-11-27T16:18:42Z."""
+    try:
+        return time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime(ns // 1_000_000_000))
+    except (OverflowError, OSError, ValueError):
+        return ""
 
 
 def _float(text: str) -> float:

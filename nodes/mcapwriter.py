@@ -192,6 +192,7 @@ class RunWriter:
         self.path = Path(path)
         self.layout = layout
         self.t0 = int(time_origin_ns if time_origin_ns is not None else time.time_ns())
+        self.created_ns = time.time_ns()  # when the file was begun (RecordingInfo.created)
         self.viz_period = 1.0 / viz_rate_hz if viz_rate_hz > 0 else 0.0
         self.vars = build_vars_codec(layout.columns, layout.units)
         self.poses = PoseEncoder(layout.columns)
@@ -223,7 +224,7 @@ class RunWriter:
                 "stop_time": repr(float(layout.stop_time)),
                 "output_interval": repr(float(layout.output_interval)),
                 "time_origin_ns": str(self.t0),
-                "created_ns": str(time.time_ns()),
+                "created_ns": str(self.created_ns),
                 "layout": layout_json(layout),
             }
             meta.update(run_meta or {})

@@ -25,7 +25,7 @@ from simecs.mesh.model import ModelDescription
 from simecs.mesh.runtime import RequestError
 
 from . import mcapfmt as fmt
-from . import mcaprepair
+from . import mcapread, mcaprepair
 from .mcapwriter import RunWriter
 from .recordings_library import RecordingsLibrary
 
@@ -113,6 +113,7 @@ class Active:
     closing_by: str = ""  # set while the file waits for the samples of its gaps
     fill_deadline: float = 0.0
     model_pending: bool = True  # its model lookup (the /scene) has not come back yet
+    jogged_s: float = 0.0  # simulated s jogged, as the run's newest report (RunStatus) says
 
 
 class RunFiles:
@@ -228,7 +229,16 @@ class RunFiles:
         self.active[(user, layout.session)] = rec
         self.library.opened(
             path,
-            m.RecordingInfo(name, layout.session, layout.run_id, layout.model_id, 0, False, layout.stop_time),
+            m.RecordingInfo(
+                name,
+                layout.session,
+                layout.run_id,
+                layout.model_id,
+                0,
+                False,
+                layout.stop_time,
+                created=mcapread.iso_utc(writer.created_ns),
+            ),
         )
         self.stats["files"] += 1
         note = f" (continues {base}: the recorder restarted during the run)" if name != base else ""
@@ -330,6 +340,23 @@ class RunFiles:
             rec.end_phase, rec.end_reason = st.phase, st.reason
             deadline = time.monotonic() + (0.0 if rec.final_seen else ENDED_GRACE_S)
             rec.close_at = deadline if rec.close_at is None else min(rec.close_at, deadline)
+
+    def on_run_status(self, key: str, payload: bytes) -> None:
+        """A worker's report: how long its run has been jogged so far (written in `simecs.end`). The
+        final report comes after the final frame, so a run waiting for its gaps' samples takes it too."""
+        try:
+            st = codec.loads(m.RunStatus, payload)
+            owner = keys.owner_of(key)
+        except (codec.DecodeError, ValueError):
+            return  # the proxy logs bad reports; nothing in a file depends on one
+        for rec in (self.active.get(owner), self.filling.get((owner, st.run_id))):
+            if (
+                rec is not None
+                and rec.layout.session == st.session
+                and rec.layout.run_id == st.run_id
+                and rec.layout.context.attempt == st.attempt
+            ):
+                rec.jogged_s = max(rec.jogged_s, st.jogged_s)  # a lost worker's report says 0
 
     def on_model(self, key: str, lookup: tuple[Owner, str, str]) -> None:
         """The model description of a run, fetched by the lookup thread: the /scene and model.json."""
@@ -436,6 +463,8 @@ class RunFiles:
         ended = answer.ended
         if ended is not None and not rec.end_phase:  # its end was lost on the way too (or came late)
             rec.end_phase, rec.end_reason = ended.phase, ended.reason
+        if ended is not None:  # what the run stored: its final word, if its last report was lost
+            rec.jogged_s = max(rec.jogged_s, ended.jogged_s)
         for gap, rows in answer.pieces:
             if rows.shape[0] == 0:
                 if ended is not None and math.isinf(gap.before):  # only its end marker was lost
@@ -492,6 +521,7 @@ class RunFiles:
                     "gaps": str(lost),
                     "stray_frames": str(rec.stray_frames),
                     "sim_time": repr(rec.sim_time),
+                    "jogged_s": repr(rec.jogged_s),
                     "closed_ns": str(time.time_ns()),
                 }
             )

@@ -144,8 +144,11 @@ class RecordingPipeline:
                 return declare(zenoh.ext.declare_advanced_subscriber(z, key, channel, history=history))
             return declare(z.declare_subscriber(key, channel))
 
+        # Reports before states: a worker's last report reaches us before the state the proxy makes of it,
+        # and the puller keeps that order (a state that ends a run may close its file).
         self._subs = [
             (ring(keys.ALL_LAYOUT, latched=True), "layout"),
+            (ring(keys.ALL_RUN_STATUS, latched=False), "run"),
             (ring(keys.ALL_STATE, latched=True), "state"),
             (ring(keys.ALL_FULL, latched=False), "full"),
         ]
@@ -212,6 +215,7 @@ class RecordingPipeline:
         files = self.files
         handlers: dict[str, Callable[[str, Any], None]] = {
             "layout": files.on_layout,
+            "run": files.on_run_status,
             "state": files.on_state,
             "full": files.on_full,
             "model": files.on_model,

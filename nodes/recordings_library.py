@@ -151,7 +151,9 @@ class RecordingsLibrary:
                 )
             if not path.is_file():
                 raise RequestError("not_found", f"{user} has no recording {name!r}", "name")
-            info = self._info(path) or m.RecordingInfo(name, "", "", "", path.stat().st_size)
+            info = self._info(path) or m.RecordingInfo(
+                name, "", "", "", path.stat().st_size, created=mcapread.created_of({}, path)
+            )
             path.unlink()
             self.info_cache.pop(path, None)
             self.loaded.pop(path, None)
@@ -233,6 +235,7 @@ class RecordingsLibrary:
             reason,
             recording=name,
             until_stopped=rec.layout.context.until_stopped,
+            jogged_s=rec.jogged_s,
         )
         layout = rec.layout
         return results_reply(
@@ -301,8 +304,9 @@ class RecordingsLibrary:
             "stored uploaded recording %s of %s (%d bytes, %d samples)", name, user, len(data), len(rec.rows)
         )
         lay = rec.layout
+        created = mcapread.created_of(rec.metadata.get(fmt.META_RUN, {}), path)
         return m.RecordingInfo(
-            name, lay.session, lay.run_id, lay.model_id, len(data), rec.recovered, lay.stop_time
+            name, lay.session, lay.run_id, lay.model_id, len(data), rec.recovered, lay.stop_time, created
         )
 
 

@@ -33,6 +33,8 @@ class StoredRun:
     model_id: str
     #: What produced the run (RunContext as JSON data): a client compares runs by it.
     context: dict[str, Any] | None = None
+    #: Simulated s during which a jog moved the arm (RunInfo.jogged_s); 0 in runs stored before it was.
+    jogged_s: float = 0.0
 
 
 class ResultsStore:

@@ -276,6 +276,7 @@ class RunTracker:
             return
         rec.state.sim_time = info.sim_time
         rec.state.progress = min(1.0, info.sim_time / info.stop_time) if info.stop_time else 0.0
+        self.run_info(rec, rec.state.run_id, jogged_s=info.jogged_s)
         self.end_run(rec, info.phase, info.reason)
 
     # -- reports from workers ------------------------------------------------------------------------
@@ -306,6 +307,9 @@ class RunTracker:
             rec.reported, rec.reported_at = st.run_id, time.monotonic()
             progress = min(1.0, st.sim_time / st.stop_time) if st.stop_time > 0 else 0.0
             self.run_info(rec, st.run_id, sim_time=st.sim_time, samples=st.samples)
+            info = rec.run_info(st.run_id)
+            if info is not None:  # it only grows within an attempt (a report of a lost worker says 0)
+                info.jogged_s = max(info.jogged_s, st.jogged_s)
             if st.stop_time > 0:
                 self.run_info(rec, st.run_id, stop_time=st.stop_time)
             rec.state.sim_time, rec.state.progress, rec.state.rtf = st.sim_time, progress, st.rtf
@@ -439,7 +443,9 @@ class RunTracker:
             self.store.move(
                 rec, "restarted", attempt=attempt, host="", progress=0.0, sim_time=0.0, rtf=0.0, hil=None
             )
-            self.run_info(rec, rec.state.run_id, phase="queued", sim_time=0.0, attempt=attempt, host="")
+            self.run_info(
+                rec, rec.state.run_id, phase="queued", sim_time=0.0, attempt=attempt, host="", jogged_s=0.0
+            )
             self.notify(rec, text)
             self.admission.requeue(rec, restarted, first=True)
         self.admission.update()

@@ -299,6 +299,7 @@ class Simulator(Node):
             raise NotMine()
         run, data = found
         info = m.RunInfo(run.run_id, run.phase, run.stop_time, run.sim_time, run.samples, run.reason)  # type: ignore[arg-type]
+        info.jogged_s = run.jogged_s
         context = None
         if run.context is not None:
             try:

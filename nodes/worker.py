@@ -34,7 +34,7 @@ from simecs.mesh.seal import Seal, SealedPublisher
 from .hil import Lockstep
 from .pacing import FRAMES_PER_SOLVE, Pacer, PaceWatch, frame_length, frame_parts
 from .results_store import ResultsStore, StoredRun
-from .sources import RunSource, SimulationSource, open_source
+from .sources import RecordingSource, RunSource, SimulationSource, open_source
 
 # At most 5 progress reports per wall second: each costs a put here, a routing in the hub and a state
 # the proxy publishes in turn (the proxy's part alone about 0.09 ms of CPU, measured with 27 runs).
@@ -131,17 +131,20 @@ class Jogging:
         with self.lock:
             self.latest, self.at, self.active = msg, time.monotonic(), True
 
-    def apply(self, source: RunSource, horizon: float) -> None:
-        """Before a chunk: the held velocity, or none once the deadman time has passed."""
+    def apply(self, source: RunSource, horizon: float) -> bool:
+        """Before a chunk: the held velocity, or none once the deadman time has passed. Whether a
+        velocity other than zero is in force for the chunk (its simulated time counts as jogged)."""
         with self.lock:
             if not self.active:
-                return
+                return False
             fresh = time.monotonic() - self.at < m.JOG_DEADMAN_S
             msg = self.latest if fresh else None
             self.active = fresh
         problem = source.jog(msg, horizon)
         if problem:
             self.notifier.tell(f"jog ignored: {problem}")
+            return False
+        return msg is not None and any(msg.qd if msg.space == "joint" else msg.twist)
 
 
 class Run:
@@ -155,6 +158,7 @@ class Run:
         self.source: RunSource | None = None
         self.sim_time = 0.0
         self.rtf = 0.0
+        self.jogged_s = 0.0  # simulated s with a jog velocity in force (a replay: the recorded run's)
         u, s = req.user, req.session
         # Every sample carries the service's seal: the proxy, recorder and hot-feedback act only on those.
         full_key, status_key, layout_key = keys.vars_full(u, s), keys.run_status(u, s), keys.layout(u, s)
@@ -197,6 +201,7 @@ class Run:
             samples=self.samples,
             reason=reason,
             attempt=self.req.attempt,
+            jogged_s=self.jogged_s,
         )
         if self.source is not None:
             msg.step, msg.task, msg.action = self.source.step_at(self.sim_time)
@@ -215,6 +220,8 @@ class Run:
         """Run the request to its end; (phase, reason) of how it ended."""
         req = self.req
         self.source = source = open_source(req, self.z)
+        if isinstance(source, RecordingSource):  # its rows were jogged as the recording says
+            self.jogged_s = source.rec.jogged_s
         try:
             layout = m.RunLayout(
                 session=req.session,
@@ -296,8 +303,8 @@ class Run:
                 pacer.reset(source.time)
                 self.pace_watch.reset(source.time)
             step_wall, step_t = time.monotonic(), source.time
-            if pacer.paced:  # jogging is telemanipulation: runs paced in wall time only
-                self.jogging.apply(source, solve)
+            # jogging is telemanipulation: runs paced in wall time only
+            jogged = pacer.paced and self.jogging.apply(source, solve)
             # Told to stop: one more frame, the run's last (a finished run's final frame holds samples).
             until = min(source.time + (frame if ctl.stopped.is_set() else solve), source.stop_time)
             rows = self.hil.advance(until) if self.hil is not None else source.advance(until)
@@ -327,6 +334,9 @@ class Run:
                     ctl.sleep(ahead)
                 if ctl.aborted.is_set():
                     break  # what the call simulated beyond the frames sent is not the run's
+            if jogged:  # the velocity held for the whole call: as far as its frames went
+                went = max((self.sim_time if parts else t) - step_t, 0.0)
+                self.jogged_s = round(self.jogged_s + went, 9)  # 0.6, not 0.6000000000000001
             if self.stopped_at is not None:
                 break
             if not parts:
@@ -381,6 +391,7 @@ class Run:
             units=list(source.units) if source is not None else ["s"],
             model_id=self.req.model_id,
             context=codec.to_obj(source.context) if source is not None else None,
+            jogged_s=self.jogged_s,
         )
         self.store.save(self.req.user, self.req.session, run, data)
         self.samples = run.samples

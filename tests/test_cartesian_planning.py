@@ -209,3 +209,25 @@ def test_a_client_that_knows_no_slowed_reads_the_plan_and_one_that_does_reads_on
     assert msgspec.json.decode(msgspec.json.encode(step), type=m.PlanStep).slowed == 1.5
     with pytest.raises(msgspec.ValidationError):
         msgspec.json.decode(b'{"step":"a","what":"lin","start":0,"end":1,"slowed":0.5}', type=m.PlanStep)
+
+
+def test_a_plan_carries_its_motion_for_a_preview() -> None:
+    """Issue 32: a client plays the planned move on its arm before Run (MoveIt's Plan/Execute) from the
+    server's own set points: `CommandPlan.motion`, at most 200 even samples from the initial pose to
+    the command's end; none where the positions are not known before the run (motor currents)."""
+    p = planner("spider")
+    target = [0.8, 0.6, -0.7, 1.0, 0.9, -0.8, 1.2]
+    plan = p.plan(m.JointPath([m.PathNode(target)]))
+    motion = plan.summary(10.0).motion
+    assert motion is not None and len(motion.t) == m.MOTION_POINTS == len(motion.q)
+    assert motion.t[0] == 0.0 and motion.t[-1] == pytest.approx(plan.duration)
+    assert np.allclose(motion.q[0], p.q0) and np.allclose(motion.q[-1], target, atol=1e-9)
+    assert np.all(np.diff(motion.t) > 0)
+    line = plan_of(p, taught(p, np.array([0.0, 0.15, 0.0])))
+    assert line.motion is not None and np.allclose(line.motion.q[-1], line.final_q, atol=1e-9)
+    currents = m.DirectInput("open_loop", {"joint1": m.StepSignal(amplitude=0.5)})
+    assert p.plan(currents).summary(2.0).motion is None
+
+
+def plan_of(p: Planner, command: m.RobotCommand) -> m.CommandPlan:
+    return p.plan(command).summary(60.0)

@@ -99,8 +99,9 @@ def test_jog_messages_to_a_run_paced_as_fast_as_possible_change_nothing(service:
     finally:
         stop.set()
         thread.join()
-    _, rows = s.results(run_id, ["joint1.q_ref"])
+    att, rows = s.results_of(run_id, ["joint1.q_ref"])
     assert np.allclose(rows[:, 1], rows[0, 1])
+    assert att.run.jogged_s == 0.0 and next(r for r in s.runs() if r.run_id == run_id).jogged_s == 0.0
 
 
 def sim_time_past(s: SessionClient, t: float, what: str) -> m.SessionState:
@@ -187,3 +188,28 @@ def test_stop_finishes_a_timed_run_early_even_paused(service: Service) -> None:
     with pytest.raises(RemoteError) as err:  # nothing runs any more
         s.stop()
     assert err.value.code == "conflict" and err.value.error.message == phases.refusal("stop", "finished")
+
+
+def test_a_run_says_how_long_it_was_jogged_and_an_unjogged_run_says_zero(service: Service) -> None:
+    """Two real-time runs of the same command and settings: the jogged one says for how long (in the
+    session's list of runs and in its results), the other says 0; the comparison is no longer blind."""
+    s = service.client.create_session("ann", "spider")
+    jogged_run = running(s, 2.5)
+    sim_time_past(s, 0.3, "the run under way")
+    jog_for(s, jogged_run, 0.4, qd=[0.2] + [0.0] * 6)
+    assert s.wait_for(ENDED, 30, jogged_run).phase == "finished"
+    info = next(r for r in s.runs() if r.run_id == jogged_run)
+    assert 0.2 <= info.jogged_s <= 1.0, info  # ~0.4 s of messages, the deadman, whole solver calls
+    att, rows = s.results_of(jogged_run, ["joint1.q_ref"])
+    assert att.run.jogged_s == info.jogged_s, (att.run, info)
+    # It is the time the set point moved at the jog's speed (each solver call it held for counted).
+    t, ref = rows[:, 0], rows[:, 1]
+    moving = float(np.sum(np.diff(t)[np.diff(ref) / np.diff(t) > 0.1]))
+    assert abs(info.jogged_s - moving) < 0.01, (info.jogged_s, moving)
+
+    plain_run = s.run()  # the same command and settings, nobody jogs
+    assert s.wait_for(ENDED, 30, plain_run).phase == "finished"
+    runs = {r.run_id: r for r in s.runs()}
+    assert runs[plain_run].jogged_s == 0.0 and runs[jogged_run].jogged_s == info.jogged_s
+    plain, _ = s.results_of(plain_run, ["joint1.q_ref"])
+    assert plain.run.jogged_s == 0.0 and plain.context == att.context  # told apart by jogged_s only

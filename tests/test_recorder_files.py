@@ -8,6 +8,7 @@ from __future__ import annotations
 import logging
 import math
 import time
+from datetime import datetime
 from pathlib import Path
 
 import msgspec
@@ -76,3 +77,53 @@ def test_a_run_whose_end_was_lost_ends_as_its_results_say(tmp_path: Path) -> Non
     files.on_fill("", Fill(owner, run_id, [], "no node holds the run's results"))
     end = mcapread.load(library.path_of(USER, keys.recording_name(SID, "r2"))).metadata["simecs.end"]
     assert (end["phase"], end["gaps"]) == ("incomplete", "1")
+
+
+def test_a_recording_keeps_how_long_its_run_was_jogged_and_when_it_was_made(tmp_path: Path) -> None:
+    """The run's newest report (RunStatus.jogged_s) goes into simecs.end, and the recording's results
+    say it; reports of another run or attempt change nothing; a run whose last report was lost takes
+    its stored results' word. The listing says when each file was begun."""
+    library = RecordingsLibrary(tmp_path)
+    mesh = ResultsOnRequest()
+    files = RunFiles(library, "recorder-t", logging.getLogger("test"), mesh, idle_timeout_s=30.0)
+    status_key, state_key = keys.run_status(USER, SID), keys.state(USER, SID)
+
+    def report(run_id: str, jogged_s: float, phase: str = "running", attempt: int = 1) -> None:
+        st = m.RunStatus(SID, run_id, phase, jogged_s=jogged_s, attempt=attempt)  # type: ignore[arg-type]
+        files.on_run_status(status_key, codec.dumps(st))
+
+    before = time.time_ns()
+    first = layout_for(SID)
+    rows = make_rows(arm_model(), 20)
+    files.on_layout(keys.layout(USER, SID), codec.dumps(first))
+    name = keys.recording_name(SID, "r1")
+    writing = library.info(USER, name)  # listed while it is being written
+    report("r1", 0.25)
+    report("r1", 0.1)  # the figure only grows (the report of a lost worker says 0)
+    report("r1", 9.0, attempt=2)  # an attempt the recording is not of
+    report("r2", 8.0)  # another run of the session
+    files.on_full(keys.vars_full(USER, SID), frames.encode(frames.Frame(1, 0, time.time_ns(), rows, 1)))
+    report("r1", 0.45, "finished")
+    files.on_state(state_key, codec.dumps(m.SessionState(SID, "finished", run_id="r1")))
+    files.close(files.active[(USER, SID)], "final frame")
+    rec = mcapread.load(library.path_of(USER, name))
+    assert rec.metadata["simecs.end"]["jogged_s"] == "0.45" and rec.jogged_s == 0.45
+    att = library.results(USER, name, {}).attachment
+    assert isinstance(att, m.ResultsAttachment) and att.run.jogged_s == 0.45 and att.run.recording == name
+    listed = library.info(USER, name)
+    made = mcapread.iso_utc(int(rec.metadata["simecs.run"]["created_ns"]))
+    assert listed.created == writing.created == made and made.endswith("Z")
+    assert before // 10**9 <= datetime.fromisoformat(made).timestamp() <= time.time()
+
+    # r2's end is lost (r3 comes first): the results fetched for its gap have the final figure.
+    second = msgspec.structs.replace(first, run_id="r2", run_index=2)
+    files.on_layout(keys.layout(USER, SID), codec.dumps(second))
+    files.on_full(keys.vars_full(USER, SID), frames.encode(frames.Frame(2, 0, time.time_ns(), rows)))
+    report("r2", 0.2)
+    files.on_layout(keys.layout(USER, SID), codec.dumps(msgspec.structs.replace(first, run_id="r3")))
+    owner, run_id, gaps = mesh.fills[-1]
+    ended = m.RunInfo("r2", "finished", 1.0, float(rows[-1, 0]), rows.shape[0], jogged_s=0.3)
+    files.on_fill("", Fill(owner, run_id, [(gaps[0], rows[:0])], "", ended))
+    assert mcapread.load(library.path_of(USER, keys.recording_name(SID, "r2"))).jogged_s == 0.3
+    # A file that does not say (its end not written yet, or written before it was kept): 0.
+    assert mcapread.load(library.path_of(USER, keys.recording_name(SID, "r3"))).jogged_s == 0.0

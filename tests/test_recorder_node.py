@@ -4,6 +4,7 @@ loses at most the last second; the files are listed, downloaded and uploaded ove
 from __future__ import annotations
 
 import base64
+import datetime
 import json
 import signal
 import struct
@@ -269,3 +270,50 @@ def test_frames_lost_on_the_way_show_as_a_gap(mesh: Mesh) -> None:
     sub.undeclare()
     assert [(n.run_id, n.source) for n in notices] == [("r1", "recorder")]  # once per run, for state
     assert "gaps" in notices[0].message
+
+
+@pytest.mark.timeout(120)
+def test_a_recording_says_when_it_was_made_and_how_long_its_run_was_jogged(mesh: Mesh) -> None:
+    """A real-time run jogged through the whole service: its recording's listing says when it was made
+    (UTC ISO 8601, within the test), and its results, and its replay, say the jogged time the
+    session's list says."""
+    from .test_jog import jog_for, running, sim_time_past
+
+    service = start_service(mesh)
+    rec_dir = mesh.folder / "rec"
+    mesh.start("recorder", "--dir", str(rec_dir))
+    began = datetime.datetime.now(datetime.UTC).replace(microsecond=0)
+    s = service.client.create_session(USER, "spider")
+    run_id = running(s, 1.5)
+    sim_time_past(s, 0.2, "the run under way")
+    jog_for(s, run_id, 0.3, qd=[0.0, 0.2, 0.0, 0.0, 0.0, 0.0, 0.0])
+    assert s.wait_for(["finished", "failed", "aborted"], 30, run_id).phase == "finished"
+    info = next(r for r in s.runs() if r.run_id == run_id)
+    assert 0.2 <= info.jogged_s <= 1.0, info
+    name = keys.recording_name(s.id, run_id)
+
+    def closed() -> tuple[m.ResultsAttachment, np.ndarray] | None:
+        try:  # answered once the file is closed (a conflict while it is being written)
+            return service.client.recording_results(USER, name, ["joint2.q_ref"])
+        except RemoteError as exc:
+            assert exc.code == "conflict", exc
+            return None
+
+    att, rows = wait_until(closed, timeout=30, what="the recording closed")
+    assert att.run.recording == name and att.run.jogged_s == info.jogged_s, (att.run, info)
+    _, results = s.results(run_id, ["joint2.q_ref"])
+    assert np.array_equal(rows, results)
+    listed = {r.name: r for r in service.client.recordings(USER)}[name]
+    made = datetime.datetime.fromisoformat(listed.created)
+    ended = datetime.datetime.now(datetime.UTC)
+    assert listed.created.endswith("Z") and made.tzinfo is not None, listed
+    assert began <= made <= ended, (began, listed.created, ended)
+    assert service.client.recording_info(USER, name).created == listed.created
+    path = rec_dir / USER / f"{name}.mcap"
+    assert float(mcapread.load(path).metadata[fmt.META_END]["jogged_s"]) == info.jogged_s
+    # Its replay plays the jogged rows: it says the recorded figure too.
+    replay_run = s.replay(name, speed=0.0)
+    assert s.wait_for(["finished", "failed", "aborted"], 30, replay_run).phase == "finished"
+    replayed = next(r for r in s.runs() if r.run_id == replay_run)
+    assert replayed.recording == name and replayed.jogged_s == info.jogged_s, replayed
+    assert s.results_of(replay_run, ["joint2.q_ref"])[0].run.jogged_s == info.jogged_s
