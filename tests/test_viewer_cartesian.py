@@ -109,13 +109,15 @@ def test_the_pendant_sends_a_dragged_pose_and_shows_the_nodes_arm_or_the_refusal
         assert "Not the session's command" not in cart.duration.content
         assert page.scene._path_line is not None  # the planned tool path in 3D
 
-        # the gizmo dragged: sent at once, the arm drawn where the server puts the node
+        # the gizmo dragged: sent at once, the goal ghost drawn where the server puts the node (the arm
+        # itself stays where the run starts: what Teach records)
         cart.gizmo.position = (0.45, 0.05, 0.25)
         cart._dragged(drag(cart.gizmo))
         ctl.drain()
         assert sc.of(m.SetCommand)[-1].command.nodes[0].position == pytest.approx([0.45, 0.05, 0.25])
         assert cart.position.value == pytest.approx((450.0, 50.0, 250.0))
-        assert ctl.shown_q == pytest.approx([0.25, 0.0, 0.0])  # the plan's q_end of node 1
+        assert page.ghost.q == pytest.approx([0.25, 0.0, 0.0])  # the plan's q_end of node 1
+        assert ctl.shown_q == pytest.approx([0.0, 0.0, 0.0]) and page.ghost.frames[0].visible
         sent = len(sc.of(m.SetCommand))
         cart._dragged(drag(cart.gizmo, "end"))  # the release, at the last update's pose: nothing new
         cart._dragged(drag(cart.gizmo, "start"))
@@ -139,7 +141,7 @@ def test_the_pendant_sends_a_dragged_pose_and_shows_the_nodes_arm_or_the_refusal
         assert "Not planned" in cart.duration.content
         assert "▶1** ✗" in cart.table.content and cart._markers[0].color == (220, 40, 40)
         assert page.scene._path_line is None and not client.notes  # beside the path, not a notice
-        assert ctl.shown_q == pytest.approx([0.25, 0.0, 0.0])  # the arm stays where it could go
+        assert page.ghost.q == pytest.approx([0.25, 0.0, 0.0])  # the ghost stays where it could go
         ctl.control.run_action("run")  # Run with the refused path: not the old one, the reason
         ctl.drain()
         assert not sc.of(m.Run) and "server refused the command (out of reach" in client.notes[-1][1]
@@ -148,7 +150,7 @@ def test_the_pendant_sends_a_dragged_pose_and_shows_the_nodes_arm_or_the_refusal
         cart.position.value = (450.0, 50.0, 300.0)
         cart._typed(Event(cart.set_pose))
         ctl.drain()
-        assert cart.refusal.content == "" and ctl.shown_q == pytest.approx([0.3, 0.0, 0.0])
+        assert cart.refusal.content == "" and page.ghost.q == pytest.approx([0.3, 0.0, 0.0])
         ctl.control.run_action("run")  # the Cartesian path runs (the joint path is empty)
         ctl.drain()
         assert len(sc.of(m.Run)) == 1 and isinstance(sc.of(m.SetCommand)[-1].command, m.CartesianPath)
@@ -188,3 +190,17 @@ def test_the_pendant_sends_a_dragged_pose_and_shows_the_nodes_arm_or_the_refusal
     finally:
         tab.close()
         page.remove()
+
+
+def test_a_node_sets_the_force_the_hybrid_controller_pushes_with() -> None:
+    """Issue 32: the hybrid control system's force set point is reachable from the pendant (a node's
+    force and direction, checked with the protocol's bounds before anything is sent)."""
+    ed = cartesian.CartesianPathEditor()
+    ed.insert(cartesian.Pose([0.4, 0.0, 0.3], [0.0, 0.0, 0.0]))
+    ed.set_force(12.5, [0.0, 0.0, -2.0])
+    node = ed.to_command().nodes[0]
+    assert node.force == 12.5 and node.force_axis == [0.0, 0.0, -2.0]
+    for force, axis, field in ((-1.0, [0.0, 0.0, 1.0], "force"), (5.0, [0.0, 0.0, 0.0], "force_axis")):
+        with pytest.raises(PathError, match=field):
+            ed.set_force(force, axis)
+    assert ed.nodes[0].force == 12.5  # a refused value changes nothing

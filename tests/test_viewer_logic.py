@@ -1211,6 +1211,23 @@ def test_settings_form_is_checked_before_sending() -> None:
     with pytest.raises(DecodeError) as err:
         run.settings_from_form(2.0, 0.002, 0.0, "real time", 1.0, 50.0, [], "fuzzy control")
     assert err.value.field == "control_system"
+    # what the service had and the page did not offer (issue 32): collisions, the external controller
+    form = dict(stop_time=2.0, output_interval=0.002, step=0.0, pacing_label="real time", factor=1.0)
+    s = run.settings_from_form(
+        **form,
+        live_rate=50.0,
+        live_vars=[],
+        collisions_label="simulate the contact",
+        controller_label="external (on hil/actuators)",
+        external_joints="joint1, joint3",
+        control_period=0.002,
+        hil_timeout=3.0,
+    )
+    assert (s.collisions, s.controller, s.external_joints) == ("simulate", "external", ["joint1", "joint3"])
+    assert (s.control_period, s.hil_timeout) == (0.002, 3.0)
+    with pytest.raises(DecodeError) as err:
+        run.settings_from_form(**form, live_rate=50.0, live_vars=[], control_period=1.0)
+    assert err.value.field == "control_period"
 
 
 def test_errors_read_as_sentences() -> None:
@@ -1942,7 +1959,7 @@ def test_what_runs_differ_in_is_listed_and_values_at_the_cursor_read() -> None:
     model = arm()
     base = m.RunContext("u", model.default_values(), [0.0, 0.1, 0.0], None, m.RunSettings())
     same = compare.differences({"r1": base, "r2": base}, model)
-    assert same == "_r1, r2 ran with the same parameters, initial pose, command and settings._"
+    assert same == "_r1, r2 ran with the same parameters, initial pose, command and settings, none jogged._"
     name = model.parameters[0].name
     other = msgspec.structs.replace(
         base,
@@ -1953,7 +1970,14 @@ def test_what_runs_differ_in_is_listed_and_values_at_the_cursor_read() -> None:
     )
     table = compare.differences({"r1": base, "r2": other}, model)
     assert f"| {name} |" in table and "| initial pose [deg] | 0.0 5.7 0.0 | 0.0 11.5 0.0 |" in table
-    assert "| stop time [s] |" in table and "| command | none | JointPath (1 nodes) |" in table
+    assert "| stop time [s] |" in table and "| command | none | joint path, 1 node |" in table
+    jogged = compare.differences({"r1": base, "r2": base}, model, {"r1": 0.0, "r2": 1.25})
+    assert "| jogged [s] | no | 1.25 |" in jogged  # a jogged run is not said to have run the same
+    info = m.RunInfo("r3", "finished", 5.0, 5.0, jogged_s=2.0, until_stopped=True)
+    assert (
+        results.run_label(info, other)
+        == "r3 · finished · 5.00 s · joint path, 1 node · until stopped · jogged 2.0 s"
+    )
     assert "older server" in compare.differences({"r1": base, "r2": None}, model)
     t = np.linspace(0.0, 1.0, 11)
     runs = {"r1": {"joint1.q": (t, t)}, "r2": {"joint1.q": (t[:6], -t[:6])}}

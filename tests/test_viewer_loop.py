@@ -154,3 +154,32 @@ def test_a_tab_on_its_own_thread_applies_events_from_many_threads_without_a_lock
         assert not hasattr(tab, "lock")
     finally:
         tab.close()
+
+
+def test_preview_plays_the_planned_motion_on_the_ghost_and_the_arm_stays(server: Any) -> None:
+    """Issue 32 (MoveIt's Plan before Execute): Preview poses the goal ghost along the server's
+    planned set points at their own pace, on the tab's loop; the arm itself does not move."""
+    from simecs.mesh import messages as m
+
+    tab, client, page, _sc = loaded_tab(server, arm())
+    try:
+        page.preview_motion()  # no plan yet: said, nothing plays
+        assert "Nothing to preview" in client.notes[-1][1]
+        t = [0.0, 0.1, 0.2]
+        q = [[0.0, 0.0, 0.0], [0.1, 0.2, 0.0], [0.2, 0.4, 0.0]]
+        plan = m.CommandPlan("joint_path", 0.2, [], q[-1], motion=m.PlannedMotion(t, q))
+        tab.controller.edits.plan = plan
+        page.preview_motion()
+        seen: list[list[float]] = []
+        end = time.monotonic() + 5.0
+        while time.monotonic() < end and page.ghost.q != q[-1]:
+            time.sleep(0.01)
+            tab.loop.run_pending()
+            if page.ghost.q is not None and (not seen or seen[-1] != page.ghost.q):
+                seen.append(list(page.ghost.q))
+        assert page.ghost.q == pytest.approx(q[-1]) and len(seen) >= 4  # several poses, in order
+        assert all(a[0] <= b[0] for a, b in zip(seen, seen[1:], strict=False))
+        assert tab.controller.shown_q == [0.0, 0.0, 0.0]  # the arm stayed where the run starts
+    finally:
+        tab.close()
+        page.remove()

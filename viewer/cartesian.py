@@ -15,6 +15,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
+from simecs.mesh import codec
 from simecs.mesh import messages as m
 from simecs.mesh.kinematics import link_frames, matrix_from_quat, quat_from_matrix, rot_rpy, rpy_of
 from simecs.mesh.model import ModelDescription
@@ -88,6 +89,17 @@ class CartesianPathEditor(NodeList[CartNode]):
 
     def set_pose(self, pose: Pose, i: int | None = None) -> None:
         self.nodes[self._check_index(self.selected if i is None else i)].pose = pose
+
+    def set_force(self, force: float, axis: Sequence[float], i: int | None = None) -> None:
+        """The force the tool pushes with from this node on, and along which world direction (under
+        the hybrid control system; 0 N: motion only). The protocol's bounds, checked here."""
+        node = self.nodes[self._check_index(self.selected if i is None else i)]
+        obj = {"position": [0.0] * 3, "rpy": [0.0] * 3, "force": float(force), "force_axis": list(axis)}
+        try:
+            codec.from_obj(m.CartesianNode, obj)
+        except (codec.DecodeError, TypeError, ValueError) as exc:
+            raise PathError(str(exc)) from None
+        node.force, node.force_axis = float(force), [float(a) for a in axis]
 
     def set_move(self, move: str, i: int | None = None) -> None:
         self.nodes[self._check_index(self.selected if i is None else i)].move = self._move(move)

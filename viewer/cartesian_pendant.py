@@ -89,6 +89,20 @@ class CartesianPendant:
         self.acc = gui.add_number("Acceleration [%]", 100.0, step=1.0, hint="(0, 100]")
         self.speed.on_update(self._pct)
         self.acc.on_update(self._pct)
+        self.force = gui.add_number(
+            "Force [N]",
+            0.0,
+            min=0.0,
+            max=1000.0,
+            step=1.0,
+            hint="control system opspace_hybrid (Settings): the tool pushes with this force from this "
+            "node on; 0 = motion only",
+        )
+        self.force_axis = gui.add_vector3(
+            "Force along", (0.0, 0.0, -1.0), step=0.1, hint="the world direction the tool pushes along"
+        )
+        self.force.on_update(self._forced)
+        self.force_axis.on_update(self._forced)
         self.gizmo = scene.add_transform_controls(
             GIZMO, scale=max(0.08, 0.25 * reach), line_width=3.0, depth_test=False, visible=False
         )
@@ -132,6 +146,18 @@ class CartesianPendant:
             return
         if take_pct(self.editor, self.speed, self.acc, self.on_error):
             self._edited(at_once=False)
+
+    def _forced(self, event: Any) -> None:
+        if event.client is None or not self.editor.nodes or not self._guard():
+            return
+        try:
+            self.editor.set_force(float(self.force.value), [float(a) for a in self.force_axis.value])
+        except (PathError, TypeError, ValueError) as exc:
+            self.on_error(str(exc))
+            node = self.editor.nodes[self.editor.selected]
+            self.force.value, self.force_axis.value = node.force, tuple(node.force_axis)
+            return
+        self._edited(at_once=False)
 
     def _typed(self, _event: Any) -> None:
         if not self.editor.nodes:
@@ -220,6 +246,10 @@ class CartesianPendant:
                 self.speed.value = node.speed_pct
             if self.acc.value != node.acc_pct:
                 self.acc.value = node.acc_pct
+            if self.force.value != node.force:
+                self.force.value = node.force
+            if tuple(self.force_axis.value) != tuple(node.force_axis):
+                self.force_axis.value = tuple(node.force_axis)
             mm = tuple(round(x * 1000.0, 1) for x in node.pose.position)
             deg = tuple(round(a * DEG, 2) for a in node.pose.rpy)
             if tuple(self.position.value) != mm:
@@ -262,7 +292,8 @@ class CartesianPendant:
         self.locked = disabled
         if disabled:
             self._preview_wanted = False  # the run shows the arm now
-        for handle in (self.speed, self.acc, self.move, self.position, self.rpy, self.set_pose):
+        fields = (self.speed, self.acc, self.move, self.position, self.rpy, self.set_pose, self.force)
+        for handle in (*fields, self.force_axis):
             handle.disabled = disabled
         self.gizmo.visible = bool(self.editor.nodes) and not disabled and self.is_command
 

@@ -58,7 +58,7 @@ class CommandPanel:
                     c.path,
                     current_q=lambda: list(c.shown_q),
                     on_changed=c.edits.command_changed,
-                    on_preview=c.preview,
+                    on_preview=c.show_goal,
                     on_error=warn("Joint path"),
                 )
             else:
@@ -73,7 +73,7 @@ class CommandPanel:
                     tool_pose=lambda: c.tool_pose(list(c.shown_q)),
                     on_changed=lambda: c.edits.command_changed("cartesian_path"),
                     on_dragged=lambda: c.edits.command_dragged("cartesian_path"),
-                    on_preview=c.preview,
+                    on_preview=c.show_goal,
                     on_error=warn("Cartesian path"),
                     reach=scene.extent(),
                 )
@@ -97,7 +97,7 @@ class CommandPanel:
                     current_q=lambda: list(c.shown_q),
                     tool_pose=c.tool_pose,
                     on_changed=lambda: c.edits.command_changed(program.kind),
-                    on_preview=c.preview,
+                    on_preview=c.show_goal,
                     request=c.edits.command,
                     submit=c.submit,
                     on_error=warn("Tasks"),

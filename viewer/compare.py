@@ -31,12 +31,14 @@ MAX_DIFF_ROWS = 40  # parameters listed as differing at most (the rest are count
 
 @dataclass
 class RunTrack:
-    """A finished run's link poses over time, and the context it ran with."""
+    """A finished run's link poses over time, the context it ran with and what the server says of it
+    (its RunInfo: how long it was jogged)."""
 
     run_id: str
     t: np.ndarray  # (n,) s
     poses: np.ndarray  # (n, frames, 7): x y z qw qx qy qz per link frame
     context: m.RunContext | None = None
+    info: m.RunInfo | None = None
 
     @property
     def end(self) -> float:
@@ -68,13 +70,18 @@ def track_columns(model: ModelDescription) -> list[str]:
     return [columns.pose_column(f, field) for f in frames for field in columns.POSE_FIELDS]
 
 
-def track_of(run_id: str, names: Sequence[str], rows: np.ndarray, context: m.RunContext | None) -> RunTrack:
+def track_of(
+    run_id: str,
+    names: Sequence[str],
+    rows: np.ndarray,
+    context: m.RunContext | None,
+    info: m.RunInfo | None = None,
+) -> RunTrack:
     """A results reply of `track_columns` (time first) as a track."""
     frames = (len(names) - 1) // len(columns.POSE_FIELDS)
     poses = np.asarray(rows[:, 1 : 1 + frames * len(columns.POSE_FIELDS)], dtype=float)
-    return RunTrack(
-        run_id, np.asarray(rows[:, 0], dtype=float), poses.reshape(len(rows), frames, -1), context
-    )
+    t = np.asarray(rows[:, 0], dtype=float)
+    return RunTrack(run_id, t, poses.reshape(len(rows), frames, -1), context, info)
 
 
 def track_every(samples: int) -> int:
@@ -106,9 +113,14 @@ def values_table(
     return "\n".join(lines)
 
 
-def differences(contexts: dict[str, m.RunContext | None], model: ModelDescription) -> str:
+def differences(
+    contexts: dict[str, m.RunContext | None],
+    model: ModelDescription,
+    jogged: dict[str, float] | None = None,
+) -> str:
     """Markdown: what differs between the runs' contexts (parameters, initial pose, command, settings,
-    obstacles), a column per run; says so when they ran with the same inputs."""
+    obstacles) and how long each was jogged (`jogged`: run -> s; a jog moves the arm beyond its
+    command), a column per run; says so when they ran with the same inputs."""
     runs = list(contexts)
     if len(runs) < 2:
         return "_Pick a run to compare with: its differences from the shown run are listed here._"
@@ -144,13 +156,17 @@ def differences(contexts: dict[str, m.RunContext | None], model: ModelDescriptio
         cells = [value(c) for c in ctxs]
         if len(set(cells)) > 1:
             lines.append(f"| {label} | " + " | ".join(escape_html(x) for x in cells) + " |")
+    jogs = [float((jogged or {}).get(r, 0.0)) for r in runs]
+    if any(abs(j - jogs[0]) > 1e-9 for j in jogs):
+        lines.append("| jogged [s] | " + " | ".join(f"{j:.2f}" if j else "no" for j in jogs) + " |")
     commands = [c.command for c in ctxs]
     if any(x != commands[0] for x in commands):
         labels = [_command_label(x) for x in commands]
         mark = "" if len(set(labels)) > 1 else " · edited"  # same kind and size, other targets
         lines.append("| command | " + " | ".join(escape_html(x) + mark for x in labels) + " |")
     if len(lines) == 2:
-        return f"_{', '.join(runs)} ran with the same parameters, initial pose, command and settings._"
+        same = f"_{', '.join(runs)} ran with the same parameters, initial pose, command and settings"
+        return same + (", and each was jogged._" if any(jogs) else ", none jogged._")
     return "\n".join(lines)
 
 
@@ -168,8 +184,41 @@ def _same_numbers_lists(lists: Sequence[list[float]]) -> bool:
 
 
 def _command_label(command: m.RobotCommand | None) -> str:
+    return command_summary(command) if command is not None else "none"
+
+
+def command_summary(command: m.RobotCommand | None) -> str:
+    """What a command did, in a few words a run list can carry: `joint path, 2 nodes`."""
     if command is None:
-        return "none"
-    kind = type(command).__name__
-    nodes = getattr(command, "nodes", None)
-    return f"{kind} ({len(nodes)} nodes)" if isinstance(nodes, list) else kind
+        return "no command (held its pose)"
+    if isinstance(command, m.JointPath | m.CartesianPath):
+        kind = "joint path" if isinstance(command, m.JointPath) else "Cartesian path"
+        return f"{kind}, {len(command.nodes)} node{'s' * (len(command.nodes) != 1)}"
+    if isinstance(command, m.DirectInput):
+        mode = "currents" if command.mode == "open_loop" else f"{command.reference} set points"
+        return f"direct input, {len(command.signals)} signal{'s' * (len(command.signals) != 1)} ({mode})"
+    if isinstance(command, m.Task):
+        return f"task {command.name}, {len(command.actions)} action{'s' * (len(command.actions) != 1)}"
+    if isinstance(command, m.Mission):
+        return f"mission {command.name}, {len(command.tasks)} task{'s' * (len(command.tasks) != 1)}"
+    if isinstance(command, m.Action):
+        return f"action {command.primitive}"
+    return type(command).__name__
+
+
+def run_summary(info: m.RunInfo, context: m.RunContext | None) -> str:
+    """What a run did, for the lists that offer it (Results, Compare runs): its command (or the
+    recording it replays), the control system when not the default, whether it ran until stopped,
+    and how long it was jogged."""
+    parts = []
+    if info.recording:
+        parts.append(f"replay of {info.recording}")
+    elif context is not None:
+        parts.append(command_summary(context.command))
+        if context.settings.control_system != "joint_independent":
+            parts.append(context.settings.control_system)
+    if info.until_stopped:
+        parts.append("until stopped")
+    if info.jogged_s > 0:
+        parts.append(f"jogged {info.jogged_s:.1f} s")
+    return " · ".join(parts)

@@ -96,11 +96,13 @@ class ComparePanel:
             self.tracks.pop(run_id, None)
             self.asked.discard(run_id)
         for run_id, info in ended.items():
+            label = run_label(info, self.c.contexts.get(run_id))
             if run_id in self.boxes:
-                self.boxes[run_id].label = run_label(info)
+                if self.boxes[run_id].label != label:
+                    self.boxes[run_id].label = label
                 continue
             with self.box_folder:
-                box = self.gui.add_checkbox(run_label(info), False)
+                box = self.gui.add_checkbox(label, False)
             box.on_update(self._ticked)
             self.boxes[run_id] = box
         if not ended:
@@ -228,7 +230,10 @@ class ComparePanel:
         self.cursor.disabled = not on or not runs
         self.follow.disabled = not on or not runs
         contexts = {r: self.tracks[r].context for r in runs}
-        self.diff.content = differences(contexts, self.c.model) if self.c.model is not None else ""
+        jogged = {r: info.jogged_s for r in runs if (info := self.tracks[r].info) is not None}
+        diff = differences(contexts, self.c.model, jogged) if self.c.model is not None else ""
+        if self.diff.content != diff:
+            self.diff.content = diff
 
     def _cursor_toggled(self, event: Any) -> None:
         if event.client is None:

@@ -137,6 +137,12 @@ class RunsChanged:
 
 
 @dataclass
+class RunsDescribed:
+    """What produced some of the session's runs came (TabState.contexts): the run lists say what each
+    run did."""
+
+
+@dataclass
 class ParamSetsChanged:
     names: list[str]
 
@@ -173,6 +179,14 @@ class ObstaclesChanged:
     """The session's obstacles (the user's edit, or another client's): draw them."""
 
     obstacles: list[m.Obstacle]
+
+
+@dataclass
+class GoalShown:
+    """Show the goal ghost at joint positions `q` (where the picked node or action puts the arm; the arm
+    itself stays where the run starts); None hides it."""
+
+    q: list[float] | None
 
 
 @dataclass
@@ -253,12 +267,14 @@ Event = (
     | PlanChanged
     | CommandRefused
     | RunsChanged
+    | RunsDescribed
     | ParamSetsChanged
     | LayoutChanged
     | LiveSamples
     | ObstaclesChanged
     | CommandReplaced
     | PosePreview
+    | GoalShown
     | TransientLoaded
     | ComparedLoaded
     | UndoChanged

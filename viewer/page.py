@@ -12,6 +12,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any
 
+from simecs.mesh import shapes
 from simecs.mesh.codec import DecodeError
 
 from . import browser, camera
@@ -19,6 +20,7 @@ from . import events as ev
 from .command_panel import INIT_TAB, CommandPanel
 from .compare_panel import ComparePanel
 from .docs import DocsWindow
+from .ghost import GoalGhost
 from .layout import Layout
 from .markup import escape_html
 from .params import ParamPanel, VariablePanel
@@ -81,6 +83,8 @@ class ModelPage:
         self.scene.build()
         self.scene.show_obstacles(c.obstacles)
         self.trace = ToolTrace(client.scene)
+        bounds = {name: shapes.glb_bounds(data) for name, data in c.meshes.items()}
+        self.ghost = GoalGhost(client.scene, model, c.values, bounds)
         self.look("Fit arm")
 
         self.commands = CommandPanel(client, c, self.scene, layout, self._warn)
@@ -106,12 +110,14 @@ class ModelPage:
             ev.ShapesChanged: self._show_shapes,
             ev.StreamedChanged: self._show_streamed,
             ev.RunsChanged: self._show_runs,
+            ev.RunsDescribed: lambda _e: self._show_runs(ev.RunsChanged(list(self.c.runs))),
             ev.ParamSetsChanged: lambda e: self.params.set_names(e.names),
             ev.UndoChanged: lambda e: self.params.show_undo(e.what),
             ev.LayoutChanged: self._new_run,
             ev.ObstaclesChanged: self._show_obstacles,
             ev.LiveSamples: self._show_live,
             ev.PosePreview: self._show_preview,
+            ev.GoalShown: lambda e: self.ghost.show(e.q),
             ev.TransientLoaded: self._show_transient,
             ev.ComparedLoaded: self.compare.apply,
             ev.TrackLoaded: self.compare.apply,
@@ -176,6 +182,21 @@ class ModelPage:
 
     def _show_shapes(self, event: ev.ShapesChanged) -> None:
         self.scene.set_values(event.values)
+        self.ghost.set_values(event.values)
+
+    def preview_motion(self) -> None:
+        """Play the session's planned move on the goal ghost, at its own pace (MoveIt's Plan before
+        Execute): the server's set points (`CommandPlan.motion`), nothing recomputed here."""
+        plan = self.c.edits.plan
+        motion = plan.motion if plan is not None else None
+        if plan is None or motion is None or len(motion.t) < 2:
+            why = "the command has no plan yet: teach or edit it first"
+            if plan is not None:
+                why = "its joint positions are not known before the run (speeds or motor currents)"
+            self.c.notify("Preview", f"Nothing to preview: {why}.", "warning")
+            return
+        end = list(motion.q[-1])
+        self.ghost.play(motion.t, motion.q, self.c.loop.after, done=lambda: self.ghost.show(end))
 
     def _show_live(self, event: ev.LiveSamples) -> None:
         if event.poses is not None:
@@ -278,7 +299,7 @@ class ModelPage:
         self.compare.show_cursor()
 
     def _show_runs(self, event: ev.RunsChanged) -> None:
-        self.results.show_runs(event.runs, event.newest)
+        self.results.show_runs(event.runs, event.newest, self.c.contexts)
         self.compare.show_runs(event.runs)
 
     # -- results -----------------------------------------------------------------------------------
@@ -364,4 +385,5 @@ class ModelPage:
             except Exception:
                 pass
         self.trace.remove()
+        self.ghost.remove()
         self.scene.remove()

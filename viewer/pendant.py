@@ -27,7 +27,7 @@ from .path import (
 
 class PendantPanel:
     """Draws a `JointPathEditor`; calls `on_changed()` after every edit and `on_preview(q)` to show a
-    node's destination on the 3D arm; `current_q()` gives the pose that **Teach** records."""
+    node's destination (the goal ghost); `current_q()` gives the pose that **Teach** records."""
 
     def __init__(
         self,

@@ -5,17 +5,22 @@ recording to replay. The requests are the session controller's (`results_io.py`)
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
 from simecs.mesh import messages as m
 
+from .compare import run_summary
+
 ACTIONS = ("Full resolution", "CSV", "MCAP", "Replay")
 
 
-def run_label(info: m.RunInfo) -> str:
-    label = f"{info.run_id} · {info.phase} · {info.sim_time:.2f}/{info.stop_time:.2f} s"
-    return label + (f" · replay of {info.recording}" if info.recording else "")
+def run_label(info: m.RunInfo, context: m.RunContext | None = None) -> str:
+    """A run as the lists offer it: which, how it ended, how long, and what it did (compare.py)."""
+    length = f"{info.sim_time:.2f} s" if info.until_stopped else f"{info.sim_time:.2f}/{info.stop_time:.2f} s"
+    label = f"{info.run_id} · {info.phase} · {length}"
+    what = run_summary(info, context)
+    return f"{label} · {what}" if what else label
 
 
 class ResultsPanel:
@@ -56,8 +61,14 @@ class ResultsPanel:
         value = str(self.runs.value)
         return "" if value == "—" else value.split(" ", 1)[0]
 
-    def show_runs(self, runs: Sequence[m.RunInfo], newest: str = "") -> None:
-        options = tuple(run_label(r) for r in reversed(runs)) or ("—",)
+    def show_runs(
+        self,
+        runs: Sequence[m.RunInfo],
+        newest: str = "",
+        contexts: Mapping[str, m.RunContext | None] | None = None,
+    ) -> None:
+        known = contexts or {}
+        options = tuple(run_label(r, known.get(r.run_id)) for r in reversed(runs)) or ("—",)
         keep = self.selected()
         if tuple(self.runs.options) != options:
             self.runs.options = options

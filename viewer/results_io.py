@@ -15,7 +15,7 @@ from collections.abc import Callable, Sequence
 import numpy as np
 from simecs.mesh import messages as m
 from simecs.mesh import phases
-from simecs.mesh.client import NoReply
+from simecs.mesh.client import NoReply, RemoteError
 
 from . import events as ev
 from .compare import recording_of_key, track_columns, track_every, track_of
@@ -114,7 +114,7 @@ class ResultsIO:
             model = self.c.model
             assert model is not None
             att, rows = fetch(track_columns(model), every=track_every(run.samples))
-            self.t.emit(ev.TrackLoaded(track_of(key, list(att.columns), rows, att.context)))
+            self.t.emit(ev.TrackLoaded(track_of(key, list(att.columns), rows, att.context, att.run)))
 
         self.t.submit("Time cursor", job, "io")
 
@@ -151,6 +151,31 @@ class ResultsIO:
         assert sc is not None
         run = self._ended(key)
         return run, functools.partial(sc.results_of, run.run_id)
+
+    def load_contexts(self, run_ids: Sequence[str]) -> None:
+        """What produced each of the session's ended runs `run_ids` (its context), asked once each:
+        the run lists say what each run did. A results query for no row brings it."""
+        sc = self.c.session
+        if sc is None or not run_ids:
+            return
+
+        def job() -> None:
+            got: dict[str, m.RunContext | None] = {}
+            for run_id in run_ids:
+                try:
+                    att, _ = sc.results_of(run_id, ["time"], t0=-1.0, t1=-1.0)
+                except (RemoteError, NoReply):
+                    continue  # asked again with the next listing
+                got[run_id] = att.context
+
+            def take() -> None:
+                if sc is self.c.session and got:
+                    self.c.contexts.update(got)
+                    self.t.emit(ev.RunsDescribed())
+
+            self.t.on_loop(take)
+
+        self.t.submit("Results", job, "io")
 
     def list_recordings(self) -> None:
         """The user's recordings of the session's model, as `RecordingsListed`."""

@@ -21,6 +21,16 @@ PACING = {"real time": "realtime", "N x real time": "scaled", "as fast as possib
 PACING_LABEL = {v: k for k, v in PACING.items()}
 CONTROL_LABEL = dict(CONTROL_SYSTEM_TITLES)
 CONTROL = {v: k for k, v in CONTROL_LABEL.items()}
+#: RunSettings.collisions as the settings window words it.
+COLLISIONS = {
+    "refuse a run that would touch": "refuse",
+    "simulate the contact": "simulate",
+}
+#: RunSettings.controller as the settings window words it.
+CONTROLLERS = {
+    "built in (the model's)": "builtin",
+    "external (on hil/actuators)": "external",
+}
 TOOLBAR = ("Models", "Initialise", "Settings", "Documentation")
 #: Run buttons and the session command each sends (the phase table says when it applies).
 RUN_BUTTONS = {"Run": "run", "Pause": "pause", "Resume": "resume", "Abort": "abort"}
@@ -65,9 +75,11 @@ def applicable(phase: str) -> list[str]:
 
 #: The run bar's hint: what its buttons do, and the keys that do the same.
 RUN_BAR_HINT = (
-    "Run starts a run (the pending edits first); Pause holds it, Resume goes on, Abort ends it now (its "
-    "results so far are kept). Keys: Space pauses or resumes, Esc aborts."
+    "Preview plays the planned move on the goal ghost (nothing runs); Run starts a run (the pending edits "
+    "first); Pause holds it, Resume goes on, Abort ends it now (its results so far are kept). Keys: "
+    "Space pauses or resumes, Esc aborts."
 )
+PREVIEW = "Preview"  # the run bar's button that plays the plan on the ghost (MoveIt's Plan before Execute)
 
 
 class RunBar:
@@ -78,13 +90,17 @@ class RunBar:
     A button that does not apply now says why when clicked; the line under the status says which
     apply."""
 
-    def __init__(self, gui: Any, on_run: Callable[[str], None]) -> None:
+    def __init__(self, gui: Any, on_run: Callable[[str], None], on_preview: Callable[[], None]) -> None:
         self.panel = gui.add_panel()
         with self.panel.add_tab("Run"):
             self.status = gui.add_markdown("_Choose a model to start._")
             self.progress = gui.add_progress_bar(0.0, animated=False)
-            self.buttons = gui.add_button_group("Run", tuple(RUN_BUTTONS), hint=RUN_BAR_HINT)
-            self.buttons.on_click(lambda e: on_run(RUN_BUTTONS[str(e.target.value)]))
+            self.buttons = gui.add_button_group("Run", (PREVIEW, *RUN_BUTTONS), hint=RUN_BAR_HINT)
+            self.buttons.on_click(
+                lambda e: (
+                    on_preview() if e.target.value == PREVIEW else on_run(RUN_BUTTONS[str(e.target.value)])
+                )
+            )
             self.readout = gui.add_markdown("")  # the arm's joints and tool, as shown (readout.py)
             self.detail = gui.add_markdown("")
 
@@ -136,6 +152,11 @@ def settings_from_form(
     live_vars: list[str],
     control_label: str = CONTROL_LABEL["joint_independent"],
     base: m.RunSettings | None = None,
+    collisions_label: str | None = None,
+    controller_label: str | None = None,
+    external_joints: str | None = None,
+    control_period: float | None = None,
+    hil_timeout: float | None = None,
 ) -> m.RunSettings:
     """RunSettings from the form's fields over `base` (the settings the form does not show, e.g. an
     external controller's, are kept); DecodeError names the field when one is out of range."""
@@ -155,6 +176,20 @@ def settings_from_form(
         "live_vars": list(live_vars),
         "control_system": control,
     }
+    if collisions_label is not None:
+        if collisions_label not in COLLISIONS:
+            raise DecodeError("collisions", f"unknown choice {collisions_label!r}")
+        form["collisions"] = COLLISIONS[collisions_label]
+    if controller_label is not None:
+        if controller_label not in CONTROLLERS:
+            raise DecodeError("controller", f"unknown controller {controller_label!r}")
+        form["controller"] = CONTROLLERS[controller_label]
+    if external_joints is not None:
+        form["external_joints"] = [j for j in external_joints.replace(",", " ").split() if j]
+    if control_period is not None:
+        form["control_period"] = float(control_period)
+    if hil_timeout is not None:
+        form["hil_timeout"] = float(hil_timeout)
     kept = codec.to_obj(base) if base is not None else {}
     # the bounds of the protocol, checked as the server will
     return codec.from_obj(m.RunSettings, {**kept, **form})
@@ -202,6 +237,35 @@ class SettingsWindow:
                 "that with force control where a Cartesian node sets a force (the model's documentation, "
                 "Control systems)",
             )
+            self.collisions = gui.add_dropdown(
+                "Obstacles",
+                tuple(COLLISIONS),
+                initial_value=_label_of(COLLISIONS, settings.collisions),
+                hint="refuse: a run whose planned path touches an obstacle is refused, naming the step; "
+                "simulate: it runs, and the contact is simulated (forces drawn as arrows)",
+            )
+            with gui.add_folder("External controller (hardware in the loop)", expand_by_default=False):
+                self.controller = gui.add_dropdown(
+                    "Controller",
+                    tuple(CONTROLLERS),
+                    initial_value=_label_of(CONTROLLERS, settings.controller),
+                    hint="external: a controller of yours drives the joints over the mesh, one exchange per "
+                    "control period (PROTOCOL.md §6.3, examples/external_controller.py)",
+                )
+                self.external_joints = gui.add_text(
+                    "Joints it drives",
+                    " ".join(settings.external_joints),
+                    hint="joint names separated by spaces; empty: every joint",
+                )
+                self.period = gui.add_number(
+                    "Control period [s]", settings.control_period, step=0.0001, hint="[1e-4, 0.1] s"
+                )
+                self.hil_timeout = gui.add_number(
+                    "Controller timeout [s]",
+                    settings.hil_timeout,
+                    step=0.1,
+                    hint="wall time without an actuator frame before the run fails, [0.05, 60] s",
+                )
             apply = gui.add_button("Apply settings", color="green")
             apply.on_click(lambda _e: on_apply(self.values()))
             cancel = gui.add_button("Cancel", color="gray")
@@ -216,8 +280,17 @@ class SettingsWindow:
             "factor": float(self.factor.value),
             "live_rate": float(self.rate.value),
             "control_label": str(self.control.value),
+            "collisions_label": str(self.collisions.value),
+            "controller_label": str(self.controller.value),
+            "external_joints": str(self.external_joints.value),
+            "control_period": float(self.period.value),
+            "hil_timeout": float(self.hil_timeout.value),
         }
 
     def close(self) -> None:
         if not self.modal.closed:
             self.modal.close()
+
+
+def _label_of(labels: dict[str, str], value: str) -> str:
+    return next((k for k, v in labels.items() if v == value), next(iter(labels)))

@@ -251,6 +251,7 @@ class SessionController(TabState, Dispatcher):
         self.state = snap.state
         self.runs = list(snap.runs)
         self.recordings = {r.run_id: r.recording for r in snap.runs if r.recording}
+        self.contexts = {}
         self._notified_end = {r.run_id for r in snap.runs if r.phase in phases.ENDED}
         if snap.state.phase in phases.ENDED:
             self._notified_end.add(snap.state.run_id)
@@ -285,6 +286,11 @@ class SessionController(TabState, Dispatcher):
             self.replaying = None
             self.emit(ev.ShapesChanged(dict(self.values)))
         self.emit(ev.PosePreview(list(q)))
+
+    def show_goal(self, q: list[float] | None) -> None:
+        """The goal ghost at `q` (a pendant's picked node or action; None hides it): the arm itself
+        stays where it is, which is what Teach records."""
+        self.emit(ev.GoalShown(list(q) if q is not None else None))
 
     def tick(self, now: float | None = None) -> None:
         """Send the edits whose pause has come (called about 10 times a second)."""
@@ -323,6 +329,8 @@ class SessionController(TabState, Dispatcher):
             self.runs = list(runs)
             self.recordings.update({r.run_id: r.recording for r in runs if r.recording})
             self.emit(ev.RunsChanged(list(runs), runs[-1].run_id if runs else ""))
+            unknown = [r.run_id for r in runs if r.phase in phases.ENDED and r.run_id not in self.contexts]
+            self.results.load_contexts(unknown)
 
         self.on_loop(take)
 

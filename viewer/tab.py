@@ -106,7 +106,7 @@ class Tab:
         gui.set_panel_label("simecs")
         self.client.scene.set_up_direction("+z")
         self.toolbar = Toolbar(gui, self._on_window, self._on_view)  # in the main panel, at its top
-        self.run_bar = RunBar(gui, self.controller.control.run_action)
+        self.run_bar = RunBar(gui, self.controller.control.run_action, self._on_preview)
         self.place_frame()
         browser.install_doc_links(self.client, LINK_PREFIX)
         browser.install_watchdog(self.client)
@@ -197,6 +197,13 @@ class Tab:
             self.library = None
 
     # -- toolbar -------------------------------------------------------------------------------------
+    def _on_preview(self) -> None:
+        page = self.page
+        if page is None:
+            self.controller.notify("Preview", "Load a model first (Models).", "warning")
+            return
+        page.preview_motion()
+
     def _on_view(self, name: str) -> None:
         page = self.page
         if page is None:

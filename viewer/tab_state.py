@@ -49,6 +49,7 @@ class TabState:
         self.stream: RunStream | None = None
         self.replaying: m.RunLayout | None = None  # the replay whose recorded values shape the arm
         self.recordings: dict[str, str] = {}  # run id -> the recording it replays
+        self.contexts: dict[str, m.RunContext | None] = {}  # run id -> what produced it (asked once)
 
     @property
     def phase(self) -> str:
