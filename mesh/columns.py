@@ -47,8 +47,12 @@ def contact_column(link: int, field: str) -> str:
     return f"contact.link{link}.{field}"
 
 
+#: What every link pose column's name starts with (`pose.<frame>.<field>`).
+POSE_PREFIX = "pose."
+
+
 def pose_column(frame: str, field: str) -> str:
-    return f"pose.{frame}.{field}"
+    return f"{POSE_PREFIX}{frame}.{field}"
 
 
 def pose_frames(model: ModelDescription) -> list[str]:

@@ -101,15 +101,20 @@ def compare_walk(mesh: Mesh, browser: Any) -> None:
     assert abs(ends["joint1.q (r1)"] - aborted) < 0.01, (ends, aborted)  # not held flat to 1 s
     page.get_by_text("Recordings to compare", exact=True).locator("visible=true").first.click()
     mark = compare.recording_key(recorded)
-    page.get_by_label(mark, exact=True).check()
+    # listed by when it was made and which run it holds, not by its opaque name (issue 32, 9)
+    info = next(r for r in mesh.client().recordings(session.user) if r.name == recorded)
+    assert info.created and info.run_id in compare.recording_label(info)
+    box = page.get_by_label(compare.recording_label(info), exact=True)
+    box.check()
     label = f"joint1.q ({mark})"
     chart = wait_until(lambda: next((c for c in charts(page) if label in c["labels"]), None), what=label)
     assert dict(zip(chart["labels"], chart["ends"], strict=True))[label] == 2.0  # to its own end
     page.screenshot(path=str(SHOTS / "compare_recording_1600x900.png"))
-    page.get_by_label(mark, exact=True).uncheck()
+    box.uncheck()
     wait_until(lambda: not [c for c in charts(page) if label in c["labels"]], what="the recording taken off")
 
     # the time cursor: the arm is posed as r2 was at 0.5 s, and the values there are read
+    page.get_by_text("Timeline", exact=True).locator("visible=true").first.click()  # in the run bar
     page.get_by_label("Time cursor").check()
     box = chromium.slider_input(page, "Cursor [s]")
     wait_until(lambda: not box.is_disabled(), timeout=20, what="the cursor enabled (the run's poses in)")

@@ -48,6 +48,12 @@ def unfocus(page: Any) -> None:
 def jog_walk(mesh: Mesh, browser: Any) -> None:
     page, session, tag = sized_spider_tab(mesh, browser, (1600, 900))
     q0 = session.snapshot().initial
+    # a number field typed blank (letters are not taken): the value in force comes back, said so
+    speed = page.get_by_label("Speed [%]").locator("visible=true").first
+    speed.fill("")
+    speed.press("Tab")
+    page.get_by_text("Not a number: the value stays 100").wait_for()
+    assert speed.input_value() == "100"
     page.get_by_role("tab", name="Jog").click()
     page.get_by_label("Axis").click()
     page.get_by_role("option", name="joint2", exact=True).click()

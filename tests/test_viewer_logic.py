@@ -1909,11 +1909,12 @@ def test_runs_compared_on_every_plot_with_a_time_cursor_that_poses_the_arm(serve
         ctl.drain()
         assert [o.run_id for o in plot.others] == ["r1", "r3"]
         # the cursor: every plot marks it, the arm takes r2's pose there, values are read per run
-        assert cmp.cursor.disabled
-        cmp.cursor_on.value = True
-        cmp._cursor_toggled(Event(cmp.cursor_on))
-        assert not cmp.cursor.disabled and cmp.follow.options == ("r2", "r1", "r3")
-        cmp.cursor.value = 0.5
+        line = cmp.timeline  # one timeline, in the run bar (timeline.py)
+        assert line.cursor.disabled
+        line.cursor_on.value = True
+        line._toggled(Event(line.cursor_on))
+        assert not line.cursor.disabled and cmp.follow.options == ("r2", "r1", "r3")
+        line.cursor.value = 0.5
         ctl.drain()
         assert plot.cursor == 0.5
         assert np.allclose(page.scene.frames[0].position, [0.5, 1.0, 1.5])  # the fake's pose.link1.x/y/z
@@ -1933,6 +1934,19 @@ def test_runs_compared_on_every_plot_with_a_time_cursor_that_poses_the_arm(serve
         assert page.view_state()["angles"] == "deg"
         page.plots.set_angles("grad")  # a reload's memory is the browser's: only known choices are taken
         assert page.plots.angles == "deg"
+        # the timeline plays: the cursor, and with it the arm, every plot and the values, on to the end
+        line.speed.value = "4×"
+        line._transport("▶ Play")
+        seen = set()
+        end = time.monotonic() + 10.0
+        while time.monotonic() < end and line.playing:
+            time.sleep(0.01)
+            tab.loop.run_pending()
+            seen.add(round(plot.cursor or 0.0, 3))
+        assert line.at == pytest.approx(float(line.cursor.max)) and plot.cursor == pytest.approx(line.at)
+        assert len(seen) >= 3  # it moved on step by step, not in one jump
+        line._transport("To start")
+        assert line.at == 0.0
         # a variable on the X axis: remembered over a reload, drawn against it again
         other = next(v.name for v in ctl.model.variables if v.name != "joint1.q")
         plot.x_axis.value = other
@@ -1949,7 +1963,7 @@ def test_runs_compared_on_every_plot_with_a_time_cursor_that_poses_the_arm(serve
         assert plot.x_var == "time" and plot.chart.visible
         # a new run takes the arm back: the cursor goes
         sc.watched["on_state"](state(sc, "running", "r4", seq=20))
-        assert cmp.cursor_on.disabled and not cmp.cursor_on.value and plot.cursor is None
+        assert line.cursor_on.disabled and not line.on and plot.cursor is None
     finally:
         tab.close()
         page.remove()

@@ -188,9 +188,10 @@ def install_watchdog(client: Any) -> None:
 def install_page_rules(client: Any) -> None:
     """What the page does besides viser's own: viser's developer controls (server URL, Save Canvas,
     dev settings, the scene tree, behind the panel's "Configuration & diagnostics" icon) are hidden
-    from users; the browser's Back button does not leave the app; Space pauses or resumes the run and
-    Esc aborts it (clicking the run bar's buttons, so the same checks apply), except while the user
-    types in a field or answers a dialog."""
+    from users; the browser's Back button does not leave the app; a number field left blank or with
+    what is not a number gets the value in force back, and says so (viser would leave it blank);
+    Space pauses or resumes the run and Esc aborts it (clicking the run bar's buttons, so the same
+    checks apply), except while the user types in a field or answers a dialog."""
     run_js(
         client,
         """(() => {
@@ -205,6 +206,33 @@ def install_page_rules(client: Any) -> None:
     b.textContent.trim() === label && b.parentElement &&
     Array.from(b.parentElement.children).some((c) => c.textContent.trim() === 'Abort') &&
     Array.from(b.parentElement.children).some((c) => c.textContent.trim() === 'Run'));
+  // A number field left empty or with what is not a number (viser ignores it, the field would stay
+  // blank over the value still in force): the value in force comes back, and the page says so.
+  const typedBefore = new WeakMap();
+  const nativeSet = Object.getOwnPropertyDescriptor(HTMLInputElement.prototype, 'value').set;
+  const isNumberField = (t) =>
+    t && t.tagName === 'INPUT' && t.classList.contains('mantine-NumberInput-input');
+  document.addEventListener('focusin', (e) => {
+    if (isNumberField(e.target)) typedBefore.set(e.target, e.target.value);
+  }, true);
+  document.addEventListener('focusout', (e) => {
+    const t = e.target;
+    if (!isNumberField(t) || !typedBefore.has(t)) return;
+    const text = t.value.trim(), before = typedBefore.get(t);
+    if (text !== '' && Number.isFinite(Number(text.replace(/,/g, '')))) return;
+    nativeSet.call(t, before);
+    t.dispatchEvent(new Event('input', {bubbles: true}));
+    const note = document.createElement('div');
+    note.className = 'simecs-not-a-number';
+    note.setAttribute('role', 'status');
+    note.textContent = 'Not a number: the value stays ' + before;
+    const box = t.getBoundingClientRect();
+    note.style.cssText = 'position:fixed;z-index:100001;padding:2px 6px;font:12px sans-serif;' +
+      'background:#c92a2a;color:#fff;border-radius:4px;' +
+      'left:' + box.left + 'px;top:' + (box.bottom + 2) + 'px';
+    document.body.appendChild(note);
+    setTimeout(() => note.remove(), 4000);
+  }, true);
   document.addEventListener('keydown', (e) => {
     if (e.ctrlKey || e.metaKey || e.altKey || e.repeat) return;
     const t = e.target;

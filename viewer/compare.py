@@ -39,24 +39,42 @@ class RunTrack:
     poses: np.ndarray  # (n, frames, 7): x y z qw qx qy qz per link frame
     context: m.RunContext | None = None
     info: m.RunInfo | None = None
+    q: np.ndarray | None = None  # (n, joints) rad: the joint positions at each sample, when streamed
 
     @property
     def end(self) -> float:
         return float(self.t[-1]) if len(self.t) else 0.0
 
-    def at(self, time: float) -> np.ndarray | None:
-        """The poses of the sample nearest `time` (the server's own, never interpolated); None for a
-        run without samples."""
+    def _nearest(self, time: float) -> int | None:
         if not len(self.t):
             return None
         k = int(np.searchsorted(self.t, time))
         if k >= len(self.t) or (k > 0 and time - self.t[k - 1] <= self.t[k] - time):
             k -= 1
-        return np.asarray(self.poses[max(k, 0)])
+        return max(k, 0)
+
+    def at(self, time: float) -> np.ndarray | None:
+        """The poses of the sample nearest `time` (the server's own, never interpolated); None for a
+        run without samples."""
+        k = self._nearest(time)
+        return None if k is None else np.asarray(self.poses[k])
+
+    def q_at(self, time: float) -> list[float] | None:
+        """The joint positions of the sample nearest `time` (what the readout shows there)."""
+        k = self._nearest(time)
+        return None if k is None or self.q is None else [float(x) for x in self.q[k]]
 
 
 def recording_key(name: str) -> str:
     return RECORDING_MARK + name
+
+
+def recording_label(info: m.RecordingInfo) -> str:
+    """A recording as the compare list offers it: when it was made, which run of which session, how
+    long (its name alone is an opaque id: `<session>_<run>`)."""
+    when = info.created.replace("T", " ").removesuffix("Z")[:16] + " UTC" if info.created else "recording"
+    session = f"session {info.session[:6]}…" if info.session else info.name
+    return f"{when} · {info.run_id} of {session} · {info.stop_time:g} s"
 
 
 def recording_of_key(key: str) -> str:
@@ -65,9 +83,11 @@ def recording_of_key(key: str) -> str:
 
 
 def track_columns(model: ModelDescription) -> list[str]:
-    """The columns a track is made of: every link frame's pose, in the scene's order."""
+    """The columns a track is made of: every link frame's pose, in the scene's order, then the joint
+    positions."""
     frames = columns.pose_frames(model)[: len(model.links)]
-    return [columns.pose_column(f, field) for f in frames for field in columns.POSE_FIELDS]
+    poses = [columns.pose_column(f, field) for f in frames for field in columns.POSE_FIELDS]
+    return poses + columns.joint_position_columns(model)
 
 
 def track_of(
@@ -78,10 +98,14 @@ def track_of(
     info: m.RunInfo | None = None,
 ) -> RunTrack:
     """A results reply of `track_columns` (time first) as a track."""
-    frames = (len(names) - 1) // len(columns.POSE_FIELDS)
-    poses = np.asarray(rows[:, 1 : 1 + frames * len(columns.POSE_FIELDS)], dtype=float)
+    where = {name: k for k, name in enumerate(names)}
+    pose_names = [n for n in names[1:] if n in where and n.startswith(columns.POSE_PREFIX)]
+    frames = len(pose_names) // len(columns.POSE_FIELDS)
+    poses = np.asarray(rows[:, [where[n] for n in pose_names]], dtype=float)
+    joints = [n for n in names[1:] if not n.startswith(columns.POSE_PREFIX)]
+    q = np.asarray(rows[:, [where[n] for n in joints]], dtype=float) if joints else None
     t = np.asarray(rows[:, 0], dtype=float)
-    return RunTrack(run_id, t, poses.reshape(len(rows), frames, -1), context, info)
+    return RunTrack(run_id, t, poses.reshape(len(rows), frames, -1), context, info, q)
 
 
 def track_every(samples: int) -> int:

@@ -19,11 +19,12 @@ from simecs.mesh import messages as m
 from simecs.mesh import phases
 
 from . import events as ev
-from .compare import RunTrack, differences, recording_key, values_table
+from .compare import RunTrack, differences, recording_key, recording_label, values_table
 from .plot_dock import PlotDock
 from .results import run_label
 from .scene import ArmScene
 from .session import SessionController
+from .timeline import Timeline
 
 MAX_COMPARED = 5  # runs drawn beside the shown one (each a dash pattern of its own)
 RECORDINGS_LISTED = 20  # the newest recordings offered (and any ticked one): a box each
@@ -40,7 +41,10 @@ class ComparePanel:
         plots: PlotDock,
         scene: ArmScene,
         shown: Callable[[], str],
+        timeline_place: Any = None,
     ) -> None:
+        """`timeline_place`: the container the timeline goes in (the run bar's: beside the arm it
+        drives); the panel's own folder when None."""
         self.gui = gui
         self.c = controller
         self.plots = plots
@@ -65,18 +69,20 @@ class ComparePanel:
                     "List recordings again", hint="recordings of this model, other sessions' runs included"
                 )
             self.relist.on_click(lambda _e: self.c.results.list_recordings())
-            self.cursor_on = gui.add_checkbox(
-                "Time cursor", False, hint="a finished run only: the arm shows that run at the cursor"
-            )
-            self.cursor_on.on_update(self._cursor_toggled)
-            self.cursor = gui.add_slider("Cursor [s]", min=0.0, max=1.0, step=0.001, initial_value=0.0)
-            self.cursor.on_update(lambda _e: self.show_cursor())
             self.follow = gui.add_dropdown(
                 "Arm shows", (NO_RUN,), hint="whose pose the arm takes at the cursor"
             )
             self.follow.on_update(self._follow_changed)
             self.values = gui.add_markdown("")
             self.diff = gui.add_markdown("")
+        with timeline_place if timeline_place is not None else self.folder:
+            self.timeline = Timeline(
+                gui,
+                on_toggle=self._cursor_toggled,
+                on_move=self.show_cursor,
+                after=controller.loop.after,
+                warn=lambda text: controller.notify("Timeline", text, "warning"),
+            )
         self._show_cursor_widgets()
 
     # -- which runs ----------------------------------------------------------------------------------
@@ -132,10 +138,10 @@ class ComparePanel:
         new = [key for key in wanted if key not in self.recording_boxes]
         for key in new:
             info = wanted[key]
-            size = f"{info.stop_time:g} s, {info.bytes / 1e6:.1f} MB"
-            hint = f"run {info.run_id} of session {info.session}, {size}"
+            size = f"{info.bytes / 1e6:.1f} MB"
+            hint = f"recording {info.name}: run {info.run_id} of session {info.session}, {size}"
             with self.recording_folder:
-                box = self.gui.add_checkbox(key, False, hint=hint)
+                box = self.gui.add_checkbox(recording_label(info), False, hint=hint)
             box.on_update(self._ticked)
             self.recording_boxes[key] = box
         if not event.available:
@@ -174,7 +180,7 @@ class ComparePanel:
                 self.c.results.load_compared(plot.number, plot.names(), compare, plot.full.t0, plot.full.t1)
             else:
                 self.c.results.load_compared(plot.number, plot.names(), compare)
-        if compare or self.cursor_on.value:  # a track is a few MB: fetched when it is used
+        if compare or self.timeline.on:  # a track is a few MB: fetched when it is used
             for run_id in [self.shown(), *compare]:
                 if run_id and run_id in self._all_boxes() and run_id not in {*self.tracks, *self.asked}:
                     self.asked.add(run_id)
@@ -195,17 +201,14 @@ class ComparePanel:
 
     def new_run(self) -> None:
         """A run starts: the arm is the live one's again, the cursor goes."""
-        if self.cursor_on.value:
-            self.cursor_on.value = False
+        self.timeline.turn_off()
         self.plots.set_cursor(None)
         self._show_cursor_widgets()
 
     def show_phase(self) -> None:
         """The cursor poses the arm: not while a run moves it."""
         busy = self.c.phase in phases.UNDER_WAY
-        self.cursor_on.disabled = busy
-        if busy and self.cursor_on.value:
-            self.cursor_on.value = False
+        if busy and self.timeline.on:
             self.plots.set_cursor(None)
         self._show_cursor_widgets()
 
@@ -221,24 +224,17 @@ class ComparePanel:
             keep = self.follow.value
             self.follow.options = options
             self.follow.value = keep if keep in options else options[0]
-        end = max((self.tracks[r].end for r in runs), default=0.0)
-        if end > 0 and abs(float(self.cursor.max) - end) > 1e-9:
-            self.cursor.max = end
-            if float(self.cursor.value) > end:
-                self.cursor.value = end
-        on = bool(self.cursor_on.value)
-        self.cursor.disabled = not on or not runs
-        self.follow.disabled = not on or not runs
+        self.timeline.set_end(max((self.tracks[r].end for r in runs), default=0.0))
+        self.timeline.enable(bool(runs), self.c.phase in phases.UNDER_WAY)
+        self.follow.disabled = not self.timeline.on or not runs
         contexts = {r: self.tracks[r].context for r in runs}
         jogged = {r: info.jogged_s for r in runs if (info := self.tracks[r].info) is not None}
         diff = differences(contexts, self.c.model, jogged) if self.c.model is not None else ""
         if self.diff.content != diff:
             self.diff.content = diff
 
-    def _cursor_toggled(self, event: Any) -> None:
-        if event.client is None:
-            return
-        if self.cursor_on.value and not [r for r in self._runs_in_view() if r in self._all_boxes()]:
+    def _cursor_toggled(self) -> None:
+        if self.timeline.on and not [r for r in self._runs_in_view() if r in self._all_boxes()]:
             self.c.notify("Time cursor", "No finished run to scrub yet: run a simulation first.", "warning")
         self.asked &= set(self.tracks)  # a track that never came (a failed request) is asked again
         self.refresh()
@@ -250,17 +246,20 @@ class ComparePanel:
 
     def show_cursor(self) -> None:
         """Cursor on: every plot marks it, the arm takes the followed run's pose, values are read."""
-        if not self.cursor_on.value:
+        if not self.timeline.on:
             self.plots.set_cursor(None)
             if self.values.content:  # no cursor, nothing read at it (issue 32, 8)
                 self.values.content = ""
             return
-        at = float(self.cursor.value)
+        at = self.timeline.at
         self.plots.set_cursor(at)
         track = self.tracks.get(str(self.follow.value))
         poses = track.at(at) if track is not None else None
         if poses is not None:
             self.scene.apply_poses(poses)
+        q = track.q_at(at) if track is not None else None
+        if q is not None:
+            self.c.show_pose(q)  # the readout (and Teach) follow the instant shown
         names = self._variables()
         shown = {v: self.plots.unit_of(v)[0] for v in names}
         self.values.content = values_table(at, self._series(), names, shown)
@@ -284,4 +283,5 @@ class ComparePanel:
         return {r: out[r] for r in [*order, *[r for r in out if r not in order]] if r in out}
 
     def remove(self) -> None:
+        self.timeline.remove()
         self.folder.remove()

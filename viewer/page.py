@@ -39,7 +39,10 @@ MAX_RESTORED_PLOTS = 8  # plots a reloaded tab opens again at most
 class ModelPage:
     """Everything drawn for the controller's model."""
 
-    def __init__(self, client: Any, controller: SessionController, layout: Layout) -> None:
+    def __init__(
+        self, client: Any, controller: SessionController, layout: Layout, timeline_place: Any = None
+    ) -> None:
+        """`timeline_place`: where the timeline of finished runs goes (the run bar's tab)."""
         c = controller
         model = c.model
         assert model is not None and c.stream is not None and c.path is not None and c.session is not None
@@ -100,7 +103,7 @@ class ModelPage:
         )
         self.plots = PlotDock(gui, c.stream.units, actions, self._place_plots)
         with results_tab:
-            self.compare = ComparePanel(gui, c, self.plots, self.scene, self.results.selected)
+            self.compare = ComparePanel(gui, c, self.plots, self.scene, self.results.selected, timeline_place)
             self.compare.show_runs(c.runs)
         self.results.runs.on_update(lambda _e: self.compare.refresh())
         self.plots.on_angles = lambda _a: self.compare.show_cursor()
@@ -144,12 +147,16 @@ class ModelPage:
         return readout_text([link.joint for link in model.links], q, tool, self.plots.angles)
 
     def _place_plots(self) -> tuple[Any, Any]:
-        """Where the plots go: a column of their own beside the arm on a wide screen, else a tab
-        beside the trees, shown at once (no stack of small docks that each scroll)."""
-        if self.layout.wide:
+        """Where the plots go (`Layout.plots_where`): a column of their own beside the arm on a wide
+        screen, above the pendant on a middling one, else a tab beside the trees, shown at once."""
+        where = self.layout.plots_where
+        if where != "tab":
             panel = self.gui.add_panel()
             tab = panel.add_tab("Plots")
-            self.layout.place_plots(panel)
+            if where == "column":
+                self.layout.place_plots(panel)
+            else:
+                self.layout.place_beside_pendant(panel, self.commands.panel)
             return panel, tab
         tab = self.tabs.add_tab("Plots")
         if self._show_plots:

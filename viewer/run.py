@@ -92,7 +92,8 @@ class RunBar:
 
     def __init__(self, gui: Any, on_run: Callable[[str], None], on_preview: Callable[[], None]) -> None:
         self.panel = gui.add_panel()
-        with self.panel.add_tab("Run"):
+        self.tab = self.panel.add_tab("Run")  # the page's timeline goes in it too (timeline.py)
+        with self.tab:
             self.status = gui.add_markdown("_Choose a model to start._")
             self.progress = gui.add_progress_bar(0.0, animated=False)
             self.buttons = gui.add_button_group("Run", (PREVIEW, *RUN_BUTTONS), hint=RUN_BAR_HINT)

@@ -287,6 +287,11 @@ class SessionController(TabState, Dispatcher):
             self.emit(ev.ShapesChanged(dict(self.values)))
         self.emit(ev.PosePreview(list(q)))
 
+    def show_pose(self, q: list[float]) -> None:
+        """The arm is drawn at `q` by someone else (the time cursor, from a run's own link poses):
+        what the readout shows and Teach records, without posing the arm again."""
+        self.shown_q = list(q)
+
     def show_goal(self, q: list[float] | None) -> None:
         """The goal ghost at `q` (a pendant's picked node or action; None hides it): the arm itself
         stays where it is, which is what Teach records."""

@@ -163,7 +163,9 @@ class Tab:
         if self.page is not None:
             self.page.remove()
             self.page = None
-        self.page = ModelPage(self.client, self.controller, self.layout)
+        self.page = ModelPage(
+            self.client, self.controller, self.layout, self.run_bar.tab if self.run_bar is not None else None
+        )
         view, self.remembered_view = self.remembered_view, {}
         if view.get("session") == event.session:  # a reload of this session: as it was
             self.page.restore(view)
