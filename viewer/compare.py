@@ -217,17 +217,21 @@ def command_summary(command: m.RobotCommand | None) -> str:
         return "no command (held its pose)"
     if isinstance(command, m.JointPath | m.CartesianPath):
         kind = "joint path" if isinstance(command, m.JointPath) else "Cartesian path"
-        return f"{kind}, {len(command.nodes)} node{'s' * (len(command.nodes) != 1)}"
+        return f"{kind}, {_count(len(command.nodes), 'node')}"
     if isinstance(command, m.DirectInput):
         mode = "currents" if command.mode == "open_loop" else f"{command.reference} set points"
-        return f"direct input, {len(command.signals)} signal{'s' * (len(command.signals) != 1)} ({mode})"
+        return f"direct input, {_count(len(command.signals), 'signal')} ({mode})"
     if isinstance(command, m.Task):
-        return f"task {command.name}, {len(command.actions)} action{'s' * (len(command.actions) != 1)}"
+        return f"task {command.name}, {_count(len(command.actions), 'action')}"
     if isinstance(command, m.Mission):
-        return f"mission {command.name}, {len(command.tasks)} task{'s' * (len(command.tasks) != 1)}"
+        return f"mission {command.name}, {_count(len(command.tasks), 'task')}"
     if isinstance(command, m.Action):
         return f"action {command.primitive}"
     return type(command).__name__
+
+
+def _count(n: int, thing: str) -> str:
+    return f"{n} {thing}{'s' * (n != 1)}"
 
 
 def run_summary(info: m.RunInfo, context: m.RunContext | None) -> str:
