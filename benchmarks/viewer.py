@@ -7,12 +7,26 @@ target is taught through the command panel, and Run is clicked. Measured in the 
 - `updates_per_s`: message batches that moved the 3D arm, per second, while it moved (target >= 30);
 - `first_frame_s`: from the click on Run to the first such batch (target <= 1 s);
 - `pendant_to_3d_ms`: before the run, a Cartesian node is taught and its gizmo dragged 15 times (the
-  page sends what a drag sends); from each drag to the first batch that moves the arm, i.e. the
-  path sent, planned by the server (inverse kinematics) and the arm drawn at the node (p50, target
+  page sends what a drag sends); from each drag to the first batch that moves the goal ghost (the
+  translucent arm drawn where the node puts it; the arm itself before there was a ghost), i.e. the
+  path sent, planned by the server (inverse kinematics) and drawn at the node (p50, target
   <= 300 ms: the arm follows the hand);
-- `scrub_frame_ms`: after the run, the Results tab's time cursor is turned on and set 15 times (typed
-  into its box); from the page sending each new cursor value to the first batch that moves the arm
-  to the run's pose at that instant (p50, target <= 100 ms: scrubbing feels direct).
+- `scrub_frame_ms`: after the run, the time cursor (the run bar's Timeline) is turned on and set 15
+  times (typed into its box); from the page sending each new cursor value to the first batch that
+  moves the arm to the run's pose at that instant (p50, target <= 100 ms: scrubbing feels direct);
+- `live_axis_span_ratio_max`: then a plot of joint1.q is opened and runs of 2, 5 and 10 s (real time,
+  stop time set in the Settings window) go on under it; every 150 ms the page notes the time span its
+  chart shows, over min(live window, the run's span): the largest such ratio (target <= 1.2: the live
+  window shows the run's real span), the smallest, each run's largest, and the smallest time shown
+  (never negative: a run starts at 0);
+- `reconnect_pages`, `reconnect_pages_back`, `reconnect_s_max`: then three pages, each with a session
+  of its own (two in one browser window, one in another: one of the two is in the background, so it
+  has no focus, as in a user's browser), see the viewer node stopped and started again on the same
+  port 6 times; a page is back when it shows its own session again, built anew, without a reload, at
+  most 30 s after the restarted viewer's port accepts connections. The figures: page/restart events,
+  how many came back by themselves, and the worst time from the viewer's port accepting connections
+  to the page showing its session (target <= 5 s; every event must come back, and no new session
+  may appear on the server).
 
 The simulator is warmed first by one short run through the typed client (its first worker compiles
 the drive kernels once). The standard run: Spider, 5 s at real-time pacing, 50 Hz live rate (the
@@ -24,10 +38,13 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import re
 import socket
 import statistics
 import time
+import urllib.request
+from collections.abc import Callable
 from typing import Any
 
 from simecs.testing import browser
@@ -36,10 +53,19 @@ from simecs.viewer.cartesian_pendant import GIZMO
 
 STANDARD_TARGET = (0.8, 0.6, -0.7, 1.0, 0.9, -0.8, 1.2)  # rad: standard_target of models/library/spider
 MODEL_BUTTON = "Load Spider arm (joint-independent control)"
+USER = "bench"  # the viewer's user for browsers that have none (its --user)
+FINISHED = re.compile(r"finished run r\d+")  # the status line of a run that ended
 TARGET_UPDATES_PER_S = 30.0
 TARGET_FIRST_FRAME_S = 1.0
-TARGET_PENDANT_MS = 300.0
+TARGET_PENDANT_MS = 100.0
 TARGET_SCRUB_MS = 100.0
+LIVE_RUNS_S = (2.0, 5.0, 10.0)  # stop times of the runs under a live plot, real time
+TARGET_AXIS_RATIO = 1.2  # shown time span / min(live window, run's span)
+AXIS_EVERY_MS = 150.0
+RESTARTS = 6
+DOWN_S = (0.5, 2.0, 0.0, 5.0, 1.0, 3.0)  # how long the viewer stays stopped, restart by restart
+BACK_WITHIN_S = 30.0  # a page not back this long after the viewer's return did not come back
+TARGET_RECONNECT_S = 5.0
 
 
 def free_port() -> int:
@@ -90,7 +116,7 @@ def measure(page: Any, run_timeout_s: float = 60.0) -> dict[str, Any]:
     page.get_by_role("button", name="Run", exact=True).click()
     end = time.monotonic() + run_timeout_s
     while time.monotonic() < end:
-        if page.get_by_text("finished run", exact=False).count():
+        if page.get_by_text(FINISHED).count():  # the status line ("finished runs" is said elsewhere)
             break
         time.sleep(0.25)
     else:
@@ -114,7 +140,8 @@ def measure(page: Any, run_timeout_s: float = 60.0) -> dict[str, Any]:
 
 def measure_pendant(page: Any, drags: int = 15) -> dict[str, Any]:
     """Teach a Cartesian node, then drag its gizmo `drags` times (a few cm each, as a user's drag
-    sends it) and time each drag until the page receives the arm drawn at the node's planned pose."""
+    sends it) and time each drag until the page receives the goal ghost (the translucent arm; before
+    there was one, the arm itself) drawn at the node's planned pose."""
     page.get_by_role("tab", name="Cartesian").click()
     page.get_by_role("button", name="Teach").click()
     page.get_by_text(re.compile(r"Path duration \d")).locator("visible=true").first.wait_for(timeout=30_000)
@@ -127,10 +154,12 @@ def measure_pendant(page: Any, drags: int = 15) -> dict[str, Any]:
         end = time.monotonic() + 10.0
         drawn = None
         while drawn is None and time.monotonic() < end:
-            drawn = next((b for b, _n in browser.pose_batches(page) if b > t), None)
+            drawn = next(
+                (b for b, _n in browser.ghost_batches(page) + browser.pose_batches(page) if b > t), None
+            )
             time.sleep(0.005)
         if drawn is None:
-            raise TimeoutError(f"drag {k + 1}: the arm was not redrawn within 10 s")
+            raise TimeoutError(f"drag {k + 1}: neither the arm nor its goal ghost was redrawn within 10 s")
         waits.append(drawn - t)
         time.sleep(0.15)
     return {"pendant_to_3d_ms": float(statistics.median(waits)), "pendant_drags": len(waits)}
@@ -139,8 +168,10 @@ def measure_pendant(page: Any, drags: int = 15) -> dict[str, Any]:
 def measure_scrub(page: Any, moves: int = 15) -> dict[str, Any]:
     """Turn the time cursor on for the finished run and set it `moves` times across the run; time
     each setting until the page receives the arm posed at that instant."""
-    page.get_by_role("tab", name="Results").click()
-    page.get_by_label("Time cursor").check()
+    toggle = page.get_by_label("Time cursor").locator("visible=true")
+    if not toggle.count():  # in the run bar's Timeline folder, folded at first
+        page.get_by_text("Timeline", exact=True).locator("visible=true").first.click()
+    toggle.first.check()
     box = browser.slider_input(page, "Cursor [s]")
     end = time.monotonic() + 30.0
     while box.is_disabled() and time.monotonic() < end:  # enabled once the run's poses arrived
@@ -164,12 +195,258 @@ def measure_scrub(page: Any, moves: int = 15) -> dict[str, Any]:
     return {"scrub_frame_ms": float(statistics.median(waits)), "scrub_moves": len(waits)}
 
 
+def shown_session_of(page: Any, timeout: float = 60.0) -> str:
+    """The first 8 characters of the session the page's header names, once it names one."""
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        prefix = browser.shown_session(page)
+        if prefix:
+            return prefix
+        time.sleep(0.1)
+    raise TimeoutError(f"the page named no session within {timeout:.0f} s")
+
+
+def session_of(mesh: LocalMesh, page: Any) -> Any:
+    """The page's session, as the typed client sees it (found from the page's header)."""
+    prefix = shown_session_of(page)
+    found = [s.session for s in mesh.client().list_sessions(USER) if s.session.startswith(prefix)]
+    if len(found) != 1:
+        raise RuntimeError(f"the page's session {prefix}… is not one session on the server: {found}")
+    return mesh.client().session(USER, found[0])
+
+
+def measure_live_axis(page: Any, session: Any, run_timeout_s: float = 60.0) -> dict[str, Any]:
+    """Open a plot of joint1.q, then for each stop time of LIVE_RUNS_S set it, click Run and note
+    the chart's shown time axis while the run goes on."""
+    browser.open_plot(page, "joint1 (14)", "joint1 (2 own)", "q")
+    page.get_by_text("Plot 1: joint1.q").first.wait_for(timeout=30_000)
+    window = float(browser.labelled_input(page, "Live window [s]").input_value())  # as the plot opens
+    by_run: dict[str, Any] = {}
+    ratios: list[float] = []
+    lowest = math.inf
+    for stop_time in LIVE_RUNS_S:
+        browser.set_stop_time(page, stop_time)
+        if session.snapshot().settings.stop_time != stop_time:
+            raise RuntimeError(f"the stop time {stop_time:g} s did not reach the server")
+        before = {r.run_id for r in session.runs()}
+        browser.sample_time_axis(page, "joint1.q", AXIS_EVERY_MS)
+        page.get_by_role("button", name="Run", exact=True).click()
+        end = time.monotonic() + run_timeout_s
+        new: list[str] = []
+        while not new and time.monotonic() < end:
+            new = [r.run_id for r in session.runs() if r.run_id not in before]
+            time.sleep(0.1)
+        if not new:
+            raise TimeoutError(f"the {stop_time:g} s run did not start")
+        run_id = new[0]
+        session.wait_for(["finished", "failed", "aborted"], timeout=run_timeout_s, run_id=run_id)
+        page.get_by_text(re.compile(rf"finished run {run_id}\b")).first.wait_for(timeout=30_000)
+        samples = browser.time_axis_samples(page)
+        clicked = max(t for t, label in browser.clicks(page) if label == "Run")
+        shown = browser.run_axis(samples, f"run {run_id}", clicked)
+        span = min(window, stop_time)
+        run_ratios = [(a.x_max - a.x_min) / span for a in shown]
+        titled = [a for a in samples if a.run == f"run {run_id}" and a.t_ms >= clicked]
+        lowest = min([lowest, *[a.x_min for a in titled]])
+        by_run[f"{stop_time:g}"] = {
+            "ratio_max": max(run_ratios, default=math.nan),
+            "ratio_min": min(run_ratios, default=math.nan),
+            "samples": len(run_ratios),
+            # the axis shown while the run went on (the smallest time shown is over every sample)
+            "x_min": min((a.x_min for a in shown), default=math.nan),
+            "x_max": max((a.x_max for a in shown), default=math.nan),
+            # under the run's title, but still the previous run's data until the chart's next redraw
+            "left_out": sum(1 for a in titled if a.phase == "running" and a not in shown),
+        }
+        ratios += run_ratios
+    counted = [r["samples"] for r in by_run.values()]
+    return {
+        "live_axis_span_ratio_max": max(ratios, default=math.inf),
+        "live_axis_span_ratio_min": min(ratios, default=0.0),
+        "live_axis_runs": by_run,
+        "live_axis_samples": sum(counted),
+        "live_axis_sampled_every_run": min(counted) >= 3,
+        "live_axis_lowest_s": lowest,
+        "live_axis_negative": lowest < -1e-9,
+        "live_window_s": window,
+    }
+
+
+def viewer_flags(port: int) -> tuple[str, ...]:
+    return ("--host", "127.0.0.1", "--port", str(port), "--user", USER)
+
+
+def start_viewer(mesh: LocalMesh, port: int, timeout: float = 60.0) -> float:
+    """Start the viewer node on `port`; the wall-clock time its port first accepted a connection and
+    answered (returns once the node is live too)."""
+    mesh.spawn("viewer", "simecs.viewer.app", *viewer_flags(port), node_id="viewer-t")
+    end = time.monotonic() + timeout
+    while True:
+        asked = time.time()  # a connection that is accepted is accepted at once
+        try:  # what a browser asks first: the page (a bare connection makes the viewer log an error)
+            with urllib.request.urlopen(f"http://127.0.0.1:{port}/", timeout=2.0) as reply:
+                reply.read()
+            ready = asked
+            break
+        except OSError:
+            if time.monotonic() > end or mesh.procs["viewer"].poll() is not None:
+                raise RuntimeError(f"the viewer did not open port {port}:\n{mesh.log('viewer')}") from None
+            time.sleep(0.02)
+    mesh.wait_node("viewer", "viewer-t", timeout=timeout)
+    return ready
+
+
+def session_page(context: Any, url: str) -> Any:
+    """A new page of `context` that loaded the Spider (a session of its own)."""
+    page = context.new_page()
+    page.add_init_script(browser.PROBE_JS)
+    page.goto(url)
+    page.get_by_role("button", name=MODEL_BUTTON).click(timeout=60_000)
+    shown_session_of(page)
+    return page
+
+
+def sessions(mesh: LocalMesh) -> set[str]:
+    return {s.session for s in mesh.client().list_sessions(USER) if s.phase != "closed"}
+
+
+def worst(events: list[dict[str, Any]]) -> float:
+    """The longest time to come back of `events` (inf when one did not come back)."""
+    return max((math.inf if e["back_s"] is None else e["back_s"] for e in events), default=0.0)
+
+
+def measure_reconnect(mesh: LocalMesh, chrome: Any, port: int, first: Any) -> dict[str, Any]:
+    """Three pages with a session each (`first` and one more in its window, one in a window of its
+    own), the viewer stopped and started again RESTARTS times; each time, whether and when each page
+    showed its own session again without a reload. The front page of the first window alternates,
+    so each of its pages spends restarts in the background (without focus)."""
+    url = f"http://127.0.0.1:{port}"
+    pages = [first, session_page(first.context, url)]
+    pages.append(session_page(chrome.new_context(viewport=browser.VIEWPORT), url))
+    prefixes = [shown_session_of(p) for p in pages]
+    if len(set(prefixes)) != len(pages):
+        raise RuntimeError(f"the pages do not have a session each: {prefixes}")
+    expected = sessions(mesh)
+    for page, prefix in zip(pages, prefixes, strict=True):
+        browser.real_focus(page)
+        browser.watch_session(page, prefix)
+    events: list[dict[str, Any]] = []
+    crashes: list[dict[str, Any]] = []
+    kept = True
+    for k in range(RESTARTS):
+        pages[k % 2].bring_to_front()
+        time.sleep(0.3)
+        focus = [browser.has_focus(p) for p in pages]
+        shown = [browser.session_shown(p) for p in pages]
+        if not all(seen and seen[-1][1] >= 0 for seen in shown):
+            raise RuntimeError(f"restart {k + 1}: a page does not show its session before the stop")
+        element = [seen[-1][1] for seen in shown]
+        loaded = [browser.loaded_at(p) for p in pages]
+        stopped = time.time() * 1000.0  # wall-clock ms, as the page notes its links
+        mesh.stop("viewer")
+        time.sleep(DOWN_S[k % len(DOWN_S)])
+        ready = start_viewer(mesh, port)
+        back: list[float | None] = [None] * len(pages)
+        while time.time() < ready + BACK_WITHIN_S and None in back:
+            for i, page in enumerate(pages):
+                if back[i] is None:
+                    at = browser.shown_anew_after(page, element[i])
+                    back[i] = None if at is None else at / 1000.0 - ready
+            if mesh.procs["viewer"].poll() is not None:
+                break
+            time.sleep(0.1)
+        exit_code = mesh.procs["viewer"].poll()
+        if exit_code is not None:  # the viewer died: said, and started again for the next restart
+            crashes.append({"restart": k + 1, "exit": exit_code, "log": mesh.log("viewer")[-1500:]})
+            start_viewer(mesh, port)
+        for i, page in enumerate(pages):
+            took = back[i] if browser.loaded_at(page) == loaded[i] else None  # a reload is not "back"
+            up = [t for t, kind in browser.links(page) if kind == "connected" and t > stopped]
+            events.append(
+                {
+                    "restart": k + 1,
+                    "page": i + 1,
+                    "focus": focus[i],
+                    "down_s": round(ready - stopped / 1000.0, 3),  # the viewer's stop to its port open
+                    "connected_s": round(up[0] / 1000.0 - ready, 3) if up else None,  # websocket up again
+                    "back_s": None if took is None else round(took, 3),  # its session shown again
+                }
+            )
+            if took is None:  # brought back by hand, for the next restart
+                page.reload()
+                shown_session_of(page)
+                browser.watch_session(page, prefixes[i])
+        if sessions(mesh) != expected:
+            kept = False
+        time.sleep(1.0)  # the pages settle (the tabs keep their view about once a second)
+    times = [e["back_s"] for e in events if e["back_s"] is not None]
+    background = [e for e in events if not e["focus"]]
+    return {
+        "reconnect_pages": len(events),
+        "reconnect_pages_back": len(times),
+        "reconnect_s_max": max(times, default=math.inf),
+        "reconnect_s_p50": statistics.median(times) if times else math.inf,
+        # the worst of the pages that had the focus, and of those in the background of their window
+        "reconnect_s_max_focused": worst([e for e in events if e["focus"]]),
+        "reconnect_s_max_background": worst(background),
+        "reconnect_background": len(background),
+        "reconnect_background_back": sum(1 for e in background if e["back_s"] is not None),
+        "reconnect_sessions_kept": kept,
+        "reconnect_viewer_crashes": crashes,
+        "reconnect_events": events,
+    }
+
+
 def _ms(seconds: float | None) -> str:
     return "?" if seconds is None else f"{seconds * 1000:.0f} ms"
 
 
+def _finite(value: Any) -> Any:
+    """A figure for JSON: None when there is none (no sample, no page back)."""
+    return None if isinstance(value, float) and not math.isfinite(value) else value
+
+
+def _num(value: float | None, fmt: str, unit: str = "", scale: float = 1.0) -> str:
+    return "?" if value is None else f"{value * scale:{fmt}}{unit}"
+
+
+def _at_most(value: float | None, target: float) -> bool:
+    return value is not None and value <= target
+
+
+def judge(result: dict[str, Any]) -> bool:
+    """Every figure measured and on target (a part that failed has no figures: not ok)."""
+    axis_ok = (
+        _at_most(result.get("live_axis_span_ratio_max"), TARGET_AXIS_RATIO)
+        and bool(result.get("live_axis_sampled_every_run"))
+        and result.get("live_axis_negative") is False
+    )
+    pages = result.get("reconnect_pages", 0)
+    reconnect_ok = (
+        pages > 0
+        and result.get("reconnect_pages_back") == pages
+        and _at_most(result.get("reconnect_s_max"), TARGET_RECONNECT_S)
+        and result.get("reconnect_sessions_kept") is True
+        and not result.get("reconnect_viewer_crashes")
+    )
+    updates = result.get("updates_per_s")
+    return (
+        not result["errors"]
+        and updates is not None
+        and updates >= TARGET_UPDATES_PER_S
+        and _at_most(result.get("first_frame_s"), TARGET_FIRST_FRAME_S)
+        and _at_most(result.get("pendant_to_3d_ms"), TARGET_PENDANT_MS)
+        and _at_most(result.get("scrub_frame_ms"), TARGET_SCRUB_MS)
+        and axis_ok
+        and reconnect_ok
+    )
+
+
 def run_viewer_bench(json_out: bool) -> dict[str, Any] | None:
-    """Run the benchmark; print a table (and with `json_out` one JSON object on the last line)."""
+    """Run the benchmark; print a table (and with `json_out` one JSON object on the last line).
+
+    Each part is measured even when one before it failed (its error is kept in `errors`, and the
+    bench is not ok): a figure that cannot be measured says so instead of hiding the others."""
     missing = browser.browser_missing()
     if missing:
         print(f"simecs bench viewer: cannot run: {missing}")
@@ -178,81 +455,152 @@ def run_viewer_bench(json_out: bool) -> dict[str, Any] | None:
 
     t0 = time.monotonic()
     port = free_port()
+    os.environ.setdefault("PYTHONFAULTHANDLER", "1")  # a node that crashes leaves its stacks in its log
+    result: dict[str, Any] = {"errors": {}}
+
+    def part(name: str, measure_part: Callable[[], dict[str, Any]]) -> None:
+        started = time.monotonic()
+        try:
+            result.update(measure_part())
+        except Exception as exc:  # said in the table and the JSON; the next part still runs
+            result["errors"][name] = f"{type(exc).__name__}: {exc}"[:600]
+        result[f"{name}_took_s"] = round(time.monotonic() - started, 1)
+
     with LocalMesh() as mesh:
         mesh.start_hub()
         mesh.start_service()
-        mesh.start(
-            "viewer",
-            "--host",
-            "127.0.0.1",
-            "--port",
-            str(port),
-            "--user",
-            "bench",
-            module="simecs.viewer.app",
-        )
+        start_viewer(mesh, port)
         warm_s = warm_up(mesh)
         setup_s = time.monotonic() - t0
         with sync_playwright() as pw:
             chrome = browser.launch(pw)
             try:
-                page = chrome.new_page(viewport=browser.VIEWPORT)
+                page = chrome.new_context(viewport=browser.VIEWPORT).new_page()
                 page.add_init_script(browser.PROBE_JS)
                 page.goto(f"http://127.0.0.1:{port}")
                 page.get_by_role("button", name=MODEL_BUTTON).click(timeout=60_000)
-                pendant = measure_pendant(page)  # from the initial pose, where the path starts
-                result = measure(page)
-                result.update(pendant)
-                result.update(measure_scrub(page))
+                part("pendant", lambda: measure_pendant(page))  # from the initial pose, where the path starts
+                part("run", lambda: measure(page))
+                part("scrub", lambda: measure_scrub(page))
+                result["viewer_click_to_frame_s"] = viewer_latency(mesh.log("viewer"))
+                part("live_axis", lambda: measure_live_axis(page, session_of(mesh, page)))
+                part("reconnect", lambda: measure_reconnect(mesh, chrome, port, page))
             finally:
                 chrome.close()
-        result["viewer_click_to_frame_s"] = viewer_latency(mesh.log("viewer"))
+    result = {name: _finite(value) for name, value in result.items()}
+    for run in result.get("live_axis_runs", {}).values():
+        run.update({name: _finite(value) for name, value in run.items()})
     result.update(
         {
             "target_updates_per_s": TARGET_UPDATES_PER_S,
             "target_first_frame_s": TARGET_FIRST_FRAME_S,
             "target_pendant_to_3d_ms": TARGET_PENDANT_MS,
             "target_scrub_frame_ms": TARGET_SCRUB_MS,
-            "ok": result["updates_per_s"] >= TARGET_UPDATES_PER_S
-            and result["first_frame_s"] <= TARGET_FIRST_FRAME_S
-            and result["pendant_to_3d_ms"] <= TARGET_PENDANT_MS
-            and result["scrub_frame_ms"] <= TARGET_SCRUB_MS,
+            "target_live_axis_span_ratio": TARGET_AXIS_RATIO,
+            "target_reconnect_s": TARGET_RECONNECT_S,
             "setup_s": setup_s,
             "warm_up_s": warm_s,
             "total_s": time.monotonic() - t0,
         }
     )
+    result["ok"] = judge(result)
+    print_table(result)
+    if json_out:
+        print(json.dumps(result))
+    return result
+
+
+def print_table(result: dict[str, Any]) -> None:
+    r = result.get
+    runs = r("live_axis_runs") or {}
+    spread = ", ".join(f"{stop} s: {_num(run['ratio_max'], '.2f')}" for stop, run in runs.items())
+    crashes = r("reconnect_viewer_crashes")
     rows = [
         (
             "3D pose updates received by the tab",
-            f"{result['updates_per_s']:.1f} /s",
+            _num(r("updates_per_s"), ".1f", " /s"),
             f">= {TARGET_UPDATES_PER_S:g} /s",
         ),
         (
             "Run click -> first live frame in the tab",
-            f"{result['first_frame_s'] * 1000:.0f} ms",
+            _num(r("first_frame_s"), ".0f", " ms", 1000.0),
             f"<= {TARGET_FIRST_FRAME_S * 1000:.0f} ms",
         ),
         (
-            "gizmo dragged -> arm at the node (p50)",
-            f"{result['pendant_to_3d_ms']:.0f} ms",
+            "gizmo dragged -> goal ghost at the node (p50)",
+            _num(r("pendant_to_3d_ms"), ".0f", " ms"),
             f"<= {TARGET_PENDANT_MS:.0f} ms",
         ),
         (
             "time cursor set -> arm at that instant (p50)",
-            f"{result['scrub_frame_ms']:.0f} ms",
+            _num(r("scrub_frame_ms"), ".0f", " ms"),
             f"<= {TARGET_SCRUB_MS:.0f} ms",
         ),
-        ("pose updates while the arm moved", f"{result['pose_updates']} in {result['moving_s']:.2f} s", ""),
-        ("  of which in the viewer (click in -> frame out)", _ms(result["viewer_click_to_frame_s"]), ""),
-        ("mesh + viewer start, simulator warm-up", f"{setup_s:.1f} s ({warm_s:.1f} s)", ""),
+        (
+            "live plot: shown span / run's span (max)",
+            _num(r("live_axis_span_ratio_max"), ".2f"),
+            f"<= {TARGET_AXIS_RATIO:g}",
+        ),
+        ("  smallest ratio; largest per run", _num(r("live_axis_span_ratio_min"), ".2f"), spread),
+        ("  smallest time shown", _num(r("live_axis_lowest_s"), ".3f", " s"), ">= 0 s"),
+        (
+            "pages back by themselves after a restart",
+            f"{r('reconnect_pages_back', '?')}/{r('reconnect_pages', '?')}",
+            "all",
+        ),
+        (
+            "  of which in the background (no focus)",
+            f"{r('reconnect_background_back', '?')}/{r('reconnect_background', '?')}",
+            "all",
+        ),
+        (
+            "viewer back -> page shows its session (max)",
+            _num(r("reconnect_s_max"), ".2f", " s"),
+            f"<= {TARGET_RECONNECT_S:g} s",
+        ),
+        ("  median", _num(r("reconnect_s_p50"), ".2f", " s"), ""),
+        (
+            "  worst of pages with focus / in the background",
+            _num(r("reconnect_s_max_focused"), ".2f")
+            + " / "
+            + _num(r("reconnect_s_max_background"), ".2f", " s"),
+            "",
+        ),
+        (
+            "  the server's sessions unchanged",
+            {"True": "yes", "False": "NO"}.get(str(r("reconnect_sessions_kept")), "?"),
+            "yes",
+        ),
+        ("  viewer processes that died", "?" if crashes is None else str(len(crashes)), "0"),
+        (
+            "pose updates while the arm moved",
+            f"{r('pose_updates', '?')} in {_num(r('moving_s'), '.2f', ' s')}",
+            "",
+        ),
+        ("  of which in the viewer (click in -> frame out)", _ms(r("viewer_click_to_frame_s")), ""),
+        (
+            "mesh + viewer start, simulator warm-up",
+            f"{result['setup_s']:.1f} s ({result['warm_up_s']:.1f} s)",
+            "",
+        ),
+        (
+            "live plots, restarts, whole bench",
+            f"{r('live_axis_took_s', 0):.0f} s, {r('reconnect_took_s', 0):.0f} s, {result['total_s']:.0f} s",
+            "",
+        ),
     ]
-    print("simecs bench viewer (headless chromium, standard run: Spider, 5 s real time, 50 Hz live)")
+    print(
+        "simecs bench viewer (headless chromium, standard run: Spider, 5 s real time, 50 Hz live; "
+        f"live plot over runs of {', '.join(f'{s:g}' for s in LIVE_RUNS_S)} s; "
+        f"{RESTARTS} viewer restarts under 3 pages)"
+    )
     print(f"{'measure':44} {'value':>18}  target")
     for name, value, target in rows:
         print(f"{name:44} {value:>18}  {target}")
-    print(f"final status: {result['status']}")
+    print(f"final status: {r('status', '?')}")
+    for crash in crashes or []:
+        print(f"the viewer died after restart {crash['restart']} (exit {crash['exit']}); its log ended:")
+        print(crash["log"])
+    for name, error in result["errors"].items():
+        print(f"{name}: not measured: {error}")
     print("PASS" if result["ok"] else "FAIL: below target")
-    if json_out:
-        print(json.dumps(result))
-    return result

@@ -4,15 +4,23 @@ tests and `simecs bench viewer`.
 viser's websocket lives in a Web Worker, out of Playwright's sight (STACK-NOTES), so `PROBE_JS`
 wraps the page's `Worker` before viser creates it and timestamps every message batch that moves a
 link of the 3D arm: those are the pose updates the tab actually received. It also notes every
-binary glTF mesh (an imported model's links) the tab received, and keeps the worker and each
-transform gizmo's owner so `drag_gizmo` can send what a drag of that gizmo sends.
+binary glTF mesh (an imported model's links) the tab received, the batches that move the goal
+ghost (`ghosts`: the translucent arm drawn where a node puts it), and keeps the worker and each
+transform gizmo's owner so `drag_gizmo` can send what a drag of that gizmo sends. It notes when the
+page's websocket connects and closes (wall-clock ms, `links`) and when the document was loaded (a
+reload starts a new record).
+
+Playwright makes every page count as focused (`document.hasFocus()`), which a real browser does for
+one page per window only: `real_focus` turns that off for a page, so a page in the background of its
+window behaves as a user's would.
 """
 
 from __future__ import annotations
 
 import os
+import re
 import shutil
-from typing import Any
+from typing import Any, NamedTuple
 
 CHROMIUM = os.environ.get("SIMECS_CHROMIUM", "/usr/bin/chromium")
 CHROMIUM_ARGS = [
@@ -28,8 +36,8 @@ VIEWPORT = {"width": 1600, "height": 1000}
 
 PROBE_JS = """
 (() => {
-  const rec = window.__simecs = {batches: [], clicks: [], plots: [], glbs: [], sent: [],
-                                 gizmos: {}, gizmoTurns: {}, worker: null};
+  const rec = window.__simecs = {batches: [], ghosts: [], clicks: [], plots: [], glbs: [], sent: [],
+                                 links: [], gizmos: {}, gizmoTurns: {}, worker: null, loaded: Date.now()};
   const Base = window.Worker;
   if (!Base) return;
   class Probed extends Base {
@@ -43,11 +51,14 @@ PROBE_JS = """
       rec.worker = this;  // what sends the page's messages: a drag is replayed through it
       this.addEventListener('message', (e) => {
         const d = e.data;
+        if (d && (d.type === 'connected' || d.type === 'closed')) rec.links.push([Date.now(), d.type]);
         if (!d || d.type !== 'message_batch' || !d.messages) return;
-        let poses = 0;
+        let poses = 0, ghostPoses = 0;
         for (const m of d.messages) {
           if ((m.type === 'SetPositionMessage' || m.type === 'SetOrientationMessage')
               && typeof m.name === 'string' && m.name.startsWith('/arm/')) poses++;
+          else if ((m.type === 'SetPositionMessage' || m.type === 'SetOrientationMessage')
+              && typeof m.name === 'string' && m.name.startsWith('/ghost/')) ghostPoses++;
           else if (m.type === 'TransformControlsMessage') {
             rec.gizmos[m.name] = m.owner || '';
             if (m.wxyz) rec.gizmoTurns[m.name] = Array.from(m.wxyz);
@@ -64,6 +75,7 @@ PROBE_JS = """
           }
         }
         if (poses) rec.batches.push([performance.now(), poses]);
+        if (ghostPoses) rec.ghosts.push([performance.now(), ghostPoses]);
       });
     }
   }
@@ -168,6 +180,14 @@ def pose_batches(page: Any) -> list[tuple[float, int]]:
     ]
 
 
+def ghost_batches(page: Any) -> list[tuple[float, int]]:
+    """(time in ms, pose messages) of every batch that moved the goal ghost (the translucent arm
+    drawn where a node puts it) so far."""
+    return [
+        (float(t), int(n)) for t, n in page.evaluate("() => window.__simecs ? window.__simecs.ghosts : []")
+    ]
+
+
 def sent_updates(page: Any) -> list[float]:
     """The page's time (ms) of every widget value it sent to the viewer."""
     return [float(t) for t, _uuid in page.evaluate("() => window.__simecs ? window.__simecs.sent : []")]
@@ -195,3 +215,166 @@ def status_text(page: Any) -> str:
     """The toolbar's one-line run status (phase, time, progress, RTF)."""
     loc = page.locator("p, div").filter(has_text="RTF").last
     return loc.inner_text() if loc.count() else ""
+
+
+def real_focus(page: Any) -> None:
+    """Let `page` have the focus only when it really has it (the front page of its window), as in a
+    user's browser: Playwright otherwise tells every page it is focused."""
+    page.context.new_cdp_session(page).send("Emulation.setFocusEmulationEnabled", {"enabled": False})
+
+
+def has_focus(page: Any) -> bool:
+    """Whether the page has the focus, as the browser says (not as a script in the page may say)."""
+    return bool(page.evaluate("() => Document.prototype.hasFocus.call(document)"))
+
+
+def links(page: Any) -> list[tuple[float, str]]:
+    """(wall-clock ms, 'connected' | 'closed') of every change of the page's websocket so far."""
+    rows = page.evaluate("() => window.__simecs ? window.__simecs.links : []")
+    return [(float(t), str(k)) for t, k in rows]
+
+
+def loaded_at(page: Any) -> float:
+    """When the page's document was loaded (wall-clock ms): it changes only with a reload."""
+    return float(page.evaluate("() => window.__simecs ? window.__simecs.loaded : 0"))
+
+
+SHOWN_SESSION_JS = r"""() => {
+  const code = Array.from(document.querySelectorAll('p code')).find((c) =>
+    /^\S{8}…$/.test(c.textContent || '') &&
+    (c.parentElement.textContent || '').includes('session ' + c.textContent));
+  return code ? code.textContent.slice(0, 8) : '';
+}"""
+
+
+def shown_session(page: Any) -> str:
+    """The first 8 characters of the session the page's header names ('' when no model page)."""
+    return str(page.evaluate(SHOWN_SESSION_JS))
+
+
+WATCH_SESSION_JS = r"""(prefix) => {
+  const w = window.__simecsShown = window.__simecsShown ||
+    {seen: [], ids: new WeakMap(), next: 0, last: -2, timer: null};
+  w.prefix = prefix;
+  if (w.timer) return;
+  const look = () => {
+    const code = Array.from(document.querySelectorAll('p code')).find((c) => c.isConnected &&
+      (c.textContent || '').startsWith(w.prefix) &&
+      (c.parentElement.textContent || '').includes('session ' + w.prefix));
+    let id = -1;
+    if (code) {
+      if (!w.ids.has(code)) w.ids.set(code, w.next++);
+      id = w.ids.get(code);
+    }
+    if (id !== w.last) { w.seen.push([Date.now(), id]); w.last = id; }
+  };
+  look();
+  w.timer = setInterval(look, 50);
+}"""
+
+
+def watch_session(page: Any, prefix: str) -> None:
+    """Note, every 50 ms in the page, which element shows the header "session <prefix>…": each new
+    element (a page built anew, as after a reconnect) gets the next number, -1 when none shows it."""
+    page.evaluate(WATCH_SESSION_JS, prefix)
+
+
+def session_shown(page: Any) -> list[tuple[float, int]]:
+    """(wall-clock ms, element number or -1) at each change `watch_session` saw."""
+    return [
+        (float(t), int(k))
+        for t, k in page.evaluate("() => window.__simecsShown ? window.__simecsShown.seen : []")
+    ]
+
+
+def shown_anew_after(page: Any, element: int) -> float | None:
+    """When (wall-clock ms) the page first showed its session in an element newer than `element`
+    (see `watch_session`): the page was built anew and reopened that session; None: not yet."""
+    return next((t for t, k in session_shown(page) if k > element), None)
+
+
+AXIS_JS = """([variable, titlePattern, everyMs]) => {
+  const a = window.__simecsAxis = {samples: [], timer: null};
+  const title = new RegExp(titlePattern);
+  a.timer = setInterval(() => {
+    const charts = Object.values((window.__viserTestpoints || {}).uplots || {});
+    const found = document.body.textContent.match(title);
+    for (const tp of charts) {
+      const u = tp.chart, xs = u.data && u.data[0];
+      if (!(u.series || []).some((s) => (s.label || '').startsWith(variable))) continue;
+      if (u.scales.x.min == null || u.scales.x.max == null || !xs || !xs.length) continue;
+      a.samples.push([performance.now(), u.scales.x.min, u.scales.x.max, xs[0], xs[xs.length - 1],
+                      window.__simecsPhase || '', found ? found[1] : '']);
+    }
+  }, everyMs);
+}"""
+
+
+def sample_time_axis(page: Any, variable: str, every_ms: float = 150.0) -> None:
+    """Start noting, every `every_ms` in the page, the time axis shown by the chart of `variable`:
+    (page ms, shown x min, x max, first and last time of its data, the session's phase, the run its
+    title says it shows live, e.g. "run r3"). Read with `time_axis_samples`; a new call starts over."""
+    page.evaluate("() => { if (window.__simecsAxis) clearInterval(window.__simecsAxis.timer); }")
+    title = rf"Plot \d+: {re.escape(variable)}[^·]*· (\S+ r\d+) live"  # the chart's folder title
+    page.evaluate(AXIS_JS, [variable, title, every_ms])
+
+
+class AxisSample(NamedTuple):
+    """The time axis a chart showed at one instant (`sample_time_axis`)."""
+
+    t_ms: float  # the page's clock (performance.now(), as `clicks`)
+    x_min: float  # the shown time axis
+    x_max: float
+    data_first: float  # the first and last time of the chart's data
+    data_last: float
+    phase: str  # the session's phase, as the page was told it
+    run: str  # the run the chart's title says it shows live ("run r3"; '' when none)
+
+
+def time_axis_samples(page: Any, stop: bool = True) -> list[AxisSample]:
+    """What `sample_time_axis` noted so far (and stop noting, with `stop`)."""
+    rows = page.evaluate(
+        "(stop) => { const a = window.__simecsAxis; if (!a) return []; if (stop) clearInterval(a.timer);"
+        " return a.samples; }",
+        stop,
+    )
+    return [
+        AxisSample(float(t), float(lo), float(hi), float(x0), float(x1), str(ph), str(run))
+        for t, lo, hi, x0, x1, ph, run in rows
+    ]
+
+
+def open_plot(page: Any, component: str, owner: str, variable: str) -> None:
+    """Open a plot from the Variables tab as a user does: unfold Components, pick the tree node
+    `component` (e.g. "joint1 (14)"), then `owner` (e.g. "joint1 (2 own)"), then "Plot <variable>"."""
+    page.get_by_role("tab", name="Variables").click()
+    page.get_by_text(re.compile(r"^Components · ")).locator("visible=true").first.click()
+    page.get_by_text(component, exact=True).click()
+    page.get_by_role("button", name=owner).click()
+    page.get_by_role("button", name=f"Plot {variable}", exact=True).click()
+
+
+def run_axis(
+    samples: list[AxisSample], run: str, clicked_ms: float, slack_s: float = 0.5
+) -> list[AxisSample]:
+    """The samples that show `run` (e.g. "run r3") while it goes on: the chart's title names it, the
+    session runs, and the chart's data are the run's. A paced run's newest sample is at most the
+    time since Run was clicked (`clicked_ms`, the page's clock): data beyond that are the previous
+    run's (or the empty window's ends), still drawn until the chart's next redraw."""
+    return [
+        a
+        for a in samples
+        if a.run == run
+        and a.phase == "running"
+        and a.t_ms >= clicked_ms
+        and a.data_last <= (a.t_ms - clicked_ms) / 1000.0 + slack_s
+    ]
+
+
+def set_stop_time(page: Any, stop_time: float) -> None:
+    """Type the run's stop time into the Settings window and apply it, as a user does; returns once
+    the window has closed (it closes when the server stored the settings)."""
+    page.get_by_role("button", name="Settings", exact=True).click()
+    set_field(page, page.get_by_label("Stop time [s]"), f"{stop_time:g}")
+    page.get_by_role("button", name="Apply settings").click()
+    page.get_by_label("Stop time [s]").wait_for(state="hidden", timeout=20_000)

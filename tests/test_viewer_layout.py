@@ -1,7 +1,8 @@
 """The viewer's layout in a real browser (Debian chromium + Playwright), at 1024×768, 1600×900 and 1920×1080:
 no region covers the 3D view, the documentation's in-text links work and a new page opens at its
-top, a reload gets back the plots and the shown component, and a page survives a viewer restart
-(it says the server is gone, then reopens the same session by itself).
+top, a reload gets back the plots and the shown component, pages survive a viewer restart (they
+say the server is gone, then each reopens its own session by itself, a page in the background of
+its window too), and a live plot's time axis shows a short run's own span.
 
 Screenshots of each state go to `artifacts/viewer/`.
 """
@@ -11,6 +12,7 @@ from __future__ import annotations
 from typing import Any
 
 import pytest
+from simecs.mesh.client import MeshClient
 from simecs.testing import browser as chromium
 
 from .conftest import Mesh, free_port, start_service, wait_until
@@ -26,6 +28,7 @@ from .test_viewer_browser import (
     plot_joint1_q,
     service_and_viewer,
     sessions_of,
+    spider_tab,
     start_viewer,
     text_appears,
 )
@@ -123,7 +126,11 @@ def layout_walk(mesh: Mesh, browser: Any, size: tuple[int, int]) -> None:
     page.wait_for_timeout(2500)
     page.reload()
     model_shown(page)
+    if width < 1400:  # the plots are a tab beside the trees: the tab shown before the reload stays
+        page.get_by_role("tab", name="Plots").click()
     text_appears(page, "Plot 1: joint1.q")
+    if width < 1400:
+        page.get_by_role("tab", name="Parameters").click()
     page.get_by_text("Components · link2").locator("visible=true").first.wait_for()
     page.get_by_label("length [m]").wait_for()
     page.screenshot(path=str(SHOTS / f"reloaded_{tag}.png"))
@@ -134,28 +141,99 @@ def test_a_page_survives_a_viewer_restart(mesh: Mesh, browser: Any) -> None:
         restart_walk(mesh, browser)
 
 
+def session_page(context: Any, url: str, client: MeshClient, known: set[str]) -> tuple[Any, str]:
+    """A new page of `context` that loaded the Spider: (the page, its session, not one of `known`)."""
+    page = new_page(context, url)
+    page.get_by_role("button", name=SPIDER).click()
+    model_shown(page)
+    sid = wait_until(lambda: next(iter(sessions_of(client) - known), None), timeout=20, what="a session")
+    # the page shows it (the models window's button says "Spider arm" too): the tab remembers it now
+    text_appears(page, f"session {sid[:8]}")
+    return page, sid
+
+
 def restart_walk(mesh: Mesh, browser: Any) -> None:
+    """Three pages, each with its session, in two browser windows (contexts): the first window's
+    front page has the focus, its other page none (Playwright's focus emulation off, as for a user's
+    background tab). The viewer stops: the page says so; it starts again on the same port: every
+    page, the one in the background too, shows its own session again by itself (no reload), and the
+    server has no other session."""
     service = start_service(mesh)
     port = free_port()
     url = start_viewer(mesh, port=port)
-    page = new_page(browser.new_context(viewport=chromium.VIEWPORT), url)
-    page.get_by_role("button", name=SPIDER).click()
-    model_shown(page)
-    sid = wait_until(lambda: next(iter(sessions_of(service.client)), None), timeout=20, what="a session")
-    # the page shows it (the models window's button says "Spider arm" too): the tab remembers it now
-    text_appears(page, f"session {sid[:8]}")
-    banner = page.locator("#simecs-lost")
+    one = browser.new_context(viewport=chromium.VIEWPORT)
+    other = browser.new_context(viewport=chromium.VIEWPORT)
+    pages: list[Any] = []
+    sids: list[str] = []
+    for context in (one, one, other):
+        page, sid = session_page(context, url, service.client, set(sids))
+        chromium.real_focus(page)
+        pages.append(page)
+        sids.append(sid)
+    pages[1].bring_to_front()
+    wait_until(lambda: not chromium.has_focus(pages[0]), timeout=10, what="the first page in the background")
+    assert chromium.has_focus(pages[1]) and chromium.has_focus(pages[2])
+    for page, sid in zip(pages, sids, strict=True):
+        chromium.watch_session(page, sid[:8])
+    shown = [chromium.session_shown(page)[-1][1] for page in pages]  # the header's element, now
+    assert min(shown) >= 0, "a page does not show its session"
+    loaded = [chromium.loaded_at(page) for page in pages]
+    banner = pages[0].locator("#simecs-lost")
     assert not banner.is_visible()
 
     mesh.stop("viewer")
     banner.wait_for(state="visible", timeout=15_000)  # the page says the server is gone
     assert "reconnects by itself" in banner.inner_text()
     SHOTS.mkdir(parents=True, exist_ok=True)
-    page.screenshot(path=str(SHOTS / "server_gone.png"))
+    pages[0].screenshot(path=str(SHOTS / "server_gone.png"))
 
     start_viewer(mesh, port=port)
-    banner.wait_for(state="hidden", timeout=60_000)  # back by itself, no reload
-    text_appears(page, f"session {sid[:8]}", timeout=60)
-    assert sessions_of(service.client) == {sid}, "the restarted page opened another session"
-    page.get_by_role("button", name="Run", exact=True).wait_for()
-    page.screenshot(path=str(SHOTS / "server_back.png"))
+    for n, (page, element) in enumerate(zip(pages, shown, strict=True), start=1):
+        # the page built anew (a new header element) with its own session: reconnected and reopened
+        wait_until(
+            lambda page=page, element=element: chromium.shown_anew_after(page, element),
+            timeout=90,
+            interval=0.2,
+            what=f"page {n} showing its session again",
+        )
+    assert [chromium.loaded_at(page) for page in pages] == loaded, "a page was reloaded"
+    assert not chromium.has_focus(pages[0]), "the page in the background was brought to the front"
+    for page, sid in zip(pages, sids, strict=True):
+        text_appears(page, f"session {sid[:8]}")
+    assert sessions_of(service.client) == set(sids), "a restarted page opened another session"
+    banner.wait_for(state="hidden", timeout=30_000)
+    pages[0].get_by_role("button", name="Run", exact=True).wait_for()
+    pages[0].screenshot(path=str(SHOTS / "server_back.png"))
+
+
+#: A live chart's time axis may show at most this much more than the run's span (or the live window).
+AXIS_SLACK = 1.2
+
+
+def test_a_live_plot_shows_the_span_of_a_short_run(mesh: Mesh, browser: Any) -> None:
+    """Issue 32: a 2 s run under a live plot; while it goes on, the chart's time axis (as uPlot shows
+    it) spans at most 1.2 x min(live window, 2 s), and never shows negative time."""
+    with logs_on_failure(mesh, "viewer", "proxy", "simulator"):
+        live_axis_walk(mesh, browser)
+
+
+def live_axis_walk(mesh: Mesh, browser: Any) -> None:
+    page, _context, session = spider_tab(mesh, browser)
+    session.set_joint_path([((0.4, 0.3, 0.0, 0.0, 0.0, 0.0, 0.0), 100.0, 100.0)])  # the run's command
+    plot_joint1_q(page)
+    window = float(chromium.labelled_input(page, "Live window [s]").input_value())
+    chromium.set_stop_time(page, 2.0)
+    settings = session.snapshot().settings
+    assert settings.stop_time == 2.0 and settings.pacing == "realtime"
+    chromium.sample_time_axis(page, "joint1.q", every_ms=100)
+    page.get_by_role("button", name="Run", exact=True).click()
+    text_appears(page, "finished run r1", timeout=120)
+    samples = chromium.time_axis_samples(page)
+    clicked = max(t for t, label in chromium.clicks(page) if label == "Run")
+    shown = chromium.run_axis(samples, "run r1", clicked)
+    assert len(shown) >= 3, f"the chart was seen {len(shown)} times while the run went on: {samples}"
+    limit = AXIS_SLACK * min(window, 2.0)
+    wide = [(round(a.x_min, 3), round(a.x_max, 3)) for a in shown if a.x_max - a.x_min > limit]
+    assert not wide, f"the time axis spans more than {limit:g} s: {wide}"
+    titled = [a for a in samples if a.run == "run r1" and a.t_ms >= clicked]
+    assert min(a.x_min for a in titled) >= 0.0, f"negative time shown: {min(a.x_min for a in titled)}"

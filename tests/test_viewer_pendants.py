@@ -82,8 +82,9 @@ def cartesian_walk(mesh: Mesh, browser: Any, size: tuple[int, int]) -> None:
     assert session.snapshot().command == command
     page.screenshot(path=str(SHOTS / f"cartesian_refused_{tag}.png"))
 
-    # a reachable pose: planned (the refusal goes), stored, and the arm drawn at the node
-    before = len(chromium.pose_batches(page))
+    # a reachable pose: planned (the refusal goes), stored, and the goal ghost drawn at the node (the
+    # arm itself stays where the run starts)
+    before = len(chromium.ghost_batches(page))
     goal = [taught[0] - 100.0, taught[1], taught[2] - 100.0]  # the Spider reaches it by LIN at 100 %
     set_position(page, goal)
     page.get_by_text("The server refused").wait_for(state="hidden")
@@ -91,13 +92,14 @@ def cartesian_walk(mesh: Mesh, browser: Any, size: tuple[int, int]) -> None:
         lambda: [round(x * 1000, 1) for x in session.snapshot().command.nodes[0].position] == goal,
         what="the typed pose stored",
     )
-    wait_until(lambda: len(chromium.pose_batches(page)) > before, what="the arm drawn at the node")
+    wait_until(lambda: len(chromium.ghost_batches(page)) > before, what="the ghost drawn at the node")
 
     # the gizmo dragged: the arm follows to where the server plans the node
     dragged_to = [(goal[0] + 50.0) / 1000, goal[1] / 1000, goal[2] / 1000]
     t_drag = chromium.drag_gizmo(page, GIZMO, dragged_to)  # along its arrows: the orientation kept
     wait_until(
-        lambda: any(t > t_drag for t, _n in chromium.pose_batches(page)), what="the arm redrawn after a drag"
+        lambda: any(t > t_drag for t, _n in chromium.ghost_batches(page)),
+        what="the ghost redrawn after a drag",
     )
     wait_until(
         lambda: abs(session.snapshot().command.nodes[0].position[0] - dragged_to[0]) < 1e-6,

@@ -48,18 +48,22 @@ ASK_AGAIN_S = 1.0
 
 
 def recall(client: Any, timeout: float = 8.0) -> TabMemory:
-    """Read this tab's session id and this browser's user name (blocks up to `timeout`)."""
+    """Read this tab's session id and this browser's user name (blocks up to `timeout`), in one round
+    trip to the page: a page in the background of its window (a reconnect) may answer slowly."""
     key = f"simecs.tab.{client.client_id}"
     nonce = secrets.token_hex(8)
     script = f"""(() => {{
   const key = {json.dumps(key)}, nonce = {json.dumps(nonce)};
   const probe = Object.keys(localStorage).find(k => k.endsWith(key) && localStorage.getItem(k) === nonce);
   if (!probe) return;
-  let session = "", view = null;
+  let session = "", view = null, user = "";
   try {{ session = sessionStorage.getItem({json.dumps(SESSION_KEY)}) || ""; }} catch (e) {{}}
   try {{ view = JSON.parse(sessionStorage.getItem({json.dumps(VIEW_KEY)}) || "null"); }} catch (e) {{}}
-  localStorage.setItem(probe, JSON.stringify({{session: session, view: view, width: window.innerWidth,
-                                               height: window.innerHeight}}));
+  // the user name viser keeps for us under the same prefix as the probe: one round trip for both
+  try {{ user = localStorage.getItem(probe.slice(0, -key.length) + {json.dumps(USER_KEY)}) || ""; }}
+  catch (e) {{}}
+  localStorage.setItem(probe, JSON.stringify({{session: session, view: view, user: user,
+                                               width: window.innerWidth, height: window.innerHeight}}));
 }})();"""
     try:
         end = time.monotonic() + timeout
@@ -78,24 +82,20 @@ def recall(client: Any, timeout: float = 8.0) -> TabMemory:
                 if raw is not None and raw != nonce:
                     break
                 time.sleep(0.05)
-        try:
-            user = client.local_storage.get_item(USER_KEY, timeout=max(2.0, end - time.monotonic())) or ""
-        except TimeoutError:  # the session is still the tab's; the user name comes from the viewer
-            user = ""
         client.local_storage.remove_item(key)
     except (RuntimeError, TimeoutError) as exc:
         log.warning("tab %s did not tell its memory: %s", client.client_id, exc)
         return TabMemory()
     if raw is None or raw == nonce:
         log.info("tab %s did not tell its memory within %.0f s", client.client_id, timeout)
-        return TabMemory(user=user, answered=False)
+        return TabMemory(answered=False)
     try:
         told = json.loads(raw)
-        session = str(told.get("session", ""))
+        session, user = str(told.get("session", "")), str(told.get("user", ""))
         width, height = int(told.get("width", 0)), int(told.get("height", 0))
         view = told.get("view")
     except (ValueError, TypeError, AttributeError):
-        session, width, height, view = "", 0, 0, None
+        session, user, width, height, view = "", "", 0, 0, None
     view = view if isinstance(view, dict) else {}
     return TabMemory(session=session, user=user, answered=True, width=width, height=height, view=view)
 
