@@ -17,6 +17,7 @@ from simecs.mesh import messages as m
 
 from .conftest import Mesh, wait_until
 from .test_viewer_browser import SHOTS, dismiss_notifications, logs_on_failure, sized_spider_tab, text_appears
+from .test_viewer_layout import run_controls_in_sight
 
 
 def test_an_idle_arm_is_jogged_by_holding_a_button_and_taught_where_it_was_left(
@@ -64,6 +65,7 @@ def jog_walk(mesh: Mesh, browser: Any) -> None:
     run_id = session.snapshot().state.run_id
     assert session.runs()[-1].until_stopped
     text_appears(page, "until stopped")  # the run bar says it has no end of its own
+    run_controls_in_sight(page)  # while a run goes on too
     hold(page, "Jog +", 2.0)  # held while the run runs: the arm moves
     page.wait_for_timeout(1500)  # let go: the arm stands still from the release on
     dismiss_notifications(page)

@@ -69,6 +69,44 @@ def view_is_clear(page: Any, min_free_px: int) -> None:
     assert found["free"] >= min_free_px, f"the 3D view is {found['free']} px wide"
 
 
+#: Where each run control is and what hides it: off the window, under something else, or clipped by
+#: a box that scrolls (an E-stop is never in a scroll box).
+RUN_CONTROLS_JS = """
+() => ['Run', 'Pause', 'Resume', 'Abort'].map((label) => {
+  const button = Array.from(document.querySelectorAll('button')).find((b) =>
+    b.textContent.trim() === label && b.parentElement &&
+    Array.from(b.parentElement.children).some((c) => c.textContent.trim() === 'Abort'));
+  if (!button) return label + ': not on the page';
+  const r = button.getBoundingClientRect();
+  if (r.width < 4 || r.height < 4) return label + ': not drawn';
+  if (r.left < 0 || r.top < 0 || r.right > window.innerWidth || r.bottom > window.innerHeight)
+    return label + ': off the window';
+  const hit = document.elementFromPoint(r.left + r.width / 2, r.top + r.height / 2);
+  if (!hit || !(hit === button || button.contains(hit)))
+    return label + ': covered by ' + (hit ? hit.tagName : '?');
+  for (let e = button.parentElement; e; e = e.parentElement) {
+    const style = getComputedStyle(e);
+    if (/(auto|scroll)/.test(style.overflowY) && e.scrollHeight > e.clientHeight + 1)
+      return label + ': in a scroll box';
+  }
+  return '';
+}).filter((x) => x)
+"""
+
+
+def run_controls_in_sight(page: Any) -> None:
+    """Run, Pause, Resume, Abort and the status line are in sight: in the window, on top, in no box
+    that scrolls (issue 32, 2)."""
+    problems: list[str] = []
+    for _ in range(20):  # a panel's opening animation passes within a few seconds
+        problems = page.evaluate(RUN_CONTROLS_JS)
+        if not problems:
+            break
+        page.wait_for_timeout(250)
+    assert not problems, problems
+    page.get_by_text("now: ").locator("visible=true").first.wait_for(timeout=5000)  # the status line
+
+
 @pytest.mark.parametrize(
     "size", [*SIZES, (1920, 1080)], ids=lambda size: f"{size[0]}x{size[1]}"
 )  # and full HD
@@ -91,11 +129,13 @@ def layout_walk(mesh: Mesh, browser: Any, size: tuple[int, int]) -> None:
     dismiss_notifications(page)
     min_free = 300 if width < 1400 else 500
     view_is_clear(page, min_free)
+    run_controls_in_sight(page)
 
     # the initial pose sliders open beside the arm, not on it
     page.get_by_role("button", name="Initialise").click()
     text_appears(page, "All joints to zero")
     view_is_clear(page, min_free)
+    run_controls_in_sight(page)
 
     # a component's parameters come into view when it is picked (the tree folds up under its name)
     open_components(page)
@@ -119,6 +159,7 @@ def layout_walk(mesh: Mesh, browser: Any, size: tuple[int, int]) -> None:
     # a plot, docked: still nothing on the arm
     plot_joint1_q(page)
     view_is_clear(page, 250 if width < 1400 else 400)
+    run_controls_in_sight(page)  # with the documentation, the initial pose and a plot open
     page.screenshot(path=str(SHOTS / f"layout_{tag}.png"))
 
     # a reload gets back the session, its plot and the component shown (kept about once a second)
