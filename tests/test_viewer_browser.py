@@ -252,10 +252,22 @@ def use_case(mesh: Mesh, browser: Any) -> None:
     wait_until(lambda: session.snapshot().settings.stop_time == 2.0, timeout=10, what="settings stored")
 
     # 7-8. run: live plot data and the animated arm reach the page; progress reaches 100 %
+    window = float(chromium.labelled_input(page, "Live window [s]").input_value())
+    chromium.sample_time_axis(page, "joint1.q", every_ms=100)
     t = now_ms(page)
     page.get_by_role("button", name="Run", exact=True).click()
     text_appears(page, "finished run r1", timeout=120)
     text_appears(page, "100 %")
+    # the live plot's time axis showed the run's own span (2 s), never -10..189 s (issue 32, 1)
+    samples = chromium.time_axis_samples(page)
+    clicked = max(tt for tt, label in chromium.clicks(page) if label == "Run")
+    shown = chromium.run_axis(samples, "run r1", clicked)
+    assert len(shown) >= 3, f"the chart was seen {len(shown)} times while the run went on: {samples}"
+    wide = [
+        (round(a.x_min, 3), round(a.x_max, 3)) for a in shown if a.x_max - a.x_min > 1.2 * min(window, 2.0)
+    ]
+    assert not wide, f"the live time axis spans more than the run: {wide}"
+    assert min(a.x_min for a in samples if a.run == "run r1" and a.t_ms >= clicked) >= 0.0
     cmd = session.snapshot().command
     assert cmd is not None and len(cmd.nodes) == 2
     assert (

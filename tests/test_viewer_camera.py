@@ -108,12 +108,17 @@ def view_share(cam: dict[str, Any], points: np.ndarray) -> tuple[float, float, f
 
 
 def check_views(
-    page: Any, name: str, model: ModelDescription, values: dict[str, float], q: list[float]
+    page: Any,
+    name: str,
+    model: ModelDescription,
+    values: dict[str, float],
+    q: list[float],
+    views: tuple[str, ...] = VIEWS,
 ) -> None:
-    """Click each View button; after each the arm is whole in view and fills a good share of it."""
+    """Click each of `views`; after each the arm is whole in view and fills a good share of it."""
     points = arm_corners(model, values, q)
     settled_camera(page, 0)  # the page reported its camera as the model loaded
-    for view in VIEWS:
+    for view in views:
         before = len(cameras(page))
         page.get_by_role("button", name=view, exact=True).click()
         cam = settled_camera(page, before)
@@ -184,7 +189,11 @@ def test_the_view_presets_frame_the_arm(mesh: Mesh, browser: Any) -> None:
         context = browser.new_context(viewport={"width": 1600, "height": 1000})
         context.add_init_script(CAMERA_JS)
         seen: set[str] = set()
-        for name, button, model_id in (("spider", SPIDER, "spider"), ("puma560", PUMA, "puma560")):
+        # every preset on the PUMA (the model seen drawn badly); on the Spider, Fit arm after Top moved away
+        for name, button, model_id, views in (
+            ("spider", SPIDER, "spider", ("Top", "Fit arm")),
+            ("puma560", PUMA, "puma560", VIEWS),
+        ):
             page = new_page(context, url)
             page.get_by_role("button", name=button).click()
             model_shown(page)
@@ -195,6 +204,6 @@ def test_the_view_presets_frame_the_arm(mesh: Mesh, browser: Any) -> None:
             snap = client.session(USER, sid).snapshot()
             assert snap.model_id == model_id
             dismiss_notifications(page)
-            check_views(page, name, client.describe(model_id), dict(snap.values), list(snap.initial))
+            check_views(page, name, client.describe(model_id), dict(snap.values), list(snap.initial), views)
             page.close()
         context.close()
