@@ -1765,6 +1765,7 @@ def test_the_tab_applies_controller_events_to_its_panels(server: Any) -> None:
         sc.watched["on_state"](state(sc, "running", progress=0.5, sim_time=0.5, rtf=1.0))
         assert tab.run_bar.status.content.startswith("**running** run r1")
         assert "Pause or Abort" in tab.run_bar.status.content and page.commands.pendant.locked
+        assert "keys: Space pauses, Esc aborts" in tab.run_bar.status.content  # the keys said in the page
         # a replay run: the status names the recording, the arm takes the recorded link length
         sc.watched["on_state"](state(sc, "queued", "r2", seq=11))
         lay = layout(sc, model, "r2", "rec_r1", **{"link2.length": 1.0})

@@ -79,6 +79,12 @@ RUN_BAR_HINT = (
     "first); Pause holds it, Resume goes on, Abort ends it now (its results so far are kept). Keys: "
     "Space pauses or resumes, Esc aborts."
 )
+#: The keys the page takes in a phase (browser.install_page_rules), said on the run bar's second line.
+KEYS_OF = {
+    "running": " · keys: Space pauses, Esc aborts",
+    "paused": " · keys: Space resumes, Esc aborts",
+    "queued": " · key: Esc aborts",
+}
 PREVIEW = "Preview"  # the run bar's button that plays the plan on the ghost (MoveIt's Plan before Execute)
 
 
@@ -113,7 +119,8 @@ class RunBar:
         ops = applicable(st.phase) if st is not None else []
         line = status_text(st, replay, until_stopped)
         if st is not None:
-            line += "  \n<small>now: " + (" or ".join(ops) if ops else "nothing to do") + "</small>"
+            keys = KEYS_OF.get(st.phase, "")
+            line += "  \n<small>now: " + (" or ".join(ops) if ops else "nothing to do") + keys + "</small>"
         if self.status.content != line:
             self.status.content = line
         detail = status_detail(st)
