@@ -1893,6 +1893,17 @@ def test_runs_compared_on_every_plot_with_a_time_cursor_that_poses_the_arm(serve
         cmp._ticked(Event(cmp.recording_boxes[old]))
         ctl.drain()
         assert [o.run_id for o in plot.others] == ["r1", "r3", old] and plot.others[-1].t[-1] == 2.0
+        # a listing no recorder answered (a busy one) takes no box away, the ticked one least of all
+        box = cmp.recording_boxes[old]
+        ctl.host.mc.no_recorder = True
+        ctl.results.list_recordings()
+        ctl.drain()
+        assert (
+            cmp.recording_boxes == {old: box}
+            and box.value
+            and "No recorder answered" in cmp.recordings_note.content
+        )
+        ctl.host.mc.no_recorder = False
         # many recordings: the newest are offered, and a ticked one stays even when it is no longer
         many = [
             m.RecordingInfo(f"new_r{k}", "sNew", f"r{k}", model.id, 100, stop_time=1.0) for k in range(25)

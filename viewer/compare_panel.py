@@ -95,13 +95,16 @@ class ComparePanel:
         return {**self.boxes, **self.recording_boxes}
 
     def show_runs(self, runs: Sequence[m.RunInfo]) -> None:
-        """Boxes for the ended runs the server keeps (a run going on is compared once it ends)."""
+        """Boxes for the ended runs the server keeps (a run going on is compared once it ends), each
+        once what produced it is known: its label is then final, so no box below it moves later
+        (a box that moved under the pointer takes no click)."""
         ended = {r.run_id: r for r in runs if r.phase in phases.ENDED}
+        described = {r: info for r, info in ended.items() if r in self.c.contexts}
         for run_id in [r for r in self.boxes if r not in ended]:
             self.boxes.pop(run_id).remove()
             self.tracks.pop(run_id, None)
             self.asked.discard(run_id)
-        for run_id, info in ended.items():
+        for run_id, info in described.items():
             label = run_label(info, self.c.contexts.get(run_id))
             if run_id in self.boxes:
                 if self.boxes[run_id].label != label:
@@ -121,6 +124,14 @@ class ComparePanel:
     def show_recordings(self, event: ev.RecordingsListed) -> None:
         """Boxes for the user's recordings of this model, but those of runs the session still keeps
         (ticked as runs already)."""
+        if not event.available:  # no recorder answered: the boxes shown (ticked ones too) stay
+            note = (
+                "_No recorder answered: there is none on the server, or it is busy. Runs are not listed "
+                "as recordings until one answers (List recordings again)._"
+            )
+            if self.recordings_note.content != note:
+                self.recordings_note.content = note
+            return
         sc = self.c.session
         kept = {r.run_id for r in self.c.runs}
         shown = [r for r in event.recordings if sc is None or r.session != sc.id or r.run_id not in kept]
@@ -144,9 +155,7 @@ class ComparePanel:
                 box = self.gui.add_checkbox(recording_label(info), False, hint=hint)
             box.on_update(self._ticked)
             self.recording_boxes[key] = box
-        if not event.available:
-            note = "_No recorder on the server: runs are not recorded, so there are none to compare._"
-        elif not wanted:
+        if not wanted:
             note = "_None yet besides the runs above: the recordings of this model's runs show here._"
         else:
             note = "Tick one to draw it beside the picked run: it is read on the server, not replayed."

@@ -165,7 +165,8 @@ class ResultsIO:
                 try:
                     att, _ = sc.results_of(run_id, ["time"], t0=-1.0, t1=-1.0)
                 except (RemoteError, NoReply):
-                    continue  # asked again with the next listing
+                    got[run_id] = None  # listed all the same, without saying what it did
+                    continue
                 got[run_id] = att.context
 
             def take() -> None:
