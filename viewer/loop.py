@@ -33,6 +33,8 @@ CALL_TIMEOUT_S = 30.0
 #: Jobs waiting at most; beyond it the oldest coalescable ones (`post(..., key=...)`) are the first
 #: to go, and a tab that cannot keep up says so in its log.
 MAX_PENDING = 10_000
+#: s a job may hold the loop before the log says so (nothing on the loop should wait on anything).
+SLOW_JOB_S = 1.0
 
 
 class LoopClosed(RuntimeError):
@@ -159,12 +161,16 @@ class TabLoop:
 
     def _do(self, job: Callable[[], Any]) -> None:
         self._busy = True
+        started = time.monotonic()
         try:
             job()
         except Exception:
             log.exception("%s: a job failed", self.name)
         finally:
             self._busy = False
+            took = time.monotonic() - started
+            if took > SLOW_JOB_S:  # the tab's page waited this long for everything else: said
+                log.warning("%s: a job took %.1f s: %s", self.name, took, getattr(job, "__qualname__", job))
 
     def _run(self) -> None:
         while True:
