@@ -169,17 +169,19 @@ def open_session(cfg: MeshConfig, deadline_s: float = 20.0) -> Any:
 def router_entries() -> dict[str, Any]:
     """What a hub needs so that a slow subscriber slows only itself (PROTOCOL.md §3, docs/LAN.md).
 
-    Workers publish `vars/full` with blocking congestion control (lossless as far as the hub). A
-    subscriber whose link is full would then hold the hub's thread for that worker for up to 5 s, and
-    every other key with it. The hub instead drops the sample stream on its way out to a link that cannot
-    take it within 20 ms; the recorder fills such gaps from the run's results."""
+    Workers publish `vars/full` with blocking congestion control (lossless as far as the hub), and
+    run reports, notices and session states are blocking too (a report dropped on a busy link loses a
+    step or a phase for good). A subscriber whose link is full would then hold the hub's thread for
+    that publisher for up to 5 s, and every other key with it. The hub instead drops them on their way
+    out to a link that cannot take them within 20 ms; the recorder fills such gaps from the run's
+    results, and a state is read again from its cache."""
     from . import keys
 
-    streams = [keys.wildcard("vars_full"), keys.wildcard("vars_live")]
+    streams = [keys.wildcard(name) for name in DROPPED_FOR_SLOW_LINKS]
     return {
         "qos/network": [
             {
-                "id": "sample_streams_drop_for_slow_links",
+                "id": "drop_for_slow_links",
                 "messages": ["put"],
                 "flows": ["egress"],
                 "key_exprs": streams,
@@ -189,6 +191,19 @@ def router_entries() -> dict[str, Any]:
         "transport/link/tx/queue/congestion_control/drop/wait_before_drop": SLOW_LINK_WAIT_US,
     }
 
+
+#: What the hub drops on its way out to a link with no room for SLOW_LINK_WAIT_US: the sample streams,
+#: and the run reports, notices and session values their publishers put with blocking congestion control.
+DROPPED_FOR_SLOW_LINKS = (
+    "vars_full",
+    "vars_live",
+    "run_status",
+    "notices",
+    "state",
+    "params",
+    "obstacles",
+    "command",
+)
 
 #: How long the hub waits for room on a full link before it drops a sample stream's sample (µs).
 SLOW_LINK_WAIT_US = 20_000

@@ -73,7 +73,11 @@ class Proxy(Node):
         self.hosted_models = data / "models"  # models simulator hosts brought (kept over restarts)
         self._asked: dict[str, float] = {}  # model id -> when it was last asked of a host
         self.store = SessionStore(
-            data / "sessions", lambda key: self.publisher(key, latched=True), self._release
+            data / "sessions",
+            # blocking: a state dropped on a busy link would lose a step or a phase for good (the hub
+            # drops them for a slow subscriber: mesh.config.DROPPED_FOR_SLOW_LINKS)
+            lambda key: self.publisher(key, latched=True, congestion_control=zenoh.CongestionControl.BLOCK),
+            self._release,
         )
         self.runs = RunTracker(
             self.store, lambda: self.z, lambda: self.seal, self.lock, max_running, max_queue

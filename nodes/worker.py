@@ -102,7 +102,12 @@ class Notifier:
         notice = m.Notice(self.req.session, self.req.run_id, "simulator", text)
         key, payload = keys.notices(self.req.user, self.req.session), codec.dumps(notice)
         try:
-            self.z.put(key, payload, attachment=self.seal.mac(key, payload))
+            self.z.put(
+                key,
+                payload,
+                attachment=self.seal.mac(key, payload),
+                congestion_control=zenoh.CongestionControl.BLOCK,  # each is said once
+            )
         except zenoh.ZError:
             pass
 
@@ -167,7 +172,12 @@ class Run:
             full_key,
             seal,
         )
-        self.status_pub = SealedPublisher(z.declare_publisher(status_key), status_key, seal)
+        # Blocking like the frames it follows: a report dropped on a busy link loses a step for good.
+        self.status_pub = SealedPublisher(
+            z.declare_publisher(status_key, congestion_control=zenoh.CongestionControl.BLOCK),
+            status_key,
+            seal,
+        )
         self.layout_pub = SealedPublisher(
             zenoh.ext.declare_advanced_publisher(
                 z, layout_key, cache=zenoh.ext.CacheConfig(1), publisher_detection=True

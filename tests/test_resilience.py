@@ -11,6 +11,7 @@ import numpy as np
 import zenoh
 from simecs.mesh import keys
 from simecs.mesh.client import MeshClient, SessionClient
+from simecs.mesh.config import DROPPED_FOR_SLOW_LINKS
 from simecs.nodes import mcapread
 
 from .conftest import Mesh, start_service, wait_until
@@ -58,10 +59,8 @@ def test_a_slow_subscriber_slows_only_itself(mesh: Mesh) -> None:
         if not stalled.is_set():
             time.sleep(0.2)
 
-    subs = [
-        slow.z.declare_subscriber(keys.wildcard("vars_full"), sleepy),
-        slow.z.declare_subscriber(keys.wildcard("vars_live"), sleepy),
-    ]
+    # every key put with blocking congestion control, and the live stream
+    subs = [slow.z.declare_subscriber(keys.wildcard(name), sleepy) for name in DROPPED_FOR_SLOW_LINKS]
     try:
         # The slow peer's own run floods its link (its own requests wait behind its callbacks: the
         # session is driven from another client, as its user's second tab would).
