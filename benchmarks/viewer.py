@@ -10,7 +10,7 @@ target is taught through the command panel, and Run is clicked. Measured in the 
   page sends what a drag sends); from each drag to the first batch that moves the goal ghost (the
   translucent arm drawn where the node puts it; the arm itself before there was a ghost), i.e. the
   path sent, planned by the server (inverse kinematics) and drawn at the node (p50, target
-  <= 300 ms: the arm follows the hand);
+  <= 100 ms: the arm follows the hand);
 - `scrub_frame_ms`: after the run, the time cursor (the run bar's Timeline) is turned on and set 15
   times (typed into its box); from the page sending each new cursor value to the first batch that
   moves the arm to the run's pose at that instant (p50, target <= 100 ms: scrubbing feels direct);

@@ -123,6 +123,7 @@ def text_appears(page: Any, text: str, timeout: float = 30.0) -> None:
         notices: list[str] = []
         try:
             page.screenshot(path=str(shot))
+            shot.with_suffix(".html").write_text(page.content())  # what a screenshot cannot tell
             notices = [n.inner_text(timeout=2000) for n in page.locator(".mantine-Notification-root").all()]
         except Exception:
             pass
@@ -130,8 +131,10 @@ def text_appears(page: Any, text: str, timeout: float = 30.0) -> None:
 
 
 def chart_spans(page: Any) -> list[float]:
-    """For each chart on the page, the part of its data's time range its x axis shows (1: all)."""
-    return page.evaluate("""() => Object.values((window.__viserTestpoints || {}).uplots || {}).map((tp) => {
+    """For each chart in sight (not the Direct input pendant's preview, in a tab behind), the part of
+    its data's time range its x axis shows (1: all)."""
+    return page.evaluate("""() => Object.values((window.__viserTestpoints || {}).uplots || {})
+    .filter((tp) => tp.chart.root.getClientRects().length > 0).map((tp) => {
   const u = tp.chart, xs = u.data[0];
   const range = xs[xs.length - 1] - xs[0];
   return range > 0 ? (u.scales.x.max - u.scales.x.min) / range : 0;
@@ -286,7 +289,7 @@ def use_case(mesh: Mesh, browser: Any) -> None:
         lambda: max(n for _t, n in chromium.plot_points(page)) >= 1000, timeout=20, what="full-res data"
     )
     # a drag across the chart zooms in the browser; Reset zoom shows the whole transient again
-    over = page.locator(".uplot-container .u-over").first
+    over = page.locator(".uplot-container .u-over").locator("visible=true").first  # not a tab's behind
     box = over.bounding_box()
     assert box is not None
     y = box["y"] + box["height"] / 2

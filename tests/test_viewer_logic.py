@@ -886,6 +886,12 @@ def test_variable_panel_streams_and_plots(server: Any) -> None:
     assert streamed[-1] == {"joint1.q", "joint1.qd"}
     panel.show_streamed({"joint1.qd"})
     assert panel.checks["joint1.q"].value is False and "Streaming **1**" in panel.summary.content
+    # the component shown first, picked in the tree: its rows stay (a click on them is not lost)
+    rows = list(panel.rows)
+    panel.tree.pick(panel.tree.first)
+    assert panel.rows == rows and not any(r._impl.removed for r in rows)
+    rows[1]._impl.update_cb[0](Event(rows[1]))
+    assert plotted == ["joint1.q"]
 
 
 # -- plots ---------------------------------------------------------------------------------------------

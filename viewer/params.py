@@ -140,13 +140,16 @@ class ParamPanel:
 
     def _show(self, params: Sequence[Parameter], caption: str, whole_names: bool = False) -> None:
         """The table: `params`' fields under `caption`; `whole_names`: labelled with their component
-        (search results come from many components: seven `kp_pos` must be told apart)."""
+        (search results come from many components: seven `kp_pos` must be told apart). The same
+        fields asked again are kept, not rebuilt: one the user is about to click stays the one clicked."""
+        self.caption.content = caption
+        if [q.name for q in params] == [q.name for q in self.shown] and whole_names == self.whole_names:
+            return
         for handle in self.fields.values():
             handle.remove()
         self.fields.clear()
         self.shown = list(params)
         self.whole_names = whole_names
-        self.caption.content = caption
         with self.table:
             for p in self.shown:
                 value = self.drafts.get(p.name, self.values.get(p.name, p.value))
@@ -306,6 +309,7 @@ class VariablePanel:
         self.on_plot = on_plot
         self.rows: list[Any] = []
         self.checks: dict[str, Any] = {}
+        self.shown: tuple[list[str], bool] = ([], False)  # the rows' variables, and whole_names
         self.roots = tr.build_tree(model.variables)
         gui.add_markdown(
             "Tick the variables to stream while a run goes on; **Plot** opens a live plot "
@@ -336,11 +340,17 @@ class VariablePanel:
         self._show(found, caption, whole_names=True)
 
     def _show(self, variables: Sequence[Variable], caption: str, whole_names: bool = False) -> None:
+        """The rows of `variables`; the same rows asked again (the component shown first, picked in
+        the tree) are kept, not rebuilt: a Plot button the user is about to click stays the one clicked."""
+        self.caption.content = caption
+        shown = ([v.name for v in variables], whole_names)
+        if shown == self.shown:
+            return
+        self.shown = shown
         for handle in self.rows:
             handle.remove()
         self.rows.clear()
         self.checks.clear()
-        self.caption.content = caption
         with self.table:
             for v in variables:
                 label = tr.var_label(v, whole_names)
