@@ -457,36 +457,45 @@ def test_admission_queues_and_refuses(mesh: Mesh) -> None:
     assert sessions[1].wait_for(["finished"], 60, reply.run_id).phase == "finished"
 
 
-@pytest.mark.parametrize(
-    ("payload", "field"),
-    [
-        (b"", ""),
-        (b"\x00\xff", ""),
-        (b"{}", "*"),
-        (b'{"op":"run","v":2}', "*"),
-        (b'{"op":"run"}', "*"),
-        (b"[" * 5000, ""),
-        (b'{"op":"get_session","v":1,"x":"\xed\xa0\x80"}', ""),
-    ],
-)
-def test_hostile_payloads_get_errors_naming_the_field_and_nodes_survive(
-    service: Service, payload: bytes, field: str
-) -> None:
+#: (payload, field the error names: "" none, "*" any)
+HOSTILE = [
+    (b"", ""),
+    (b"\x00\xff", ""),
+    (b"{}", "*"),
+    (b'{"op":"run","v":2}', "*"),
+    (b'{"op":"run"}', "*"),
+    (b"[" * 5000, ""),
+    (b'{"op":"get_session","v":1,"x":"\xed\xa0\x80"}', ""),
+]
+
+
+def test_hostile_payloads_get_errors_naming_the_field_and_nodes_survive(service: Service) -> None:
+    """One service takes them all in turn: each is answered, and none leaves a node the worse for it."""
     c = service.client
-    s = c.create_session("ann", "spider")
     run_key = keys.simulator_run("simulator-t")
-    seal = service.mesh.seal.mac(run_key, payload)  # a run request as the proxy would send it
-    for key, attachment in ((keys.cmd(s.user, s.id), None), (keys.sessions("ann"), None), (run_key, seal)):
-        replies = list(c.z.get(key, payload=payload or None, attachment=attachment, timeout=5))
-        assert len(replies) == 1 and replies[0].err is not None
-        err = codec.loads(m.Error, replies[0].err.payload.to_bytes())
-        assert err.code == "bad_request" and err.message
-        assert err.field != "" if field == "*" else err.field == field, (key, err)
-    # The same request from anyone but the proxy is refused before it is read.
-    replies = list(c.z.get(run_key, payload=payload or None, timeout=5))
-    assert codec.loads(m.Error, replies[0].err.payload.to_bytes()).code == "forbidden"
-    assert {r for r, _ in c.live_nodes()} >= {"proxy", "simulator", "hotfeedback"}
-    assert s.snapshot().state.phase == "created"
+    sessions = []
+    for payload, field in HOSTILE:
+        s = c.create_session("ann", "spider")
+        sessions.append(s)
+        seal = service.mesh.seal.mac(run_key, payload)  # a run request as the proxy would send it
+        for key, attachment in (
+            (keys.cmd(s.user, s.id), None),
+            (keys.sessions("ann"), None),
+            (run_key, seal),
+        ):
+            replies = list(c.z.get(key, payload=payload or None, attachment=attachment, timeout=5))
+            assert len(replies) == 1 and replies[0].err is not None, (payload, key)
+            err = codec.loads(m.Error, replies[0].err.payload.to_bytes())
+            assert err.code == "bad_request" and err.message, (payload, key, err)
+            assert err.field != "" if field == "*" else err.field == field, (payload, key, err)
+        # The same request from anyone but the proxy is refused before it is read.
+        replies = list(c.z.get(run_key, payload=payload or None, timeout=5))
+        assert codec.loads(m.Error, replies[0].err.payload.to_bytes()).code == "forbidden", payload
+        assert {r for r, _ in c.live_nodes()} >= {"proxy", "simulator", "hotfeedback"}, payload
+    assert [s.snapshot().state.phase for s in sessions] == ["created"] * len(HOSTILE)
+    # and the service still runs
+    prepare(sessions[0], stop_time=0.1)
+    assert sessions[0].wait_for(["finished", "failed"], 60, sessions[0].run()).phase == "finished"
 
 
 def test_proxy_restart_during_a_run_loses_nothing(mesh: Mesh) -> None:

@@ -107,18 +107,19 @@ def run_controls_in_sight(page: Any) -> None:
     page.get_by_text("now: ").locator("visible=true").first.wait_for(timeout=5000)  # the status line
 
 
-@pytest.mark.parametrize(
-    "size", [*SIZES, (1920, 1080)], ids=lambda size: f"{size[0]}x{size[1]}"
-)  # and full HD
-def test_no_region_covers_the_arm_and_a_reload_keeps_the_view(
-    mesh: Mesh, browser: Any, size: tuple[int, int]
-) -> None:
-    with logs_on_failure(mesh, "viewer", "proxy"):
-        layout_walk(mesh, browser, size)
-
-
-def layout_walk(mesh: Mesh, browser: Any, size: tuple[int, int]) -> None:
+@pytest.mark.timeout(480)  # three walks of about 25 s each, slower on a loaded machine
+def test_no_region_covers_the_arm_and_a_reload_keeps_the_view(mesh: Mesh, browser: Any) -> None:
+    """At each supported size and full HD, a tab of its own (one service and viewer for the three)."""
     _service, url = service_and_viewer(mesh)
+    for size in [*SIZES, (1920, 1080)]:
+        with logs_on_failure(mesh, "viewer", "proxy"):
+            try:
+                layout_walk(browser, url, size)
+            except AssertionError as exc:
+                raise AssertionError(f"at {size[0]}x{size[1]}: {exc}") from exc
+
+
+def layout_walk(browser: Any, url: str, size: tuple[int, int]) -> None:
     width, height = size
     tag = f"{width}x{height}"
     SHOTS.mkdir(parents=True, exist_ok=True)
@@ -175,6 +176,7 @@ def layout_walk(mesh: Mesh, browser: Any, size: tuple[int, int]) -> None:
     page.get_by_text("Components · link2").locator("visible=true").first.wait_for()
     page.get_by_label("length [m]").wait_for()
     page.screenshot(path=str(SHOTS / f"reloaded_{tag}.png"))
+    context.close()
 
 
 def test_a_page_survives_a_viewer_restart(mesh: Mesh, browser: Any) -> None:
