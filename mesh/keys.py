@@ -407,6 +407,7 @@ _CHUNK_WHAT = {
     "user": "user name",
     "session": "session id",
     "model": "model id",
+    "mesh": "mesh name",
     "page": "doc page",
     "name": "recording name",
     "run": "run id",

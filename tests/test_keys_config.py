@@ -35,6 +35,23 @@ def test_names_refuse_wildcards_and_paths(bad: str) -> None:
         keys.model(bad)
 
 
+def test_every_chunk_of_every_key_refuses_a_bad_value_by_name() -> None:
+    """A query on any key with a chunk no name can have is a KeyProblem naming that chunk (answered
+    `bad_request`), never an error of our own (a chunk the checks did not know answered `internal`)."""
+    for spec in keys.KEYS.values():
+        for chunk in spec.chunks:
+            values = {c: "ok" for c in spec.chunks}
+            if "session" in values:
+                values["session"] = keys.new_session_id()
+            values[chunk] = "a b"
+            key = spec.pattern
+            for c, v in values.items():
+                key = key.replace(f"<{c}>", v)
+            with pytest.raises(keys.KeyProblem) as problem:
+                keys.parse(spec.name, key)
+            assert problem.value.chunk == chunk, (spec.name, chunk)
+
+
 def test_owner_of_parses_back() -> None:
     sid = keys.new_session_id()
     built = (keys.cmd, keys.state, keys.vars_full, lambda u, s: keys.results(u, s, "r3"))

@@ -14,6 +14,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 from simecs import models
+from simecs.mesh import codec
+from simecs.mesh import messages as m
 from simecs.mesh.client import RemoteError
 from simecs.mesh.kinematics import link_frames, rot_rpy
 from simecs.models.model_file import ModelFileError, load_model_dir
@@ -263,6 +265,12 @@ def test_the_proxy_serves_each_mesh_a_model_names(service: Service) -> None:
         client.model_mesh("nope", "link1.0")
     assert unknown.value.code == "not_found"
     assert client.describe("spider").mesh_names() == []
+    # a name no mesh can have: refused naming the chunk, not an internal error
+    for bad in ("a b", "x" * 65, "ü"):
+        replies = list(client.z.get(f"simecs/library/panda/mesh/{bad}", timeout=5))
+        assert len(replies) == 1 and replies[0].err is not None, bad
+        error = codec.loads(m.Error, replies[0].err.payload.to_bytes())
+        assert (error.code, error.field) == ("bad_request", "mesh") and "mesh name" in error.message, error
 
 
 def test_a_hosts_own_model_joins_the_library_and_runs(mesh: Mesh, tmp_path: Path) -> None:
