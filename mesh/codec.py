@@ -93,7 +93,9 @@ def loads(tp: Any, payload: Payload) -> Any:
     if isinstance(payload, str):
         payload = payload.encode("utf-8", "surrogatepass")
     if len(payload) > MAX_MESSAGE_BYTES:
-        raise DecodeError("", f"message of {len(payload)} bytes is larger than {MAX_MESSAGE_BYTES} bytes")
+        raise DecodeError(
+            "", f"message of {len(payload)} bytes is larger than message_bytes = {MAX_MESSAGE_BYTES} bytes"
+        )
     try:  # the whole text, unknown fields included: nothing that is not UTF-8 gets through
         bytes(payload).decode("utf-8")
     except UnicodeDecodeError as exc:

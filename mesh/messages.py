@@ -139,7 +139,11 @@ class RunSettings(Record):
         if self.output_interval > self.stop_time:
             raise FieldProblem("output_interval", f"{self.output_interval:g} s is above stop_time")
         if self.stop_time / self.output_interval > MAX_SAMPLES:
-            raise FieldProblem("output_interval", f"more than {MAX_SAMPLES:,} output samples per run")
+            raise FieldProblem(
+                "output_interval",
+                f"{self.stop_time / self.output_interval:,.0f} output samples (stop_time / output_interval), "
+                f"more than samples_per_run = {MAX_SAMPLES:,}: raise output_interval or shorten stop_time",
+            )
         if self.control_system != "joint_independent" and self.controller == "external":
             raise FieldProblem(
                 "control_system",

@@ -77,8 +77,9 @@ class Admission:
         if len(self.queue) >= self.max_queue:
             raise RequestError(
                 "busy",
-                f"server full: {self.occupied()} runs going and {len(self.queue)} waiting "
-                f"(limit {self.max_queue})",
+                f"server full: {self.occupied()} runs going and {len(self.queue)} waiting, the most "
+                f"that may wait (run_queue = {self.max_queue}): run again when a run has ended, or "
+                "abort one of yours",
             )
         self.pending[rec.id] = request
         self.queue.append(rec.id)

@@ -48,6 +48,10 @@ class RecordingError(ValueError):
     """A file is not a usable recording; the message starts with the file name."""
 
 
+class BoundExceeded(ValueError):
+    """A chunk beyond an upload bound (PROTOCOL.md §4.1): not damaged, too large to be read."""
+
+
 def _name(source: str | os.PathLike[str] | bytes) -> str:
     return "uploaded file" if isinstance(source, bytes | bytearray) else str(source)
 
@@ -136,6 +140,13 @@ def scan(source: str | os.PathLike[str] | bytes, strict: bool = False, keep_mess
             if isinstance(record, Chunk):
                 try:
                     inner = _chunk_records(record, out)
+                except BoundExceeded as exc:  # too large to read: no part of it is taken
+                    msg = f"chunk ending near byte {stream.tell()}: {exc}"
+                    if strict:
+                        raise RecordingError(f"{name}: {msg}") from None
+                    out.bad_chunks += 1
+                    out.problem = out.problem or msg
+                    continue
                 except (McapError, ValueError, zlib.error, struct.error, zstandard.ZstdError) as exc:
                     out.bad_chunks += 1
                     msg = f"chunk ending near byte {stream.tell()} is damaged: {exc}"
@@ -166,12 +177,16 @@ def _json(text: str | bytes) -> Any:
 def _chunk_records(chunk: Chunk, out: Scan) -> list[Any]:
     """A chunk's records, decompressed within the bounds of mesh/limits.py (a few KB of zstd can claim
     gigabytes): the chunk's size as declared and as it comes out, and the whole file's so far."""
-    cap = min(limits.limit("upload_chunk_bytes"), limits.limit("upload_decompressed_bytes") - out.unpacked)
-    if chunk.uncompressed_size > cap:
-        raise ValueError(
-            f"a chunk declares {chunk.uncompressed_size} bytes decompressed; the bound is "
-            f"{limits.limit('upload_chunk_bytes')} per chunk and "
-            f"{limits.limit('upload_decompressed_bytes')} per file (mesh/limits.py)"
+    per_chunk, per_file = limits.LIMITS["upload_chunk_bytes"], limits.LIMITS["upload_decompressed_bytes"]
+    if chunk.uncompressed_size > per_chunk.value:
+        raise BoundExceeded(
+            f"a chunk declares {chunk.uncompressed_size:,} bytes decompressed, more than "
+            f"upload_chunk_bytes = {limits.human(per_chunk.value, per_chunk.unit)}"
+        )
+    if out.unpacked + chunk.uncompressed_size > per_file.value:
+        raise BoundExceeded(
+            f"its chunks declare more than upload_decompressed_bytes = "
+            f"{limits.human(per_file.value, per_file.unit)} decompressed"
         )
     if chunk.compression == "zstd":
         reader = zstandard.ZstdDecompressor().stream_reader(chunk.data)

@@ -42,7 +42,11 @@ class QuotaCheck:
 
     def new_session(self, user: str) -> None:
         if len(self.store) >= self.q.sessions:
-            raise RequestError("busy", f"the server holds its maximum of {self.q.sessions} sessions")
+            raise RequestError(
+                "busy",
+                f"the server holds its maximum of {self.q.sessions} sessions (sessions = {self.q.sessions}): "
+                "close a session you no longer need, or try again when others have closed theirs",
+            )
         mine = sum(1 for r in self.store if r.user == user)
         if mine >= self.q.sessions_per_user:
             raise RequestError(

@@ -144,8 +144,15 @@ def test_a_single_message_type_needs_its_tag_and_the_right_one() -> None:
 
 def test_oversized_message_refused() -> None:
     big = b'{"op":"set_params","v":1,"values":{"a":' + b"1" * codec.MAX_MESSAGE_BYTES + b"}}"
-    with pytest.raises(codec.DecodeError, match="larger than"):
+    with pytest.raises(codec.DecodeError, match="larger than message_bytes = 4194304 bytes"):
         codec.loads(messages.SessionCommand, big)
+
+
+def test_too_many_samples_refused_naming_the_bound_and_the_way_out() -> None:
+    settings = {"op": "set_settings", "v": 1, "settings": {"stop_time": 3600.0, "output_interval": 0.0001}}
+    with pytest.raises(codec.DecodeError) as info:
+        codec.loads(messages.SessionCommand, json.dumps(settings))
+    assert "samples_per_run = 2,000,000" in str(info.value) and "raise output_interval" in str(info.value)
 
 
 def test_deep_nesting_and_huge_numbers_are_errors_not_crashes() -> None:

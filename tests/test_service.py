@@ -451,7 +451,8 @@ def test_admission_queues_and_refuses(mesh: Mesh) -> None:
     assert reply.phase == "queued" and reply.queue_position == 1
     with pytest.raises(RemoteError) as err:
         sessions[2].run()
-    assert err.value.code == "busy" and "waiting" in err.value.error.message
+    assert err.value.code == "busy" and "run_queue = 1" in err.value.error.message
+    assert "abort one of yours" in err.value.error.message  # how a place frees
     assert sessions[1].snapshot().state.phase == "queued"
     assert sessions[0].wait_for(["finished"], 60, r0).phase == "finished"
     assert sessions[1].wait_for(["finished"], 60, reply.run_id).phase == "finished"
