@@ -386,8 +386,10 @@ def playable_problem(rec: Recording) -> str:
         r, c = (int(x[0]) for x in np.nonzero(~np.isfinite(rows)))
         return f"sample {r}: {columns[c]} is not a finite number"
     times = rows[:, 0] if rows.size else np.zeros(0)
-    if times.size and (times[0] < 0 or times[-1] > MAX_RUN_S):
-        return f"sample times run from {times[0]:g} to {times[-1]:g} s, outside [0, {MAX_RUN_S:g}] s"
+    outside = np.nonzero((times < 0) | (times > MAX_RUN_S))[0]
+    if outside.size:
+        k = int(outside[0])
+        return f"sample {k}: time {times[k]:g} s is outside [0, {MAX_RUN_S:g}] s"
     back = np.nonzero(np.diff(times) < 0)[0]
     if back.size:
         k = int(back[0]) + 1
@@ -422,6 +424,7 @@ def load(source: str | os.PathLike[str] | bytes, strict: bool = False) -> Record
     payloads = [msg for msg in sc.messages if vars_ch is not None and msg.channel_id == vars_ch.id]
     rows = np.empty((len(payloads), ncols))
     seqs = np.empty(len(payloads), dtype=np.int64)
+    log_times = np.array([msg.log_time for msg in payloads], dtype=np.int64)
     expected = len(fmt.CDR_HEADER) + 8 * len(order)
     for i, msg in enumerate(payloads):
         data = msg.data
@@ -431,9 +434,11 @@ def load(source: str | os.PathLike[str] | bytes, strict: bool = False) -> Record
             )
         rows[i, order] = np.frombuffer(data, dtype="<f8", offset=4)
         seqs[i] = msg.sequence
-    if len(rows) > 1 and np.any(np.diff(rows[:, 0]) < 0):  # a gap filled after the run (RECORDINGS.md)
-        by_time = np.argsort(rows[:, 0], kind="stable")
-        rows, seqs = rows[by_time], seqs[by_time]
+    if len(rows) > 1 and np.any(np.diff(log_times) < 0):  # a gap filled after the run (RECORDINGS.md)
+        # in the order every MCAP reader shows them: by log time (the recorder's is the sample's
+        # time); a time column that still goes back is the file's own fault (playable_problem)
+        by_log_time = np.argsort(log_times, kind="stable")
+        rows, seqs = rows[by_log_time], seqs[by_log_time]
     logs = []
     for msg in sc.messages:
         if msg.channel_id == log_ch:
