@@ -42,25 +42,33 @@ def _available(module: str) -> bool:
     return importlib.util.find_spec(module) is not None
 
 
+def hub_port(endpoint: str) -> int:
+    """The port of a hub endpoint such as `tcp/127.0.0.1:7447` (SystemExit naming it if it has none)."""
+    try:
+        return int(endpoint.rsplit(":", 1)[1])
+    except (IndexError, ValueError):
+        raise SystemExit(f"simecs up: --hub {endpoint!r} has no port (e.g. tcp/127.0.0.1:7447)") from None
+
+
 def secure_setup(args: argparse.Namespace) -> tuple[str, list[str], list[str], str]:
     """For `simecs up --secure`: (the hub endpoint nodes connect to, the hub's flags, every other
     node's flags, a line for the banner); certificates, credentials and configurations are made here."""
     from simecs.mesh import seal
-    from simecs.nodes.secure import HUB_PORT, SecureFolder
+    from simecs.nodes.secure import SecureFolder
 
     folder = SecureFolder(args.secure_dir)
-    host = args.hub_host
+    host, port = args.hub_host, hub_port(args.hub)  # `--hub` chooses the port, TLS or not
     folder.ensure_certificates([host])
-    local = f"tls/127.0.0.1:{HUB_PORT}"
-    listen = [f"tls/{host}:{HUB_PORT}"] + ([local] if host != "127.0.0.1" else [])
+    local = f"tls/127.0.0.1:{port}"
+    listen = [f"tls/{host}:{port}"] + ([local] if host != "127.0.0.1" else [])
     hub_flags = ["--mesh-config", str(folder.hub_config(listen))]
     key_file = str(seal.key_file(""))
     seal.load(key_file, create=True)
     node_flags = ["--mesh-config", str(folder.node_config(local, key_file))]
     users = folder.users()
     note = (
-        f"secured: TLS on tls/{host}:{HUB_PORT}, {len(users)} users ({folder.dir}/users.json); users "
-        f"join with `simecs users config NAME --hub tls/{host}:{HUB_PORT}` and {folder.ca_file}"
+        f"secured: TLS on tls/{host}:{port}, {len(users)} users ({folder.dir}/users.json); users "
+        f"join with `simecs users config NAME --hub tls/{host}:{port}` and {folder.ca_file}"
     )
     if not users:
         note += "\nno users yet: add them with `simecs users add NAME`, then start again"
@@ -282,7 +290,11 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True)
 
     up = sub.add_parser("up", help="start the hub and every node on this machine (Ctrl-C stops all)")
-    up.add_argument("--hub", default=DEFAULT_HUB, help=f"hub endpoint (default {DEFAULT_HUB})")
+    up.add_argument(
+        "--hub",
+        default=DEFAULT_HUB,
+        help=f"hub endpoint (default {DEFAULT_HUB}; with --secure: its port, TLS)",
+    )
     up.add_argument(
         "--host", default="127.0.0.1", help="viewer address (default loopback; a LAN address on request)"
     )

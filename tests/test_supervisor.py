@@ -154,3 +154,20 @@ def test_help_everywhere(args: list[str]) -> None:
     out = subprocess.run([*SIMECS, *args], capture_output=True, text=True, timeout=60, env=mesh_env())
     assert out.returncode == 0, out.stderr
     assert "usage" in out.stdout.lower()
+
+
+def test_up_secure_listens_on_the_port_hub_names(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """`simecs up --secure --hub tcp/127.0.0.1:7500` listens with TLS on 7500, not on 7447."""
+    from simecs.nodes import cli
+
+    monkeypatch.setenv("SIMECS_SERVICE_KEY_FILE", str(tmp_path / "service.key"))
+    args = cli.build_parser().parse_args(
+        ["up", "--secure", "--hub", "tcp/127.0.0.1:7500", "--secure-dir", str(tmp_path / "secure")]
+    )
+    hub, hub_flags, node_flags, note = cli.secure_setup(args)
+    assert hub == "tls/127.0.0.1:7500" and "tls/127.0.0.1:7500" in note
+    hub_config = (tmp_path / "secure" / "hub.json5").read_text()
+    assert "tls/127.0.0.1:7500" in hub_config and "7447" not in hub_config
+    args.hub = "unixsock-stream/hub.sock"
+    with pytest.raises(SystemExit, match="has no port"):
+        cli.secure_setup(args)
