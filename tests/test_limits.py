@@ -87,6 +87,24 @@ def mcap_bytes(payload: bytes, compression: CompressionType = CompressionType.ZS
     return buf.getvalue()
 
 
+def rss_mb(pid: int) -> int:
+    return int(open(f"/proc/{pid}/status").read().split("VmRSS:")[1].split()[0]) // 1024
+
+
+def test_a_refused_large_upload_leaves_the_recorders_memory_as_it_was(mesh: Mesh) -> None:
+    mesh.start("recorder", "--dir", str(mesh.folder / "rec"))
+    pid, client = mesh.procs["recorder"].pid, mesh.client()
+    client.recordings("ann")  # every path of a request taken once
+    before = rss_mb(pid)
+    too_large = mcapread.MAGIC + bytes((256 << 20) + 1)
+    for _ in range(2):
+        with pytest.raises(RemoteError, match="upload_bytes") as err:
+            client.request(keys.recording("ann", "big"), too_large, timeout=60)
+        assert err.value.code == "bad_request"
+    # given back once answered (the reply goes out first)
+    wait_until(lambda: rss_mb(pid) - before < 64, 10, what=f"the recorder's memory back to {before} MB")
+
+
 def test_uploads_are_read_in_full_within_bounds_and_count_against_the_quota(mesh: Mesh) -> None:
     rec_dir = mesh.folder / "rec"
     bomb = mcap_bytes(b"\0" * (80 << 20))  # 80 MiB of zeros: a few KB of zstd
