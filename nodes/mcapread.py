@@ -21,6 +21,7 @@ import msgspec
 import numpy as np
 import zstandard
 from mcap.exceptions import McapError
+from mcap.opcode import Opcode
 from mcap.reader import SeekingReader
 from mcap.records import (
     Attachment,
@@ -98,6 +99,20 @@ class Scan:
     unpacked: int = 0  # bytes of chunks decompressed so far (bounded: mesh/limits.py)
 
 
+class _KnownRecordsReader(StreamReader):
+    """A StreamReader that stops at a record of no MCAP opcode instead of skipping it: the library
+    skips them silently, so a file of zero bytes after the magic (9-byte records of opcode 0) kept a
+    node reading for minutes. A recording is only ever made of MCAP's own records."""
+
+    def _read_record(self, opcode: int, length: int) -> Any:
+        if opcode not in _OPCODES:
+            raise McapError(f"record of unknown opcode {opcode:#04x} (not an MCAP record)")
+        return super()._read_record(opcode, length)
+
+
+_OPCODES = frozenset(int(op) for op in Opcode)
+
+
 def scan(source: str | os.PathLike[str] | bytes, strict: bool = False, keep_messages: bool = True) -> Scan:
     """Read every record with CRC validation. `strict`: any defect raises RecordingError; otherwise a
     bad chunk is skipped and a torn end stops the scan, both reported in `problem`."""
@@ -111,7 +126,7 @@ def scan(source: str | os.PathLike[str] | bytes, strict: bool = False, keep_mess
         if out.size < len(MAGIC) or stream.read(len(MAGIC)) != MAGIC:
             raise RecordingError(f"{name}: not an MCAP file (it does not start with the MCAP magic bytes)")
         stream.seek(0)
-        reader = StreamReader(
+        reader = (_KnownRecordsReader if strict else StreamReader)(
             stream, emit_chunks=True, validate_crcs=True, record_size_limit=limits.limit("upload_bytes")
         )
         records = reader.records
