@@ -30,6 +30,20 @@ def atomic_write(path: str | os.PathLike[str], data: bytes) -> None:
         raise
 
 
+def remove_leftovers(folder: str | os.PathLike[str]) -> int:
+    """Remove the temporary files `atomic_write` left under `folder` when its process was killed
+    mid-write (their target kept its old content); how many. Only for a folder no live process
+    writes: its owner, at start."""
+    removed = 0
+    for tmp in Path(folder).rglob(".*.tmp"):
+        try:
+            tmp.unlink()
+            removed += 1
+        except OSError:
+            pass
+    return removed
+
+
 def write_json(path: str | os.PathLike[str], obj: Any) -> None:
     atomic_write(path, json.dumps(codec.to_obj(obj), indent=1, allow_nan=False).encode("utf-8"))
 

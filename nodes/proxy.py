@@ -20,7 +20,7 @@ from typing import Any
 
 import msgspec
 import zenoh
-from simecs.mesh import columns, keys, limits, phases
+from simecs.mesh import columns, files, keys, limits, phases
 from simecs.mesh import messages as m
 from simecs.mesh.client import MeshClient, NoReply, RemoteError
 from simecs.mesh.hublink import HubLink
@@ -85,6 +85,10 @@ class Proxy(Node):
         self.admission = self.runs.admission
         self.quota = QuotaCheck(quotas or Quotas(), self.store, self._columns)
         self.user_library = UserLibrary(data, lambda: self.models, self.store, self.quota)
+        # what a kill mid-write left in the folders only this node writes (not results: the workers')
+        left = sum(files.remove_leftovers(data / d) for d in ("sessions", "paramsets", "programs", "models"))
+        if left:
+            self.log.info("removed %d temporary files a crash left behind", left)
         self.commands: dict[type, Callable[[SessionRecord, Any], Any]] = {
             m.SetParams: self._set_params,
             m.ResetParams: self._reset_params,

@@ -2,7 +2,8 @@
 
 Each node runs in its own process group (so a terminal's Ctrl-C reaches the supervisor alone, which
 then stops the nodes in order and kills whatever is left after a grace period: no orphans, also of the
-simulator's worker processes). A node that exits on its own is reported and restarted with backoff.
+simulator's worker processes). A node that exits on its own is reported and started again at once; one
+that dies as it starts (it cannot start) waits before each new try, longer each time.
 """
 
 from __future__ import annotations
@@ -23,6 +24,13 @@ GRACE_S = 3.0
 READY_TIMEOUT_S = 600.0  # the banner waits this long for every node (a cold compile included)
 
 
+#: A node that ran this long had started: when it dies it is started again at once. Only a node that
+#: dies sooner (it cannot start) waits, from FIRST_BACKOFF_S doubling up to MAX_BACKOFF_S.
+STARTED_S = 3.0
+FIRST_BACKOFF_S = 0.5
+MAX_BACKOFF_S = 10.0
+
+
 @dataclass
 class Child:
     name: str
@@ -30,7 +38,7 @@ class Child:
     proc: subprocess.Popen[bytes] | None = None
     started: float = 0.0
     restarts: int = 0
-    backoff: float = 0.5
+    backoff: float = FIRST_BACKOFF_S
     next_start: float = 0.0
 
 
@@ -70,13 +78,15 @@ class Supervisor:
                 continue
             code = proc.poll()
             if code is None:
-                if now - child.started > 30:
-                    child.backoff = 0.5
                 continue
-            self.say(f"simecs: {child.name} exited with code {code}; restarting in {child.backoff:.1f} s")
+            if now - child.started >= STARTED_S:  # it had started: back at once, however often
+                child.backoff = FIRST_BACKOFF_S
+            delay = child.backoff if now - child.started < STARTED_S else 0.0
+            self.say(f"simecs: {child.name} exited with code {code}; restarting in {delay:.1f} s")
             child.proc = None
-            child.next_start = now + child.backoff
-            child.backoff = min(child.backoff * 2, 10.0)
+            child.next_start = now + delay
+            if delay:  # it dies as it starts (a bad flag, a busy port): waits grow, up to a cap
+                child.backoff = min(child.backoff * 2, MAX_BACKOFF_S)
 
     def wait_ready(self, roles: list[str], timeout: float = 60.0) -> bool:
         """Wait until every role has a liveliness token on the hub."""

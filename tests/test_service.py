@@ -509,8 +509,12 @@ def test_proxy_restart_during_a_run_loses_nothing(mesh: Mesh) -> None:
     ra, rb = a.run(), b.run()
     wait_until(lambda: b.snapshot().state.sim_time > 0.1, timeout=30, what="runs under way")
     mesh.stop("proxy", signal.SIGKILL)
+    # what a kill in the middle of a write leaves (files.atomic_write): gone when the proxy is back
+    leftover = svc.data_dir / "sessions" / f".{a.id}.json.x1y2.tmp"
+    leftover.write_text('{"half": ')
     time.sleep(1.0)  # run a ends while the proxy is down; run b goes on
     mesh.start("proxy", "--data-dir", str(svc.data_dir), name="proxy2")
+    assert not leftover.exists() and "removed 1 temporary files" in mesh.log("proxy2")
     state_a = a.snapshot().state
     assert (state_a.run_id, state_a.phase, state_a.sim_time) == (ra, "finished", pytest.approx(0.6))
     assert b.wait_for(["finished", "failed"], 60, rb).phase == "finished"

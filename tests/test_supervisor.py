@@ -171,3 +171,34 @@ def test_up_secure_listens_on_the_port_hub_names(tmp_path: Path, monkeypatch: py
     args.hub = "unixsock-stream/hub.sock"
     with pytest.raises(SystemExit, match="has no port"):
         cli.secure_setup(args)
+
+
+def test_a_node_that_had_started_is_back_at_once_and_one_that_cannot_start_waits() -> None:
+    """A proxy killed again and again must not sit out a growing back-off (it was ~11 s per crash):
+    only a node that dies as it starts waits, longer each time."""
+    from simecs.nodes import supervisor as sv
+
+    def exited(started_ago: float) -> sv.Child:
+        child = sv.Child("proxy", [sys.executable, "-c", "pass"])
+        child.proc = subprocess.Popen(child.argv)
+        child.proc.wait(10)
+        child.started = time.monotonic() - started_ago
+        return child
+
+    sup = sv.Supervisor([], MeshConfig())
+    ran = exited(started_ago=sv.STARTED_S + 1)
+    ran.backoff = sv.MAX_BACKOFF_S  # after earlier start failures
+    sup.children = [ran]
+    before = time.monotonic()
+    sup.check()
+    assert ran.proc is None and ran.next_start <= before + 0.05 and ran.backoff == sv.FIRST_BACKOFF_S
+    waits = []
+    for _ in range(6):
+        failing = exited(started_ago=0.1)
+        failing.backoff = ran.backoff
+        sup.children = [failing]
+        now = time.monotonic()
+        sup.check()
+        waits.append(round(failing.next_start - now, 1))
+        ran = failing
+    assert waits == [0.5, 1.0, 2.0, 4.0, 8.0, 10.0], waits
