@@ -297,6 +297,18 @@ class RunTracker:
             if st.phase in phases.ENDED and self.orphans.get(sid) == (user, st.run_id):
                 del self.orphans[sid]
                 self.admission.update()
+            if (
+                rec is not None
+                and rec.state.run_id == st.run_id
+                and rec.phase not in phases.UNDER_WAY
+                and st.phase not in phases.ENDED
+            ):
+                # A worker goes on for a run already ended here (taken for lost with its simulator
+                # node, and no host left to run it again): its frames would reach a session that
+                # shows it failed, and its recording. Told to stop, on each of its reports until it
+                # ends (one control may be missed).
+                self.send_control(user, sid, st.run_id, "abort", attempt=st.attempt)
+                return
             if rec is None or rec.state.run_id != st.run_id or rec.phase not in phases.UNDER_WAY:
                 return
             if st.attempt != rec.state.attempt:

@@ -557,3 +557,43 @@ def test_notices_about_a_run_reach_its_state(service: Service) -> None:
     prepare(s, stop_time=0.1)
     second = s.run()
     assert s.wait_for(["finished"], 30, second).warnings == []
+
+
+def running(pid: int) -> bool:
+    """The process is there and not a zombie (an orphan may wait for a reaper)."""
+    try:
+        return open(f"/proc/{pid}/stat").read().rsplit(")", 1)[1].split()[0] != "Z"
+    except OSError:
+        return False
+
+
+def test_a_worker_whose_run_was_taken_for_lost_is_stopped(service: Service) -> None:
+    """The simulator node killed alone (its worker lives on) and no host left to run the run again:
+    the run fails; its worker, still reporting, is told to abort, so its frames stop within a report
+    or two instead of flowing to the end into a session that shows it failed (issue 33, 1)."""
+    c = service.client
+    sim_pid = service.mesh.procs["simulator"].pid
+    s = c.create_session("ann", "spider")
+    prepare(s, stop_time=6.0, pacing="realtime")
+    run_id = s.run()
+    s.wait_for(["running"], 30, run_id)
+    worker = worker_of(service, s.id, run_id)
+    wait_until(lambda: s.snapshot().state.sim_time > 0.3, timeout=30, what="the run under way")
+    failed_at: list[float] = []
+    frames_after: list[float] = []
+
+    def on_state(st: m.SessionState) -> None:
+        if st.run_id == run_id and st.phase == "failed" and not failed_at:
+            failed_at.append(time.monotonic())
+
+    def on_live(_frame: frames.Frame) -> None:
+        if failed_at:
+            frames_after.append(time.monotonic() - failed_at[0])
+
+    with s.watch(on_state=on_state, on_live=on_live):
+        os.kill(sim_pid, signal.SIGKILL)  # the node alone: its worker goes on
+        wait_until(lambda: bool(failed_at), timeout=10, what="the run failed with its simulator node")
+        wait_until(lambda: not running(worker), timeout=10, what="the worker ended")
+        time.sleep(0.5)
+    assert s.snapshot().state.phase == "failed"
+    assert not frames_after or max(frames_after) < 1.0, f"frames came {max(frames_after):.2f} s after"
