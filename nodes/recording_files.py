@@ -29,6 +29,11 @@ from . import mcapread, mcaprepair
 from .mcapwriter import RunWriter
 from .recordings_library import RecordingsLibrary
 
+#: A run whose frames stopped this long, its end unknown, has its session's state asked of the proxy
+#: (then every QUIET_ASK_AGAIN_S): its final frame and its ended state, put once each, may both have
+#: been dropped on a link that was full, and nothing would close its file until the idle timeout.
+QUIET_ASK_S = 1.0
+QUIET_ASK_AGAIN_S = 5.0
 FINAL_GRACE_S = 0.3  # after the final frame: let the run's ended state arrive for the end phase
 ENDED_GRACE_S = 2.0  # after an ended state without final frame: frames may still be on their way
 PENDING_FRAMES = 256  # frames kept per session while its layout has not arrived yet
@@ -74,6 +79,9 @@ class RecorderMesh(Protocol):
         """Fetch the samples of `gaps` (rows of `columns`) from the run's results; they come back
         through `on_fill`."""
 
+    def ask_state(self, owner: Owner) -> None:
+        """Ask the proxy for the session's state; it comes back through `on_state`."""
+
     def notify(self, user: str, notice: m.Notice) -> None: ...
 
     def worker_alive(self, user: str, session: str, run_id: str) -> bool: ...
@@ -106,6 +114,7 @@ class Active:
     dropped_rows: int = 0
     stray_frames: int = 0
     idle_checked: float = 0.0
+    state_asked: float = 0.0  # when the session's state was last asked (its stream had gone quiet)
     next_seq: int | None = 0  # None: accept any first frame (a continuation starts mid-run)
     noticed: set[str] = field(default_factory=set)  # kinds of Notice already sent for this run
     gaps: list[Gap] = field(default_factory=list)
@@ -417,6 +426,15 @@ class RunFiles:
                 except OSError as exc:
                     self._fail(rec, exc)
                     continue
+            quiet = now - rec.last_data
+            if (
+                rec.close_at is None
+                and quiet >= QUIET_ASK_S
+                and now - rec.state_asked
+                >= (QUIET_ASK_S if rec.state_asked < rec.last_data else QUIET_ASK_AGAIN_S)
+            ):
+                rec.state_asked = now
+                self.mesh.ask_state((rec.user, rec.layout.session))
             if (
                 now - rec.last_data > self.idle_timeout_s
                 and now - rec.idle_checked > self.idle_timeout_s

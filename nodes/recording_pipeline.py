@@ -265,6 +265,13 @@ class RecordingPipeline:
                     except (RemoteError, NoReply, codec.DecodeError, ValueError, zenoh.ZError) as exc:
                         self.log.warning("model %s: %s", arg, exc)
                 self.ingest.put("model", "", (owner, run_id, arg))
+            elif kind == "state":
+                try:
+                    state = client.session(*owner).snapshot().state
+                except (RemoteError, NoReply, codec.DecodeError, zenoh.ZError) as exc:
+                    self.log.info("session %s of %s: state not read: %s", owner[1], owner[0], exc)
+                    continue
+                self.ingest.put("state", keys.state(*owner), codec.dumps(state))
             else:
                 self.ingest.put("fill", "", self._fetch_gaps(client, owner, run_id, *arg))
 
@@ -318,6 +325,11 @@ class RecordingPipeline:
     def fill(self, owner: Owner, run_id: str, gaps: list[Gap], columns: list[str]) -> None:
         with self._lookup_cv:
             self._lookups.append(("fill", owner, run_id, (gaps, columns)))
+            self._lookup_cv.notify()
+
+    def ask_state(self, owner: Owner) -> None:
+        with self._lookup_cv:
+            self._lookups.append(("state", owner, "", None))
             self._lookup_cv.notify()
 
     def worker_alive(self, user: str, session: str, run_id: str) -> bool:

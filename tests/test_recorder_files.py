@@ -16,7 +16,7 @@ import numpy as np
 from simecs.mesh import codec, frames, keys
 from simecs.mesh import messages as m
 from simecs.nodes import mcapread
-from simecs.nodes.recording_files import Fill, Gap, Owner, RunFiles
+from simecs.nodes.recording_files import ENDED_GRACE_S, MODEL_WAIT_S, Fill, Gap, Owner, RunFiles
 from simecs.nodes.recordings_library import RecordingsLibrary
 
 from .test_recorder_support import USER, arm_model, layout_for, make_rows
@@ -29,12 +29,16 @@ class ResultsOnRequest:
 
     def __init__(self) -> None:
         self.fills: list[tuple[Owner, str, list[Gap]]] = []
+        self.asked: list[Owner] = []  # the sessions whose state was asked
 
     def lookup(self, owner: Owner, run_id: str, model_id: str) -> None:
         pass
 
     def fill(self, owner: Owner, run_id: str, gaps: list[Gap], columns: list[str]) -> None:
         self.fills.append((owner, run_id, list(gaps)))
+
+    def ask_state(self, owner: Owner) -> None:
+        self.asked.append(owner)
 
     def notify(self, user: str, notice: m.Notice) -> None:
         pass
@@ -127,3 +131,37 @@ def test_a_recording_keeps_how_long_its_run_was_jogged_and_when_it_was_made(tmp_
     assert mcapread.load(library.path_of(USER, keys.recording_name(SID, "r2"))).jogged_s == 0.3
     # A file that does not say (its end not written yet, or written before it was kept): 0.
     assert mcapread.load(library.path_of(USER, keys.recording_name(SID, "r3"))).jogged_s == 0.0
+
+
+def test_a_run_whose_final_frame_and_end_were_both_lost_is_asked_for_and_closed(tmp_path: Path) -> None:
+    """A slow link dropped both the final frame and the ended state (each put once): the stream goes
+    quiet, the run files ask the session's state (at 1 s of quiet, then every 5 s, not at every
+    housekeeping), the answer ends the run, and its file is closed and filled from the results, long
+    before the idle timeout. A run still going (a paused one: its state says so) stays open."""
+    library = RecordingsLibrary(tmp_path)
+    mesh = ResultsOnRequest()
+    files = RunFiles(library, "recorder-t", logging.getLogger("test"), mesh, idle_timeout_s=30.0)
+    layout = layout_for(SID)
+    rows = make_rows(arm_model(), 20)
+    files.on_layout(keys.layout(USER, SID), codec.dumps(layout))
+    files.on_full(keys.vars_full(USER, SID), frames.encode(frames.Frame(1, 0, time.time_ns(), rows)))
+    (rec,) = files.active.values()
+    t = rec.last_data
+    for dt in (0.2, 0.5, 0.9):
+        files.housekeeping(t + dt)
+    assert mesh.asked == []  # frames came less than a second ago
+    files.housekeeping(t + 1.0)
+    files.housekeeping(t + 1.5)
+    assert mesh.asked == [(USER, SID)]  # asked once
+    paused = m.SessionState(session=SID, phase="paused", run_id="r1", sim_time=float(rows[-1, 0]))
+    files.on_state(keys.state(USER, SID), codec.dumps(paused))
+    files.housekeeping(t + 5.9)
+    assert mesh.asked == [(USER, SID)] and rec.close_at is None and mesh.fills == []
+    files.housekeeping(t + 6.1)
+    assert mesh.asked == [(USER, SID)] * 2  # still quiet: asked again after 5 s
+    ended = m.SessionState(session=SID, phase="finished", run_id="r1", sim_time=1.0)
+    files.on_state(keys.state(USER, SID), codec.dumps(ended))
+    # past the grace for frames still on their way (and for its model, which this harness never brings)
+    files.housekeeping(time.monotonic() + ENDED_GRACE_S + MODEL_WAIT_S + 1.0)
+    ((owner, run_id, gaps),) = mesh.fills  # closed: its tail asked of the results
+    assert run_id == "r1" and len(gaps) == 1 and math.isinf(gaps[0].before)
