@@ -1,6 +1,10 @@
 """Full-resolution results on a simulator host's disk, `<folder>/<user>/<session>/`: one `.npy` of rows
 and one `.json` of what they are per run, the last `RUNS_KEPT` runs of each session. The worker that ran
 a run writes it; the simulator node serves it, to the session's user only.
+
+While a run goes, its worker also appends every frame's rows to a partial file (`PartialResults`):
+a worker that dies (killed, out of memory) leaves what it computed, and the simulator node stores that
+as the run's results, ended where they end (`ResultsStore.salvage`).
 """
 
 from __future__ import annotations
@@ -62,6 +66,34 @@ class ResultsStore:
         files.write_json(meta, {**vars(run), "saved": time.time()})
         self.prune(user, session)
 
+    def partial(self, user: str, session: str, run: StoredRun) -> PartialResults:
+        """Where the worker of `run` appends its rows as they are computed."""
+        npy, _meta = self._paths(user, session, run.run_id)
+        return PartialResults(npy.with_name(f".{run.run_id}.partial"), run)
+
+    def salvage(self, user: str, session: str, run_id: str, reason: str) -> StoredRun | None:
+        """Store what a dead worker's partial file holds as the run's results (phase failed, ended
+        where its rows end); None when there is none (the run had not started, or ended properly)."""
+        npy, _meta = self._paths(user, session, run_id)
+        rows_path = npy.with_name(f".{run_id}.partial")
+        meta_path = rows_path.with_name(rows_path.name + ".json")
+        try:
+            data: dict[str, Any] = files.read_json(meta_path)
+            data.pop("saved", None)
+            run = StoredRun(**data)
+            flat = np.fromfile(rows_path, dtype="<f8")
+        except (OSError, ValueError, TypeError):
+            return None
+        width = len(run.columns)
+        rows = flat[: flat.size - flat.size % width].reshape(-1, width)  # a row torn by the kill: left out
+        run.phase, run.reason = "failed", reason
+        run.samples = int(rows.shape[0])
+        run.sim_time = float(rows[-1, 0]) if rows.shape[0] else 0.0
+        self.save(user, session, run, rows)
+        for p in (rows_path, meta_path):
+            p.unlink(missing_ok=True)
+        return run
+
     def prune(self, user: str, session: str) -> None:
         folder = self._folder(user, session)
         metas = list(folder.glob("r*.json")) if folder.is_dir() else []
@@ -85,6 +117,32 @@ class ResultsStore:
         data: dict[str, Any] = files.read_json(meta)
         data.pop("saved", None)
         return StoredRun(**data), np.load(npy, mmap_mode="r")
+
+
+class PartialResults:
+    """A run's rows appended as they are computed (raw little-endian float64, row after row), and
+    beside them what they are: a process killed mid-run leaves them on disk (each append is a write
+    to the file, kept by the system when the process dies)."""
+
+    def __init__(self, path: Path, run: StoredRun) -> None:
+        self.path = path
+        self.meta = path.with_name(path.name + ".json")
+        path.parent.mkdir(parents=True, exist_ok=True)
+        files.write_json(self.meta, vars(run))
+        self._fh = open(path, "wb")  # noqa: SIM115 - open for the run's length, closed by discard()
+
+    def append(self, rows: np.ndarray) -> None:
+        self._fh.write(np.ascontiguousarray(rows, dtype="<f8").tobytes())
+        self._fh.flush()  # into the system's hands: a kill of this process does not lose it
+
+    def discard(self) -> None:
+        """The run's results are stored properly: the partial file goes."""
+        try:
+            self._fh.close()
+        except (OSError, AttributeError):
+            pass
+        for p in (self.path, self.meta):
+            p.unlink(missing_ok=True)
 
 
 def _run_number(stem: str) -> int:

@@ -200,7 +200,20 @@ class Simulator(Node):
         """
         user, session, run_id = key.split(" ")
         reason = f"the simulator process of run {run_id} disappeared (exit code {code})"
-        status = m.RunStatus(session=session, run_id=run_id, phase="failed", reason=reason)
+        kept = self.store.salvage(user, session, run_id, reason)  # what it computed, from its partial file
+        if kept is not None:
+            reason += f"; its results up to t = {kept.sim_time:.3f} s are kept"
+            self.log.info(
+                "run %s/%s: %d samples its worker left are kept as its results", session, run_id, kept.samples
+            )
+        status = m.RunStatus(
+            session=session,
+            run_id=run_id,
+            phase="failed",
+            reason=reason,
+            sim_time=kept.sim_time if kept is not None else 0.0,
+            samples=kept.samples if kept is not None else 0,
+        )
         self.put(keys.run_status(user, session), codec.dumps(status))
 
     def _on_run(self, req: Request) -> m.Accepted:

@@ -33,7 +33,7 @@ from simecs.mesh.seal import Seal, SealedPublisher
 
 from .hil import Lockstep
 from .pacing import FRAMES_PER_SOLVE, Pacer, PaceWatch, frame_length, frame_parts
-from .results_store import ResultsStore, StoredRun
+from .results_store import PartialResults, ResultsStore, StoredRun
 from .sources import RecordingSource, RunSource, SimulationSource, open_source
 
 # At most 5 progress reports per wall second: each costs a put here, a routing in the hub and a state
@@ -160,6 +160,7 @@ class Run:
         self.control = Control(req.run_id, req.paused, seal, req.attempt)
         self.samples = 0
         self.chunks: list[np.ndarray] = []
+        self.partial: PartialResults | None = None  # the rows on disk as they come (a kill keeps them)
         self.source: RunSource | None = None
         self.sim_time = 0.0
         self.rtf = 0.0
@@ -248,6 +249,9 @@ class Run:
                 source=source.kind,  # type: ignore[arg-type]
             )
             self.layout_pub.put(codec.dumps(layout))
+            if isinstance(source, SimulationSource):  # a replay's rows are its recording's already
+                empty = np.empty((0, len(source.columns)))
+                self.partial = self.store.partial(req.user, req.session, self.described("running", "", empty))
             source.start()
             if req.settings.controller == "external" and isinstance(source, SimulationSource):
                 self.hil = Lockstep(
@@ -327,6 +331,8 @@ class Run:
             parts = frame_parts(rows, step_t, frame, t)
             for k, (part, t_part) in enumerate(parts):
                 self.chunks.append(part)
+                if self.partial is not None:
+                    self.partial.append(part)
                 self.samples += part.shape[0]
                 # A stop that came ends the run with the call's last frame (its rows are the run's).
                 last = k == len(parts) - 1 and (source.finished or ctl.stopped.is_set())
@@ -387,9 +393,18 @@ class Run:
 
     def save(self, phase: str, reason: str) -> None:
         source = self.source
-        cols = source.columns if source is not None else ["time"]
         data = source.results(self.chunks) if source is not None else np.empty((0, 1))
-        run = StoredRun(
+        run = self.described(phase, reason, data)
+        self.store.save(self.req.user, self.req.session, run, data)
+        if self.partial is not None:
+            self.partial.discard()
+        self.samples = run.samples
+
+    def described(self, phase: str, reason: str, data: np.ndarray) -> StoredRun:
+        """What the store keeps beside the run's rows `data`."""
+        source = self.source
+        cols = source.columns if source is not None else ["time"]
+        return StoredRun(
             run_id=self.req.run_id,
             run_index=self.req.run_index,
             phase=phase,
@@ -403,8 +418,6 @@ class Run:
             context=codec.to_obj(source.context) if source is not None else None,
             jogged_s=self.jogged_s,
         )
-        self.store.save(self.req.user, self.req.session, run, data)
-        self.samples = run.samples
 
     def close(self) -> None:
         for e in (

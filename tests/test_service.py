@@ -346,6 +346,13 @@ def worker_of(service: Service, sid: str, run_id: str) -> int:
     return int(hit.group(1))
 
 
+def results_or_none(s: SessionClient, run_id: str) -> tuple[list[str], np.ndarray] | None:
+    try:
+        return s.results(run_id)
+    except (RemoteError, NoReply):  # not stored yet
+        return None
+
+
 def test_killed_simulation_fails_its_session_within_a_second(service: Service) -> None:
     c = service.client
     sim_pid = service.mesh.procs["simulator"].pid
@@ -375,8 +382,15 @@ def test_killed_simulation_fails_its_session_within_a_second(service: Service) -
         assert failed.wait(5.0), service.mesh.log("proxy") + service.mesh.log("simulator")
         assert time.monotonic() - t0 < 1.0
     assert "disappeared" in seen[-1].reason
+    # what its worker computed is kept: the results end where the worker was killed (issue 33, 1)
+    reached = max(st.sim_time for st in seen if st.run_id == ra)
+    _columns, rows = wait_until(lambda: results_or_none(a, ra), timeout=10, what="the results it left")
+    assert rows.shape[0] > 100 and reached - 0.3 <= rows[-1, 0] < 5.0, (rows[-1, 0], reached)
+    assert np.all(np.diff(rows[:, 0]) > 0)  # whole rows, in order
     assert b.wait_for(["finished", "failed"], 60, rb).phase == "finished"
     assert c.live_nodes().count(("simulator", "simulator-t")) == 1
+    # the partial files are gone: one turned into a's results, the other replaced by b's stored results
+    assert not list((service.data_dir / "results").rglob(".*.partial*"))
 
 
 def test_a_simulator_that_does_not_answer_holds_up_no_other_session(service: Service) -> None:
