@@ -133,7 +133,7 @@ class PartialResults:
         self._fh = open(path, "wb", buffering=0)  # noqa: SIM115 - open for the run's length, closed by discard()
 
     def append(self, rows: np.ndarray) -> None:
-        self._fh.write(memoryview(np.ascontiguousarray(rows, dtype="<f8")).cast("B"))
+        np.ascontiguousarray(rows, dtype="<f8").tofile(self._fh)
 
     def discard(self) -> None:
         """The run's results are stored properly: the partial file goes."""
