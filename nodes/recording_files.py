@@ -288,6 +288,17 @@ class RunFiles:
         if frame.run_index != rec.layout.run_index:
             rec.stray_frames += 1
             return
+        if rec.next_seq is None and frame.rows.shape[0] and not rec.writer.rows:
+            # A continuation (the recorder restarted during the run): what came before its first frame
+            # is fetched from the run's results at its end, so this file holds the whole run.
+            first = float(frame.rows[0, 0])
+            rec.gaps.append(Gap(frame.seq, -math.inf, first))
+            rec.writer.write_log(
+                fmt.LOG_WARNING,
+                f"MISSING the samples before t = {first:.4f} s: the recorder restarted during the run; "
+                "they are fetched from the run's results when it ends",
+                first,
+            )
         if rec.next_seq is not None and frame.seq > rec.next_seq:
             missing = frame.seq - rec.next_seq
             rec.dropped_frames += missing

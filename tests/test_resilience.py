@@ -126,3 +126,25 @@ def test_samples_the_recorder_could_not_take_are_filled_from_the_results(mesh: M
     rec = recording_of(mesh, s, run_id)
     assert any("FILLED" in log["message"] for log in rec.logs)
     assert s.snapshot().state.warnings == []  # nothing is lost: nothing to warn about
+
+
+def test_a_recorder_killed_mid_run_loses_no_sample(mesh: Mesh) -> None:
+    """SIGKILL of the recorder during a real-time run: the restarted recorder repairs the torn file and
+    continues the run in a second one, which it completes from the run's results: the continuation
+    holds the whole run, as the simulator stored it (issue 33, 1: a recorder crash loses nothing)."""
+    client = with_recorder(mesh)
+    s = prepared(client, "ann", 3.0, "realtime")
+    run_id = s.run()
+    wait_until(lambda: s.snapshot().state.sim_time > 1.0, timeout=30, what="the run under way")
+    mesh.stop("recorder", signal.SIGKILL)
+    time.sleep(0.5)  # frames go by with no recorder at all
+    mesh.start("recorder", "--dir", str(mesh.folder / "rec"), name="recorder2")
+    assert s.wait_for(["finished", "failed"], 60, run_id).phase == "finished"
+    base = keys.recording_name(s.id, run_id)
+    cont = mesh.folder / "rec" / s.user / f"{base}.2.mcap"
+    wait_file_closed(cont, timeout=40.0)
+    rec = mcapread.load(cont)
+    _columns, rows = s.results(run_id)
+    assert rec.rows.shape == rows.shape and np.array_equal(rec.rows, rows)
+    end = rec.metadata["simecs.end"]
+    assert end["gaps"] == "0" and int(end["filled_rows"]) > 0, end
