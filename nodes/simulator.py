@@ -200,7 +200,8 @@ class Simulator(Node):
         """
         user, session, run_id = key.split(" ")
         reason = f"the simulator process of run {run_id} disappeared (exit code {code})"
-        kept = self.store.salvage(user, session, run_id, reason)  # what it computed, from its partial file
+        # what it computed, from its partial file (not for a closed session: its results went with it)
+        kept = None if (user, session) in self.closed else self.store.salvage(user, session, run_id, reason)
         if kept is not None:
             reason += f"; its results up to t = {kept.sim_time:.3f} s are kept"
             self.log.info(
