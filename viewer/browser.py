@@ -185,16 +185,19 @@ def install_watchdog(client: Any) -> None:
     )
 
 
-def install_page_rules(client: Any) -> None:
+def install_page_rules(client: Any, key_buttons: dict[str, dict[str, str]]) -> None:
     """What the page does besides viser's own: viser's developer controls (server URL, Save Canvas,
     dev settings, the scene tree, behind the panel's "Configuration & diagnostics" icon) are hidden
     from users; the browser's Back button does not leave the app; a number field left blank or with
     what is not a number gets the value in force back, and says so (viser would leave it blank);
-    Space pauses or resumes the run and Esc aborts it (clicking the run bar's buttons, so the same
-    checks apply), except while the user types in a field or answers a dialog."""
+    the run keys click the run bar's buttons, so the same checks apply (`key_buttons`: phase -> key code ->
+    button label, run.key_buttons), except while the user types in a field or answers a dialog."""
     run_js(
         client,
-        """(() => {
+        "window.__simecsKeys = "
+        + json.dumps(key_buttons)
+        + """;
+(() => {
   if (window.__simecsRules) return;
   window.__simecsRules = true;
   const style = document.createElement('style');
@@ -238,10 +241,7 @@ def install_page_rules(client: Any) -> None:
     const t = e.target;
     const typing = t && (t.isContentEditable || ['INPUT', 'TEXTAREA', 'SELECT'].includes(t.tagName));
     if (typing || document.querySelector('.mantine-Modal-content')) return;
-    const phase = window.__simecsPhase || '';
-    let label = '';
-    if (e.code === 'Space') label = phase === 'running' ? 'Pause' : (phase === 'paused' ? 'Resume' : '');
-    else if (e.key === 'Escape') label = ['queued', 'running', 'paused'].includes(phase) ? 'Abort' : '';
+    const label = (window.__simecsKeys[window.__simecsPhase || ''] || {})[e.code];
     if (!label) return;
     const button = runButton(label);
     if (!button) return;

@@ -79,12 +79,30 @@ RUN_BAR_HINT = (
     "first); Pause holds it, Resume goes on, Abort ends it now (its results so far are kept). Keys: "
     "Space pauses or resumes, Esc aborts."
 )
-#: The keys the page takes in a phase (browser.install_page_rules), said on the run bar's second line.
-KEYS_OF = {
-    "running": " · keys: Space pauses, Esc aborts",
-    "paused": " · keys: Space resumes, Esc aborts",
-    "queued": " · key: Esc aborts",
-}
+#: The page's run keys (browser.install_page_rules): the key (its KeyboardEvent.code) and the run buttons
+#: it clicks, the first that acts in the phase; with what the run bar's second line calls it.
+RUN_KEYS = {"Space": ("Space", ("Pause", "Resume")), "Escape": ("Esc", ("Abort",))}
+KEY_VERBS = {"Pause": "pauses", "Resume": "resumes", "Abort": "aborts"}
+
+
+def key_buttons(phase: str) -> dict[str, str]:
+    """Which run button each key clicks in `phase` (the keys that do nothing there left out)."""
+    ops = applicable(phase)
+    return {
+        code: next(b for b in buttons if b in ops)
+        for code, (_name, buttons) in RUN_KEYS.items()
+        if any(b in ops for b in buttons)
+    }
+
+
+def keys_text(phase: str) -> str:
+    """The run bar's word on the keys that act now: " · keys: Space pauses, Esc aborts"."""
+    acts = [f"{RUN_KEYS[code][0]} {KEY_VERBS[button]}" for code, button in key_buttons(phase).items()]
+    if not acts:
+        return ""
+    return f" · {'keys' if len(acts) > 1 else 'key'}: " + ", ".join(acts)
+
+
 PREVIEW = "Preview"  # the run bar's button that plays the plan on the ghost (MoveIt's Plan before Execute)
 
 
@@ -119,8 +137,8 @@ class RunBar:
         ops = applicable(st.phase) if st is not None else []
         line = status_text(st, replay, until_stopped)
         if st is not None:
-            keys = KEYS_OF.get(st.phase, "")
-            line += "  \n<small>now: " + (" or ".join(ops) if ops else "nothing to do") + keys + "</small>"
+            now = " or ".join(ops) if ops else "nothing to do"
+            line += "  \n<small>now: " + now + keys_text(st.phase) + "</small>"
         if self.status.content != line:
             self.status.content = line
         detail = status_detail(st)

@@ -18,6 +18,8 @@ import logging
 from collections.abc import Callable
 from typing import Any
 
+from simecs.mesh import phases
+
 from . import browser
 from . import events as ev
 from .docs import LINK_PREFIX
@@ -27,7 +29,7 @@ from .library import LibraryWindow
 from .loop import TabLoop
 from .loop_client import LoopClient
 from .page import ModelPage
-from .run import RunBar, Toolbar
+from .run import RunBar, Toolbar, key_buttons
 from .session import SessionController
 
 log = logging.getLogger("simecs.viewer")
@@ -110,7 +112,7 @@ class Tab:
         self.place_frame()
         browser.install_doc_links(self.client, LINK_PREFIX)
         browser.install_watchdog(self.client)
-        browser.install_page_rules(self.client)
+        browser.install_page_rules(self.client, {p: key_buttons(p) for p in phases.PHASES})
 
     def place_frame(self) -> None:
         """The trees' panel and the run bar where this viewport's layout puts them."""
