@@ -344,11 +344,16 @@ def time_axis_samples(page: Any, stop: bool = True) -> list[AxisSample]:
     ]
 
 
+def open_components(page: Any) -> None:
+    """Unfold the component tree of the visible tab (a pick folds it under the picked name)."""
+    page.get_by_text(re.compile(r"^Components · ")).locator("visible=true").first.click()
+
+
 def open_plot(page: Any, component: str, owner: str, variable: str) -> None:
     """Open a plot from the Variables tab as a user does: unfold Components, pick the tree node
     `component` (e.g. "joint1 (14)"), then `owner` (e.g. "joint1 (2 own)"), then "Plot <variable>"."""
     page.get_by_role("tab", name="Variables").click()
-    page.get_by_text(re.compile(r"^Components · ")).locator("visible=true").first.click()
+    open_components(page)
     page.get_by_text(component, exact=True).click()
     page.get_by_role("button", name=owner).click()
     page.get_by_role("button", name=f"Plot {variable}", exact=True).click()

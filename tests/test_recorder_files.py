@@ -53,17 +53,31 @@ class ResultsOnRequest:
         pass
 
 
+def run_files(folder: Path) -> tuple[RecordingsLibrary, ResultsOnRequest, RunFiles]:
+    """The run files of a recorder writing into `folder`, on a mesh the test answers for."""
+    library, mesh = RecordingsLibrary(folder), ResultsOnRequest()
+    return (
+        library,
+        mesh,
+        RunFiles(library, "recorder-t", logging.getLogger("test"), mesh, idle_timeout_s=30.0),
+    )
+
+
+def send_frame(files: RunFiles, run_index: int, rows: np.ndarray, flags: int = 0) -> None:
+    """One frame (number 0) of run `run_index`, as the hub hands it over."""
+    frame = frames.Frame(run_index, 0, time.time_ns(), rows, flags)
+    files.on_full(keys.vars_full(USER, SID), frames.encode(frame))
+
+
 def test_a_run_whose_end_was_lost_ends_as_its_results_say(tmp_path: Path) -> None:
     # Back-to-back runs: the next run's layout can reach the recorder before the last frame and the
     # end state of the one before. That recording is closed then, and its results tell how it ended:
     # it is not marked incomplete when it holds every sample.
-    library = RecordingsLibrary(tmp_path)
-    mesh = ResultsOnRequest()
-    files = RunFiles(library, "recorder-t", logging.getLogger("test"), mesh, idle_timeout_s=30.0)
+    library, mesh, files = run_files(tmp_path)
     first = layout_for(SID)
     rows = make_rows(arm_model(), 20)
     files.on_layout(keys.layout(USER, SID), codec.dumps(first))
-    files.on_full(keys.vars_full(USER, SID), frames.encode(frames.Frame(1, 0, time.time_ns(), rows)))
+    send_frame(files, 1, rows)
     second = msgspec.structs.replace(first, run_id="r2", run_index=2)
     files.on_layout(keys.layout(USER, SID), codec.dumps(second))
     ((owner, run_id, gaps),) = mesh.fills
@@ -75,7 +89,7 @@ def test_a_run_whose_end_was_lost_ends_as_its_results_say(tmp_path: Path) -> Non
     assert (end["phase"], end["gaps"]) == ("finished", "0") and np.array_equal(rec.rows, rows)
     # Without the results' word (no node holds them), the recording says it is incomplete.
     third = msgspec.structs.replace(first, run_id="r3", run_index=3)
-    files.on_full(keys.vars_full(USER, SID), frames.encode(frames.Frame(2, 0, time.time_ns(), rows)))
+    send_frame(files, 2, rows)
     files.on_layout(keys.layout(USER, SID), codec.dumps(third))
     owner, run_id, gaps = mesh.fills[-1]
     files.on_fill("", Fill(owner, run_id, [], "no node holds the run's results"))
@@ -87,9 +101,7 @@ def test_a_recording_keeps_how_long_its_run_was_jogged_and_when_it_was_made(tmp_
     """The run's newest report (RunStatus.jogged_s) goes into simecs.end, and the recording's results
     say it; reports of another run or attempt change nothing; a run whose last report was lost takes
     its stored results' word. The listing says when each file was begun."""
-    library = RecordingsLibrary(tmp_path)
-    mesh = ResultsOnRequest()
-    files = RunFiles(library, "recorder-t", logging.getLogger("test"), mesh, idle_timeout_s=30.0)
+    library, mesh, files = run_files(tmp_path)
     status_key, state_key = keys.run_status(USER, SID), keys.state(USER, SID)
 
     def report(run_id: str, jogged_s: float, phase: str = "running", attempt: int = 1) -> None:
@@ -106,7 +118,7 @@ def test_a_recording_keeps_how_long_its_run_was_jogged_and_when_it_was_made(tmp_
     report("r1", 0.1)  # the figure only grows (the report of a lost worker says 0)
     report("r1", 9.0, attempt=2)  # an attempt the recording is not of
     report("r2", 8.0)  # another run of the session
-    files.on_full(keys.vars_full(USER, SID), frames.encode(frames.Frame(1, 0, time.time_ns(), rows, 1)))
+    send_frame(files, 1, rows, frames.FLAG_FINAL)
     report("r1", 0.45, "finished")
     files.on_state(state_key, codec.dumps(m.SessionState(SID, "finished", run_id="r1")))
     files.close(files.active[(USER, SID)], "final frame")
@@ -122,7 +134,7 @@ def test_a_recording_keeps_how_long_its_run_was_jogged_and_when_it_was_made(tmp_
     # r2's end is lost (r3 comes first): the results fetched for its gap have the final figure.
     second = msgspec.structs.replace(first, run_id="r2", run_index=2)
     files.on_layout(keys.layout(USER, SID), codec.dumps(second))
-    files.on_full(keys.vars_full(USER, SID), frames.encode(frames.Frame(2, 0, time.time_ns(), rows)))
+    send_frame(files, 2, rows)
     report("r2", 0.2)
     files.on_layout(keys.layout(USER, SID), codec.dumps(msgspec.structs.replace(first, run_id="r3")))
     owner, run_id, gaps = mesh.fills[-1]
@@ -138,13 +150,11 @@ def test_a_run_whose_final_frame_and_end_were_both_lost_is_asked_for_and_closed(
     quiet, the run files ask the session's state (at 1 s of quiet, then every 5 s, not at every
     housekeeping), the answer ends the run, and its file is closed and filled from the results, long
     before the idle timeout. A run still going (a paused one: its state says so) stays open."""
-    library = RecordingsLibrary(tmp_path)
-    mesh = ResultsOnRequest()
-    files = RunFiles(library, "recorder-t", logging.getLogger("test"), mesh, idle_timeout_s=30.0)
+    library, mesh, files = run_files(tmp_path)
     layout = layout_for(SID)
     rows = make_rows(arm_model(), 20)
     files.on_layout(keys.layout(USER, SID), codec.dumps(layout))
-    files.on_full(keys.vars_full(USER, SID), frames.encode(frames.Frame(1, 0, time.time_ns(), rows)))
+    send_frame(files, 1, rows)
     (rec,) = files.active.values()
     t = rec.last_data
     for dt in (0.2, 0.5, 0.9):

@@ -70,11 +70,7 @@ def new_page(context: Any, url: str) -> Any:
 
 def plot_joint1_q(page: Any) -> None:
     """Open the first plot, of joint1.q, from the Variables tab as a user does."""
-    page.get_by_role("tab", name="Variables").click()
-    open_components(page)
-    page.get_by_text("joint1 (14)", exact=True).click()
-    page.get_by_role("button", name="joint1 (2 own)").click()
-    page.get_by_role("button", name="Plot q", exact=True).click()
+    chromium.open_plot(page, "joint1 (14)", "joint1 (2 own)", "q")
     text_appears(page, "Plot 1: joint1.q")
 
 
@@ -160,9 +156,7 @@ def dismiss_notifications(page: Any) -> None:
             pass
 
 
-def open_components(page: Any) -> None:
-    """Unfold the component tree of the visible tab (a pick folds it under the picked name)."""
-    page.get_by_text(re.compile(r"^Components · ")).locator("visible=true").first.click()
+open_components = chromium.open_components
 
 
 def now_ms(page: Any) -> float:
