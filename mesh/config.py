@@ -192,18 +192,22 @@ def router_entries() -> dict[str, Any]:
     }
 
 
-#: What the hub drops on its way out to a link with no room for SLOW_LINK_WAIT_US: the sample streams,
-#: and the run reports, notices and session values their publishers put with blocking congestion control.
-DROPPED_FOR_SLOW_LINKS = (
-    "vars_full",
-    "vars_live",
-    "run_status",
-    "notices",
-    "state",
-    "params",
-    "obstacles",
-    "command",
-)
+#: Keys put with blocking congestion control, lossless as far as the hub (`lossless_put`): the full
+#: sample stream, and the run reports, notices and session values each put once (a report dropped on a
+#: busy link would lose a step or a phase for good).
+LOSSLESS_KEYS = ("vars_full", "run_status", "notices", "state", "params", "obstacles", "command")
+#: What the hub drops on its way out to a link with no room for SLOW_LINK_WAIT_US: those, and the
+#: decimated live stream.
+DROPPED_FOR_SLOW_LINKS = (*LOSSLESS_KEYS, "vars_live")
+
+
+def lossless_put() -> Any:
+    """The congestion control of every key in LOSSLESS_KEYS: blocking (zenoh's default drops after
+    1 ms on a full link); the hub drops them only for a slow subscriber (`router_entries`)."""
+    import zenoh
+
+    return zenoh.CongestionControl.BLOCK
+
 
 #: How long the hub waits for room on a full link before it drops a sample stream's sample (µs).
 SLOW_LINK_WAIT_US = 20_000

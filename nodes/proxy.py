@@ -23,6 +23,7 @@ import zenoh
 from simecs.mesh import columns, files, keys, limits, phases
 from simecs.mesh import messages as m
 from simecs.mesh.client import MeshClient, NoReply, RemoteError
+from simecs.mesh.config import lossless_put
 from simecs.mesh.hublink import HubLink
 from simecs.mesh.model import DocPage, ModelDescription, check_joints
 from simecs.mesh.runtime import Binary, Node, NotMine, Request, RequestError, main_for, mesh_from_args
@@ -74,9 +75,7 @@ class Proxy(Node):
         self._asked: dict[str, float] = {}  # model id -> when it was last asked of a host
         self.store = SessionStore(
             data / "sessions",
-            # blocking: a state dropped on a busy link would lose a step or a phase for good (the hub
-            # drops them for a slow subscriber: mesh.config.DROPPED_FOR_SLOW_LINKS)
-            lambda key: self.publisher(key, latched=True, congestion_control=zenoh.CongestionControl.BLOCK),
+            lambda key: self.publisher(key, latched=True, congestion_control=lossless_put()),  # LOSSLESS_KEYS
             self._release,
         )
         self.runs = RunTracker(

@@ -26,7 +26,7 @@ import zenoh.ext
 from simecs.mesh import affinity, codec, columns, frames, keys, load
 from simecs.mesh import messages as m
 from simecs.mesh import seal as seals
-from simecs.mesh.config import open_session
+from simecs.mesh.config import lossless_put, open_session
 from simecs.mesh.logs import setup_logging
 from simecs.mesh.runtime import mesh_from_args, node_arguments
 from simecs.mesh.seal import Seal, SealedPublisher
@@ -106,7 +106,7 @@ class Notifier:
                 key,
                 payload,
                 attachment=self.seal.mac(key, payload),
-                congestion_control=zenoh.CongestionControl.BLOCK,  # each is said once
+                congestion_control=lossless_put(),  # each is said once (LOSSLESS_KEYS)
             )
         except zenoh.ZError:
             pass
@@ -169,13 +169,13 @@ class Run:
         # Every sample carries the service's seal: the proxy, recorder and hot-feedback act only on those.
         full_key, status_key, layout_key = keys.vars_full(u, s), keys.run_status(u, s), keys.layout(u, s)
         self.full = SealedPublisher(
-            z.declare_publisher(full_key, congestion_control=zenoh.CongestionControl.BLOCK, express=True),
+            z.declare_publisher(full_key, congestion_control=lossless_put(), express=True),
             full_key,
             seal,
         )
-        # Blocking like the frames it follows: a report dropped on a busy link loses a step for good.
+        # Lossless like the frames it follows (LOSSLESS_KEYS): a report dropped on a busy link loses a step.
         self.status_pub = SealedPublisher(
-            z.declare_publisher(status_key, congestion_control=zenoh.CongestionControl.BLOCK),
+            z.declare_publisher(status_key, congestion_control=lossless_put()),
             status_key,
             seal,
         )
