@@ -123,9 +123,12 @@ def tasks_walk(mesh: Mesh, browser: Any, size: tuple[int, int]) -> None:
     taught = [math.radians(float(x)) for x in q_field.input_value().split(",")]
     assert taught == pytest.approx(q0, abs=2e-5)  # in degrees, to 0.001 deg
     target = [math.radians(20.0), *q0[1:]]
-    chromium.type_into(page, "Joint positions [deg]", ", ".join(f"{math.degrees(x):.3f}" for x in target))
-    chromium.type_into(page, "Label", "turn")
-    press(page, "Add")
+    # typed and added at once: two fields and a click inside viser's 50 ms send window, none lost
+    chromium.type_then_click_at_once(
+        page,
+        [("Joint positions [deg]", ", ".join(f"{math.degrees(x):.3f}" for x in target)), ("Label", "turn")],
+        page.get_by_role("button", name="Add", exact=True).locator("visible=true").first,
+    )
     text_appears(page, "turn: move_joints")
     chromium.pick_option(page, "Primitive", "wait")
     chromium.type_into(page, "Duration [s]", "0.3")

@@ -30,6 +30,7 @@ from .loop import TabLoop
 from .loop_client import LoopClient
 from .page import ModelPage
 from .run import RunBar, Toolbar, key_buttons
+from .send_order import install_send_order
 from .session import SessionController
 
 log = logging.getLogger("simecs.viewer")
@@ -113,6 +114,7 @@ class Tab:
         browser.install_doc_links(self.client, LINK_PREFIX)
         browser.install_watchdog(self.client)
         browser.install_page_rules(self.client, {p: key_buttons(p) for p in phases.PHASES})
+        install_send_order(self.client)
 
     def place_frame(self) -> None:
         """The trees' panel and the run bar where this viewport's layout puts them."""

@@ -1,0 +1,83 @@
+"""Every edit and click in the panel reaches the server, in the order it was made.
+
+viser's page sends the panel's messages (a field's new text, a ticked box, a click) through one
+throttle shared by the whole panel: the first message of a 50 ms window goes at once, the last one
+after it waits for the window's end, and each later one *replaces* the waiting one. So of three
+quick actions ("type the joint positions, type a label, click Add": a script, or a fast hand) the
+middle one never reaches the server, and the server acts on a value the page no longer shows.
+
+The page here keeps a copy of that throttle's state and holds back an edit or a click that would
+replace a message still waiting, then replays it once the waiting one has gone (a field's held
+edits replay as one, with the text the field then holds; a held box shows its tick at once).
+Nothing is held when nothing waits, so a lone click or a typed field goes as before. Not covered:
+a hold button's repeats and a slider's drag (they stream; the next one carries the state) and a
+dropdown picked with the keyboard.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from .browser import run_js
+
+#: viser's panel throttle (its ``useThrottledMessageSender(50)``).
+THROTTLE_MS = 50
+
+SEND_ORDER_JS = """(() => {
+  if (window.__simecsSendOrder) return;
+  window.__simecsSendOrder = true;
+  const WINDOW_MS = __WINDOW_MS__;
+  // The throttle: `open` while a window runs (a message went at its start), `waiting` the key of the
+  // message it keeps for the window's end (null: none). Our timer is set before viser's (capture
+  // phase) with a longer delay, so it fires after it, however late timers run.
+  let open = false, waiting = null, replaying = false;
+  const held = [];
+  const windowEnds = () => setTimeout(() => {
+    if (waiting !== null) { waiting = null; windowEnds(); }  // it sent the waiting one: a new window
+    else open = false;
+    release();
+  }, WINDOW_MS + 3);
+  // A field's or a box's newer message may replace its own waiting one: the latest state wins.
+  const admit = (key, kind) => {  // true: viser's throttle takes it without dropping another
+    if (!open) { open = true; windowEnds(); return true; }
+    if (waiting === null || (kind !== 'click' && waiting === key)) { waiting = key; return true; }
+    return false;
+  };
+  const release = () => {
+    while (held.length && admit(held[0].key, held[0].kind)) {
+      const h = held.shift();
+      replaying = true;
+      try { h.replay(); } finally { replaying = false; }
+    }
+  };
+  const gate = (e, key, kind, replay) => {
+    if (replaying) return;
+    if (!held.length && admit(key, kind)) return;
+    e.stopImmediatePropagation();  // the page's own handlers (viser's) see it when it is replayed
+    if (kind === 'click') e.preventDefault();
+    if (kind !== 'click' && held.some((h) => h.key === key)) return;  // replayed as it then stands
+    held.push({key, kind, replay});
+  };
+  window.addEventListener('click', (e) => {
+    const t = e.target instanceof Element ? e.target : null;
+    if (t instanceof HTMLInputElement && t.type === 'checkbox') {
+      // The box ticks at once (the browser's own toggle is let be); viser hears of it on replay: the
+      // box is set back and clicked, so it ends as the user left it.
+      gate(e, t, 'box', () => { const want = t.checked; t.checked = !want; t.click(); });
+      return;
+    }
+    const el = t && t.closest('button, [role=option]');
+    if (el) gate(e, {}, 'click', () => el.click());
+  }, true);
+  window.addEventListener('input', (e) => {
+    const el = e.target;
+    const typed = (el instanceof HTMLInputElement && !['checkbox', 'radio', 'file'].includes(el.type)) ||
+      el instanceof HTMLTextAreaElement;
+    if (typed) gate(e, el, 'input', () => el.dispatchEvent(new Event('input', {bubbles: true})));
+  }, true);
+})();""".replace("__WINDOW_MS__", str(THROTTLE_MS))
+
+
+def install_send_order(client: Any) -> None:
+    """Hold back, on this tab's page, what would replace a message viser still keeps waiting."""
+    run_js(client, SEND_ORDER_JS)
