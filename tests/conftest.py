@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import shutil
 import socket
+import time
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -147,10 +148,42 @@ def browser() -> Iterator[Any]:
 
     with sync_playwright() as pw:
         b = chromium.launch(pw)
+        kept = ConsoleKeepingBrowser(b)
         try:
-            yield b
+            yield kept
         finally:
+            if kept.lines:  # shown by pytest when the test failed
+                print("----- browser console (errors, warnings) -----", *kept.lines[-100:], sep="\n")
             b.close()
+
+
+class ConsoleKeepingBrowser:
+    """The browser, keeping what its pages say went wrong (console errors and warnings, uncaught
+    exceptions): a failure on a CI machine, where the page is gone, is read from them."""
+
+    def __init__(self, browser: Any) -> None:
+        self._browser = browser
+        self.lines: list[str] = []
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._browser, name)
+
+    def _watch(self, page: Any) -> Any:
+        def said(msg: Any) -> None:
+            if msg.type in ("error", "warning"):
+                self.lines.append(f"{time.strftime('%H:%M:%S')} console {msg.type}: {msg.text}")
+
+        page.on("console", said)
+        page.on("pageerror", lambda exc: self.lines.append(f"{time.strftime('%H:%M:%S')} page error: {exc}"))
+        return page
+
+    def new_page(self, **options: Any) -> Any:
+        return self._watch(self._browser.new_page(**options))
+
+    def new_context(self, **options: Any) -> Any:
+        context = self._browser.new_context(**options)
+        context.on("page", self._watch)
+        return context
 
 
 @pytest.fixture(scope="module")
