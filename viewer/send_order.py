@@ -28,15 +28,16 @@ SEND_ORDER_JS = """(() => {
   window.__simecsSendOrder = true;
   const WINDOW_MS = __WINDOW_MS__;
   // The throttle: `open` while a window runs (a message went at its start), `waiting` the key of the
-  // message it keeps for the window's end (null: none). Our timer is set before viser's (capture
-  // phase) with a longer delay, so it fires after it, however late timers run.
+  // message it keeps for the window's end (null: none). Our copy of its timer is set once the task
+  // that set viser's has ended (a 0 ms timer first), with the same delay: it fires after viser's,
+  // however late timers run and however long viser took to handle the event.
   let open = false, waiting = null, replaying = false;
   const held = [];
-  const windowEnds = () => setTimeout(() => {
+  const windowEnds = () => setTimeout(() => setTimeout(() => {
     if (waiting !== null) { waiting = null; windowEnds(); }  // it sent the waiting one: a new window
     else open = false;
     release();
-  }, WINDOW_MS + 3);
+  }, WINDOW_MS), 0);
   // A field's or a box's newer message may replace its own waiting one: the latest state wins.
   const admit = (key, kind) => {  // true: viser's throttle takes it without dropping another
     if (!open) { open = true; windowEnds(); return true; }
