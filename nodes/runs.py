@@ -28,6 +28,9 @@ MAX_WARNINGS = 20
 LAST_REPORT_GRACE_S = 0.3
 ALIVE_AFTER_S = 0.15  # a report this long after a run's token went proves its worker alive
 TOKEN_QUERY_S = 1.0  # asking whether a run's token is still up
+# A worker reports at least this often (running: every 0.2 s; paused: every 1 s, worker.PAUSED_REPORT_S):
+# one heard from within it lives on when its simulator node is lost. Reports are sealed, tokens not.
+WORKER_REPORTS_S = 3.0
 TOKEN_QUERY_TRIES = 3  # queries that time out before one counts as an answer
 #: How long runs whose tokens went with the hub wait for it to come back before they are settled.
 HUB_AWAY_S = 120.0
@@ -412,7 +415,7 @@ class RunTracker:
                 )
                 return
             if host_gone:
-                self.host_lost(host)
+                self.host_lost(host, worker_gone=sid)
                 return
             if stored is None and not reported:
                 self.log.warning(
@@ -427,12 +430,28 @@ class RunTracker:
             self._settle_from(rec, stored, crashed)
             self.admission.update()
 
-    def host_lost(self, host: str) -> None:
-        """Simulator host `host` left the mesh: each of its runs starts again from the start on another
-        host (the simulation is deterministic: same result), or fails if no host is left."""
+    def host_lost(self, host: str, worker_gone: str = "") -> None:
+        """Simulator host `host` left the mesh. A run whose worker still reports goes on: a worker is
+        a process of its own, its simulator node only started it (its results go where the node's
+        successor serves them from). Each other run, and that of session `worker_gone` (its worker's
+        token went too), starts again from the start on another host (the simulation is deterministic:
+        same result), or fails if no host is left."""
         self.admission.hosts.left(host)
+        now = time.monotonic()
         for rec in list(self.store):
             if rec.state.host != host or rec.phase not in phases.GOING:
+                continue
+            if (
+                rec.id != worker_gone
+                and rec.reported == rec.state.run_id
+                and now - rec.reported_at < WORKER_REPORTS_S
+            ):
+                self.log.warning(
+                    "session %s run %s: simulator host %s was lost; its worker goes on with the run",
+                    rec.id,
+                    rec.state.run_id,
+                    host,
+                )
                 continue
             request = self.going.get(rec.id) or self.again(rec)
             at = rec.state.sim_time
