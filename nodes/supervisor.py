@@ -14,7 +14,7 @@ import subprocess
 import sys
 import threading
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 from simecs.mesh import keys
@@ -40,6 +40,19 @@ class Child:
     restarts: int = 0
     backoff: float = FIRST_BACKOFF_S
     next_start: float = 0.0
+    # Every process group it ever led: a simulator's workers outlive it (their runs go on, nodes/runs.py)
+    # and are stopped with the service, not with their first node.
+    groups: list[int] = field(default_factory=list)
+
+
+def group_alive(group: int) -> bool:
+    try:
+        os.killpg(group, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
 
 
 def node_argv(module: str, args: list[str]) -> list[str]:
@@ -58,6 +71,7 @@ class Supervisor:
 
     def _start(self, child: Child) -> subprocess.Popen[bytes]:
         child.proc = subprocess.Popen(child.argv, start_new_session=True)
+        child.groups.append(child.proc.pid)
         child.started = time.monotonic()
         return child.proc
 
@@ -69,6 +83,7 @@ class Supervisor:
         """Restart children that exited while we were not stopping."""
         now = time.monotonic()
         for child in self.children:
+            child.groups = [g for g in child.groups if group_alive(g)]  # an id reused is never signalled
             proc = child.proc
             if proc is None:
                 if now >= child.next_start:
@@ -117,10 +132,10 @@ class Supervisor:
         """SIGTERM every process group, then SIGKILL what is left after the grace period."""
         self.stopping.set()
         for child in reversed(self.children):
-            if child.proc is not None and child.proc.poll() is None:
+            for group in child.groups:
                 try:
-                    os.killpg(child.proc.pid, signal.SIGTERM)
-                except ProcessLookupError:
+                    os.killpg(group, signal.SIGTERM)
+                except (ProcessLookupError, PermissionError):
                     pass
         end = time.monotonic() + GRACE_S
         for child in self.children:
@@ -131,12 +146,13 @@ class Supervisor:
             except subprocess.TimeoutExpired:
                 pass
         for child in self.children:
+            for group in child.groups:
+                try:  # the group may hold grandchildren (simulator workers) even if the leader is gone
+                    os.killpg(group, signal.SIGKILL)
+                except (ProcessLookupError, PermissionError):
+                    pass
             if child.proc is None:
                 continue
-            try:  # the group may hold grandchildren (simulator workers) even if the leader is gone
-                os.killpg(child.proc.pid, signal.SIGKILL)
-            except (ProcessLookupError, PermissionError):
-                pass
             try:
                 child.proc.wait(timeout=1.0)
             except subprocess.TimeoutExpired:
