@@ -202,3 +202,27 @@ def test_a_node_that_had_started_is_back_at_once_and_one_that_cannot_start_waits
         waits.append(round(failing.next_start - now, 1))
         ran = failing
     assert waits == [0.5, 1.0, 2.0, 4.0, 8.0, 10.0], waits
+
+
+def test_the_workers_a_killed_node_left_are_stopped_with_the_service() -> None:
+    """A simulator node's workers outlive it (their runs go on, nodes/runs.py): the node killed and
+    started again, its first process group's worker runs on, and is stopped with the service."""
+    from simecs.nodes import supervisor as sv
+
+    sleeper = [sys.executable, "-c", "import time; time.sleep(60)"]
+    leader = f"import subprocess, time; subprocess.Popen({sleeper!r}); time.sleep(60)"
+    child = sv.Child("simulator", [sys.executable, "-c", leader])
+    sup = sv.Supervisor([child], MeshConfig())
+    sup.start_all()
+    first = child.proc
+    assert first is not None
+    (worker,) = wait_until(lambda: descendants(first.pid) or None, timeout=10, what="its worker")
+    try:
+        first.kill()
+        first.wait(5)
+        sup.check()  # it exited
+        wait_until(lambda: sup.check() or child.proc is not None, timeout=5, what="the node started again")
+        assert alive(worker) and len(child.groups) == 2
+    finally:
+        sup.stop_all()
+    wait_until(lambda: not alive(worker), timeout=5, what="the first node's worker stopped")
