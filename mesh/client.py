@@ -18,7 +18,7 @@ import zenoh.ext
 from . import codec, frames, keys
 from . import messages as m
 from . import seal as seals
-from .config import MeshConfig, open_session
+from .config import MeshConfig, load_client, open_session
 from .model import DocPage, ModelDescription, ModelSummary
 from .results import selector_query
 from .seal import Seal
@@ -72,9 +72,11 @@ class MeshClient:
         self.seal = seal
 
     @classmethod
-    def open(cls, cfg: MeshConfig, timeout: float = 10.0) -> MeshClient:
-        """A client of the mesh `cfg` describes; it checks seals when `cfg.service_key_file` names
-        a key file that exists."""
+    def open(cls, cfg: MeshConfig | None = None, timeout: float = 10.0) -> MeshClient:
+        """A client of the mesh `cfg` describes (by default this machine's: `config.load_client`, which
+        finds the credentials `simecs up` wrote); it checks seals when `cfg.service_key_file` names a
+        key file that exists (the local client file does)."""
+        cfg = load_client() if cfg is None else cfg
         path = seals.key_file(cfg.service_key_file) if cfg.service_key_file else None
         seal = seals.load(path) if path is not None and path.exists() else None
         return cls(open_session(cfg), timeout=timeout, owns_session=True, seal=seal)
@@ -92,20 +94,31 @@ class MeshClient:
     # -- raw requests ---------------------------------------------------------------------------
     def _replies(self, key: str, payload: Any, timeout: float | None) -> list[zenoh.Reply]:
         body = None if payload is None else (payload if isinstance(payload, bytes) else codec.dumps(payload))
-        return list(self.z.get(key, payload=body, timeout=timeout or self.timeout))
+        # With the seal, every answer is wanted: zenoh's consolidation would keep one per key, perhaps
+        # another peer's (unsealed) in place of the service node's.
+        consolidation = zenoh.ConsolidationMode.NONE if self.seal is not None else None
+        return list(
+            self.z.get(key, payload=body, timeout=timeout or self.timeout, consolidation=consolidation)
+        )
 
     def request(self, key: str, payload: Any = None, timeout: float | None = None, reply: Any = Any) -> Any:
         """Send a get and return the `data` of its Ok reply decoded as `reply`; RemoteError / NoReply
         otherwise. One node answers each key (PROTOCOL.md §4)."""
         answers = self._replies(key, payload, timeout)
+        forged = 0
         for answer in answers:
             if answer.ok is not None:
-                data: Any = codec.loads(m.Ok, answer.ok.payload.to_bytes()).data
+                body = answer.ok.payload.to_bytes()
+                if self.seal is not None and not self.seal.sample_valid(answer.ok, body):
+                    forged += 1  # not a service node's answer (mesh/seal.py): another peer's, ignored
+                    continue
+                data: Any = codec.loads(m.Ok, body).data
                 return data if reply is Any else codec.from_obj(reply, data)
         for answer in answers:
             if answer.err is not None:
                 raise RemoteError(_decode_error(answer.err.payload.to_bytes()))
-        raise NoReply(f"no node answered {key}")
+        extra = f" ({forged} answer(s) without the service's seal ignored)" if forged else ""
+        raise NoReply(f"no node answered {key}{extra}")
 
     def request_binary(self, key: str, attachment: Any, timeout: float | None = None) -> tuple[bytes, Any]:
         """A get answered with bytes; returns them and the reply's attachment decoded as `attachment`."""

@@ -152,6 +152,34 @@ def load(path: str | os.PathLike[str] | None = None, env: Mapping[str, str] | No
     return cfg
 
 
+#: Where `simecs up` (private, its default) writes the client configuration of this machine's user.
+CLIENT_FILE = "client.json5"
+
+
+def local_client_file(env: Mapping[str, str] | None = None) -> Path | None:
+    """The client configuration a client of this machine's service uses when told nothing else:
+    SIMECS_CLIENT_CONFIG (empty: none), else `client.json5` in the data folder (SIMECS_DATA, default
+    `.simecs`) if `simecs up` wrote one there."""
+    env = os.environ if env is None else env
+    named = env.get("SIMECS_CLIENT_CONFIG")
+    if named is not None:
+        return Path(named) if named else None
+    path = Path(env.get("SIMECS_DATA", ".simecs")) / CLIENT_FILE
+    return path if path.exists() else None
+
+
+def load_client(
+    path: str | os.PathLike[str] | None = None, env: Mapping[str, str] | None = None
+) -> MeshConfig:
+    """A client's configuration: `path`, else SIMECS_MESH_CONFIG, else this machine's user's file
+    (`local_client_file`: the private default finds its credentials without flags), else the open
+    defaults."""
+    env = os.environ if env is None else env
+    if not path and not env.get("SIMECS_MESH_CONFIG"):
+        path = local_client_file(env)
+    return load(path, env)
+
+
 def open_session(cfg: MeshConfig, deadline_s: float = 20.0) -> Any:
     """Open a zenoh session, retrying while the hub is not up yet (it may start after us)."""
     import zenoh

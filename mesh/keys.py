@@ -343,9 +343,12 @@ LIBRARY = "simecs/library"
 USERS = "simecs/u"
 
 
-def wildcard(name: str) -> str:
-    """The key of `name` with every chunk a `*`: what serves or watches all of them."""
-    return _PLACEHOLDER.sub("*", KEYS[name].pattern)
+def wildcard(name: str, **fixed: str) -> str:
+    """The key of `name` with every chunk a `*` but those given (`user=...`: one user's, what a user
+    of a private mesh may watch): what serves or watches all of them."""
+    for chunk, value in fixed.items():
+        check_name(value, chunk)
+    return _PLACEHOLDER.sub(lambda mt: fixed.get(mt.group(1), "*"), KEYS[name].pattern)
 
 
 NODES_STATUS = wildcard("node_status")

@@ -26,7 +26,7 @@ from typing import Any
 from simecs.mesh import batch, codec, keys
 from simecs.mesh import messages as m
 from simecs.mesh.client import MeshClient, NoReply, RemoteError
-from simecs.mesh.config import load
+from simecs.mesh.config import load_client
 
 from . import export
 
@@ -53,7 +53,9 @@ def add_arguments(parser: argparse.ArgumentParser, sweep: bool) -> None:
         default=None,
         help="default: fast (overrides --settings)",
     )
-    parser.add_argument("--user", default="batch", help="the user the sessions belong to")
+    parser.add_argument(
+        "--user", default="", help="whose sessions (default: the mesh config's user, or batch)"
+    )
     parser.add_argument("--connect", default="", help="hub endpoint, e.g. tcp/127.0.0.1:7447")
     parser.add_argument("--mesh-config", default="", help="a mesh configuration file (JSON5)")
     parser.add_argument("--embedded", action="store_true", help="start a private mesh for this command")
@@ -138,6 +140,8 @@ def mesh_client(args: argparse.Namespace) -> Iterator[MeshClient]:
     if args.embedded:
         from simecs.testing.launch import LocalMesh
 
+        args.user = args.user or "batch"
+
         with tempfile.TemporaryDirectory(prefix="smr") as folder:
             mesh = LocalMesh(folder)
             try:
@@ -148,7 +152,9 @@ def mesh_client(args: argparse.Namespace) -> Iterator[MeshClient]:
             finally:
                 mesh.close()
         return
-    cfg = load(args.mesh_config or None).with_overrides(connect=[args.connect] if args.connect else None)
+    connect = [args.connect] if args.connect else None
+    cfg = load_client(args.mesh_config or None).with_overrides(connect=connect)
+    args.user = args.user or cfg.user or "batch"  # on a private mesh, a user acts in their own space
     client = MeshClient.open(cfg, timeout=10.0)
     try:
         yield client

@@ -9,10 +9,12 @@ import json
 import os
 import sys
 import time
+from pathlib import Path
 
-from simecs.mesh.config import DEFAULT_HUB, MeshConfig, load
+from simecs.mesh.config import CLIENT_FILE, DEFAULT_HUB, MeshConfig, load, load_client
 
 SECURE_DIR = os.path.join(os.environ.get("SIMECS_DATA", ".simecs"), "secure")
+UNIX_SOCKET = "unixsock-stream/"
 
 #: Node name -> module with a `main(argv)`. The viewer lives in its own package.
 NODES = {
@@ -51,27 +53,40 @@ def hub_port(endpoint: str) -> int:
 
 
 def secure_setup(args: argparse.Namespace) -> tuple[str, list[str], list[str], str]:
-    """For `simecs up --secure`: (the hub endpoint nodes connect to, the hub's flags, every other
-    node's flags, a line for the banner); certificates, credentials and configurations are made here."""
+    """For `simecs up` (private, its default): (the hub endpoint nodes connect to, the hub's flags, every
+    other node's flags, lines for the banner); certificates, credentials and configurations are made
+    here, and this machine's user with its client configuration (`client.json5` in the data folder).
+    A TCP or TLS `--hub` gives its port to TLS on `--hub-host`; a unix socket stays one (no TLS: only
+    accounts that may open the socket reach it, and they need a password too)."""
     from simecs.mesh import seal
     from simecs.nodes.secure import SecureFolder
 
-    folder = SecureFolder(args.secure_dir)
-    host, port = args.hub_host, hub_port(args.hub)  # `--hub` chooses the port, TLS or not
-    folder.ensure_certificates([host])
-    local = f"tls/127.0.0.1:{port}"
-    listen = [f"tls/{host}:{port}"] + ([local] if host != "127.0.0.1" else [])
-    hub_flags = ["--mesh-config", str(folder.hub_config(listen))]
+    folder = SecureFolder(args.secure_dir or os.path.join(args.data_dir, "secure"))
+    folder.ensure_certificates([args.hub_host])
+    if args.hub.startswith(UNIX_SOCKET):
+        local, listen, tls = args.hub, [args.hub], False
+    else:
+        host, port = args.hub_host, hub_port(args.hub)  # `--hub` chooses the port, TLS or not
+        local = f"tls/127.0.0.1:{port}"
+        listen = [f"tls/{host}:{port}"] + ([local] if host != "127.0.0.1" else [])
+        tls = True
     key_file = str(seal.key_file(""))
     seal.load(key_file, create=True)
+    client_file = os.path.join(os.path.abspath(args.data_dir), CLIENT_FILE)
+    me = folder.write_local_client(Path(client_file), local, key_file, tls)
+    hub_flags = ["--mesh-config", str(folder.hub_config(listen))]  # after the local user is made
     node_flags = ["--mesh-config", str(folder.node_config(local, key_file))]
-    users = folder.users()
+    password = folder.users()[me].password
     note = (
-        f"secured: TLS on tls/{host}:{port}, {len(users)} users ({folder.dir}/users.json); users "
-        f"join with `simecs users config NAME --hub tls/{host}:{port}` and {folder.ca_file}"
+        f"private: the hub takes users with a password only ({len(folder.users())} in "
+        f"{folder.dir}/users.json; `simecs users add NAME` adds one, then start again)\n"
+        f"you are {me} (password {password}): simecs commands, the Python client and docs/examples "
+        f"read {client_file}; the viewer asks for it once per tab"
     )
-    if not users:
-        note += "\nno users yet: add them with `simecs users add NAME`, then start again"
+    if tls and args.hub_host != "127.0.0.1":
+        note += (
+            f"\nother machines join with `simecs users config NAME --hub {listen[0]}` and {folder.ca_file}"
+        )
     return local, hub_flags, node_flags, note
 
 
@@ -81,8 +96,9 @@ def cmd_up(args: argparse.Namespace) -> int:
     hub = args.hub
     data = os.path.abspath(args.data_dir)
     common = ["--connect", hub]
-    hub_flags, note = ["--listen", hub], ""
-    if args.secure:
+    hub_flags = ["--listen", hub]
+    note = "OPEN: no passwords; any process that reaches the hub acts as any user (docs/LAN.md, open mode)"
+    if not args.open:
         hub, hub_flags, common, note = secure_setup(args)
     children = [
         Child("hub", node_argv(NODES["hub"], hub_flags)),
@@ -123,7 +139,7 @@ def cmd_up(args: argparse.Namespace) -> int:
     if url:
         banner += f"\nOpen the viewer: {url}"
     config = MeshConfig(mode="client", connect=[hub])
-    if args.secure:
+    if not args.open:
         config = load(common[1])  # the supervisor checks readiness as the service does
     return Supervisor(children, config).run_forever(roles, banner)
 
@@ -137,7 +153,7 @@ def cmd_users(args: argparse.Namespace) -> int:
             password = folder.add_user(args.name, "watcher" if args.watcher else "user", args.password)
             role = "watcher (reads every session, commands nothing)" if args.watcher else "user"
             print(f"{args.name}: {role}, password {password}")
-            print("The hub reads its users when it starts: restart `simecs up --secure`.")
+            print("The hub reads its users when it starts: restart `simecs up`.")
         elif args.action == "remove":
             folder.remove_user(args.name)
             print(f"{args.name} removed; the hub forgets them when it restarts")
@@ -165,9 +181,9 @@ def cmd_ls(args: argparse.Namespace) -> int:
     from simecs.mesh import codec, keys
     from simecs.mesh import messages as m
     from simecs.mesh import seal as seals
-    from simecs.mesh.config import load, open_session
+    from simecs.mesh.config import open_session
 
-    cfg = load(args.mesh_config).with_overrides(connect=[args.connect] if args.connect else None)
+    cfg = load_client(args.mesh_config).with_overrides(connect=[args.connect] if args.connect else None)
     z = open_session(cfg, deadline_s=3.0)
     try:
         statuses: dict[str, m.NodeStatus] = {}
@@ -190,9 +206,12 @@ def cmd_ls(args: argparse.Namespace) -> int:
                 states[st.session] = st
 
         history = zenoh.ext.HistoryConfig(detect_late_publishers=True)
+        # Every user's sessions (the service and watchers may read them), and one's own: a user of a
+        # private mesh may watch only their own (the hub's rules drop the wider subscription).
+        state_keys = [keys.ALL_STATE] + ([keys.wildcard("state", user=cfg.user)] if cfg.user else [])
         subs = [
             zenoh.ext.declare_advanced_subscriber(z, keys.NODES_STATUS, on_status, history=history),
-            zenoh.ext.declare_advanced_subscriber(z, keys.ALL_STATE, on_state, history=history),
+            *(zenoh.ext.declare_advanced_subscriber(z, k, on_state, history=history) for k in state_keys),
         ]
         live = []
         for reply in z.liveliness().get(keys.NODE_TOKENS, timeout=2.0):
@@ -293,7 +312,7 @@ def build_parser() -> argparse.ArgumentParser:
     up.add_argument(
         "--hub",
         default=DEFAULT_HUB,
-        help=f"hub endpoint (default {DEFAULT_HUB}; with --secure: its port, TLS)",
+        help=f"hub endpoint (default {DEFAULT_HUB}: its port, TLS unless --open; or a unixsock-stream/ path)",
     )
     up.add_argument(
         "--host", default="127.0.0.1", help="viewer address (default loopback; a LAN address on request)"
@@ -318,18 +337,23 @@ def build_parser() -> argparse.ArgumentParser:
     )
     up.add_argument("--no-recorder", action="store_true", help="do not record runs")
     up.add_argument(
-        "--secure",
+        "--open",
         action="store_true",
-        help="for a LAN: TLS, users with passwords (simecs users), per-user access rules at the hub",
+        help="no passwords: any process that reaches the hub acts as any user (docs/LAN.md, open mode)",
+    )
+    up.add_argument(
+        "--secure", action="store_true", help="the default (private: users with passwords); kept for scripts"
     )
     up.add_argument(
         "--hub-host",
         default="127.0.0.1",
-        help="with --secure: the address (or name) users reach the hub at; it listens there, TLS",
+        help="the address (or name) users reach the hub at (a LAN address to share it); it listens there",
     )
-    up.add_argument("--secure-dir", default=SECURE_DIR, help="with --secure: users, certificates, keys")
+    up.add_argument(
+        "--secure-dir", default="", help="users, certificates, keys (default: the data folder's secure/)"
+    )
 
-    users = sub.add_parser("users", help="the users of a secured mesh (simecs up --secure)")
+    users = sub.add_parser("users", help="the users of the mesh (simecs up; not with --open)")
     users.add_argument("action", choices=["add", "remove", "list", "config"])
     users.add_argument("name", nargs="?", default="", help="user name (add, remove, config)")
     users.add_argument("--watcher", action="store_true", help="add: may read every session, command none")

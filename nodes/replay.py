@@ -15,7 +15,7 @@ from pathlib import Path
 
 from simecs.mesh import keys, phases
 from simecs.mesh.client import MeshClient, NoReply, RemoteError
-from simecs.mesh.config import DEFAULT_HUB, load
+from simecs.mesh.config import DEFAULT_HUB, load_client
 
 from . import mcapread
 
@@ -65,7 +65,9 @@ def main(argv: list[str] | None = None) -> int:
         "--session", default="", help="replay in this session (same model) instead of a new one"
     )
     parser.add_argument(
-        "--user", default="replay", help="whose recordings and session: the user name (default replay)"
+        "--user",
+        default="",
+        help="whose recordings and session: the user name (default: the mesh config's user, or replay)",
     )
     parser.add_argument("--paused", action="store_true", help="start paused (resume from a client)")
     parser.add_argument("--detach", action="store_true", help="return once the replay has started")
@@ -84,7 +86,8 @@ def main(argv: list[str] | None = None) -> int:
     if len(rec.rows) == 0:
         print(f"simecs replay: {path}: the recording holds no samples", file=sys.stderr)
         return 2
-    cfg = load(args.mesh_config).with_overrides(connect=[args.connect] if args.connect else None)
+    cfg = load_client(args.mesh_config).with_overrides(connect=[args.connect] if args.connect else None)
+    args.user = args.user or cfg.user or "replay"  # on a private mesh, a user acts in their own space
     try:
         with MeshClient.open(cfg, timeout=30.0) as client:
             name = put_in_library(client, args.user, path, rec)

@@ -49,6 +49,19 @@ def _write_private(path: Path, text: str | bytes) -> None:
     os.replace(tmp, path)
 
 
+def local_user_name() -> str:
+    """This account's login as a simecs user name (letters, digits, '_', '-', '.'), "local" if none."""
+    import getpass
+    import re
+
+    try:
+        login = getpass.getuser()
+    except (KeyError, OSError):
+        login = ""
+    name = re.sub(r"[^A-Za-z0-9_.-]", "_", login).lstrip("_.-")[:64]
+    return name if keys.NAME_RE.match(name) and name != SERVICE_USER else "local"
+
+
 def new_password() -> str:
     return secrets.token_urlsafe(12)
 
@@ -172,6 +185,27 @@ class SecureFolder:
             "password": password,
             "tls": {"root_ca_certificate": str(self.ca_file)},
         }
+
+    def local_user(self) -> tuple[str, str]:
+        """The user this machine's own account joins as (`simecs up`'s private default): named after
+        the account's login, made the first time; returns (name, password)."""
+        name = local_user_name()
+        users = self.users()
+        if name in users:
+            return name, users[name].password
+        return name, self.add_user(name)
+
+    def write_local_client(self, path: Path, hub: str, service_key_file: str, tls: bool) -> str:
+        """The local user's client configuration at `path` (owner-only), which the CLI, the Python
+        client and the examples read when told nothing else (mesh/config.py `load_client`); with the
+        service key, so that those clients check the service's seal. Returns the user name."""
+        name, password = self.local_user()
+        config = self.client_config(name, password, hub)
+        if not tls:  # a unix socket: only this machine's accounts that may open it reach it
+            del config["tls"]
+        config["service_key_file"] = service_key_file
+        _write_private(path, json.dumps(config, indent=1) + "\n")
+        return name
 
     def user_config(self, name: str, hub: str) -> dict[str, Any]:
         users = self.users()

@@ -39,6 +39,7 @@ def wait_until(
 def clean_env() -> dict[str, str]:
     env = dict(os.environ)
     env.pop("SIMECS_MESH_CONFIG", None)
+    env["SIMECS_CLIENT_CONFIG"] = ""  # never this machine's user's file (`simecs up`): each test its own mesh
     env["PYTHONUNBUFFERED"] = "1"
     return env
 

@@ -7,6 +7,7 @@ is bounded; every process is stopped (SIGTERM, then SIGKILL) when the test ends.
 
 from __future__ import annotations
 
+import os
 import shutil
 import socket
 import time
@@ -27,6 +28,8 @@ ARTIFACTS = Path(__file__).resolve().parent.parent / "artifacts"
 
 Mesh = LocalMesh
 mesh_env = clean_env
+# In-process clients too never take this machine's user's file (`simecs up`) for the test's mesh.
+os.environ["SIMECS_CLIENT_CONFIG"] = ""
 
 
 @pytest.hookimpl(hookwrapper=True)

@@ -13,9 +13,11 @@ import time
 
 import numpy as np
 import pytest
+import zenoh
 from simecs.mesh import codec, frames, keys
 from simecs.mesh import messages as m
 from simecs.mesh.client import NoReply, RemoteError, SessionClient
+from simecs.mesh.config import MeshConfig
 from simecs.nodes.runs import WORKER_REPORTS_S
 
 from .conftest import Mesh, Service, restart_every_node, start_service, wait_until
@@ -615,3 +617,31 @@ def test_a_simulator_node_killed_alone_costs_no_run(service: Service) -> None:
     _columns, rows = wait_until(lambda: results_or_none(s, run_id), timeout=30, what="its results")
     assert rows.shape[0] == 1001 and rows[-1, 0] == pytest.approx(2.0)  # whole: 0..2 s every 2 ms
     wait_until(lambda: not running(worker), timeout=10, what="the worker ended")
+
+
+def test_a_client_with_the_service_key_takes_no_forged_answer(service: Service) -> None:
+    """A peer answering queries in place of the proxy (the library, a session's commands), quicker than
+    it: a client holding the service's key ignores the unsealed answers and takes the proxy's (issue 33,
+    2); one without the key would take the first to come."""
+    c = service.client
+    assert c.seal is not None
+    s = c.create_session("ann", "spider")
+    forger = zenoh.open(MeshConfig(connect=[service.mesh.endpoint]).to_zenoh())
+    forged = codec.dumps(m.Ok(data={"models": [], "session": "forged"}))
+    answered: list[str] = []
+
+    def answer(query: zenoh.Query) -> None:
+        answered.append(str(query.key_expr))
+        query.reply(query.key_expr, forged)  # at once, unsealed
+
+    try:
+        queryables = [forger.declare_queryable(k, answer) for k in (keys.LIBRARY, keys.cmd("ann", s.id))]
+        wait_until(lambda: c.list_models() is not None and bool(answered), 10, what="the forger asked")
+        for _ in range(5):
+            assert c.list_models(), "the forged empty library was taken"
+            assert s.snapshot().session == s.id
+        assert len(answered) >= 10
+        for q in queryables:
+            q.undeclare()
+    finally:
+        forger.close()

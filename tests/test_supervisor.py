@@ -13,8 +13,8 @@ import time
 from pathlib import Path
 
 import pytest
-from simecs.mesh.client import MeshClient
-from simecs.mesh.config import MeshConfig
+from simecs.mesh.client import MeshClient, NoReply
+from simecs.mesh.config import MeshConfig, load, open_session
 
 from .conftest import mesh_env, wait_until
 
@@ -47,8 +47,15 @@ def alive(pid: int) -> bool:
 
 
 class Up:
+    """`simecs up` with its defaults (private), headless, on a unix socket; a second user, bob, added
+    before it starts."""
+
     def __init__(self, folder: Path) -> None:
+        from simecs.nodes.secure import SecureFolder
+
         self.hub = f"unixsock-stream/{folder}/hub.sock"
+        self.client_file = folder / "data" / "client.json5"  # this machine's user's, written by up
+        self.bob_password = SecureFolder(folder / "data" / "secure").add_user("bob")
         argv = [
             *SIMECS,
             "up",
@@ -95,7 +102,7 @@ def up() -> Up:
 
 def test_up_ready_restart_and_clean_stop(up: Up) -> None:
     wait_until(lambda: "simecs is up" in up.text(), timeout=90, what="banner")
-    client = MeshClient.open(MeshConfig(connect=[up.hub]))
+    client = MeshClient.open(load(str(up.client_file)))
     try:
         roles = {r for r, _ in client.live_nodes()}
         assert roles >= {"hub", "proxy", "simulator", "hotfeedback"}
@@ -124,17 +131,36 @@ def test_up_ready_restart_and_clean_stop(up: Up) -> None:
     assert "simecs: stopped" in up.text()
 
 
-def test_ls_lists_nodes_and_sessions(up: Up) -> None:
+def test_up_is_private_and_its_clients_need_no_flags(up: Up) -> None:
+    """The default is private: this machine's user is made, with a client file only they can read,
+    which `simecs ls` finds alone; a client without a password is not let in; another user (bob) with
+    his own password does not reach this user's sessions (issue 33, 2)."""
     wait_until(lambda: "simecs is up" in up.text(), timeout=90, what="banner")
-    with MeshClient.open(MeshConfig(connect=[up.hub])) as client:
-        s = client.create_session("ann", "spider")
-        out = subprocess.run(
-            [*SIMECS, "ls", "--connect", up.hub], capture_output=True, text=True, timeout=30, env=mesh_env()
-        )
-    assert out.returncode == 0, out.stderr
-    for role in ("hub/", "proxy/", "simulator/", "hotfeedback/"):
-        assert role in out.stdout
-    assert s.id in out.stdout and "created" in out.stdout
+    assert "private" in up.text() and "OPEN" not in up.text()
+    assert up.client_file.stat().st_mode & 0o077 == 0  # the owner's only
+    mine = load(str(up.client_file))
+    assert mine.user and mine.password and f"you are {mine.user} (password {mine.password})" in up.text()
+    with MeshClient.open(mine) as client:
+        s = client.create_session(mine.user, "spider")
+        env = {**mesh_env(), "SIMECS_CLIENT_CONFIG": str(up.client_file)}
+        out = subprocess.run([*SIMECS, "ls"], capture_output=True, text=True, timeout=30, env=env)
+        assert out.returncode == 0, out.stderr
+        for role in ("hub/", "proxy/", "simulator/", "hotfeedback/"):
+            assert role in out.stdout
+        assert s.id in out.stdout and "created" in out.stdout
+
+        stranger = MeshConfig(connect=[up.hub], extra={"connect/timeout_ms": {"client": 2000}})
+        with pytest.raises(RuntimeError, match="cannot join"):
+            open_session(stranger, deadline_s=0.0)
+
+        bob = MeshConfig(connect=[up.hub], user="bob", password=up.bob_password)
+        with MeshClient.open(bob, timeout=2.0) as other:
+            other.create_session("bob", "spider")  # his own space
+            with pytest.raises(NoReply):
+                other.create_session(mine.user, "spider")
+            with pytest.raises(NoReply):
+                other.session(mine.user, s.id).snapshot()
+        assert s.snapshot().state.phase == "created"
 
 
 @pytest.mark.parametrize(
@@ -156,19 +182,20 @@ def test_help_everywhere(args: list[str]) -> None:
     assert "usage" in out.stdout.lower()
 
 
-def test_up_secure_listens_on_the_port_hub_names(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    """`simecs up --secure --hub tcp/127.0.0.1:7500` listens with TLS on 7500, not on 7447."""
+def test_up_listens_with_tls_on_the_port_hub_names(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """`simecs up --hub tcp/127.0.0.1:7500` (private, the default) listens with TLS on 7500, not on 7447,
+    and this machine's user's client file says so."""
     from simecs.nodes import cli
 
     monkeypatch.setenv("SIMECS_SERVICE_KEY_FILE", str(tmp_path / "service.key"))
-    args = cli.build_parser().parse_args(
-        ["up", "--secure", "--hub", "tcp/127.0.0.1:7500", "--secure-dir", str(tmp_path / "secure")]
-    )
+    args = cli.build_parser().parse_args(["up", "--hub", "tcp/127.0.0.1:7500", "--data-dir", str(tmp_path)])
     hub, hub_flags, node_flags, note = cli.secure_setup(args)
-    assert hub == "tls/127.0.0.1:7500" and "tls/127.0.0.1:7500" in note
+    assert hub == "tls/127.0.0.1:7500" and "private" in note
     hub_config = (tmp_path / "secure" / "hub.json5").read_text()
     assert "tls/127.0.0.1:7500" in hub_config and "7447" not in hub_config
-    args.hub = "unixsock-stream/hub.sock"
+    mine = load(str(tmp_path / "client.json5"))
+    assert mine.connect == ["tls/127.0.0.1:7500"] and mine.tls is not None and mine.password
+    args.hub = "tcp/127.0.0.1"
     with pytest.raises(SystemExit, match="has no port"):
         cli.secure_setup(args)
 

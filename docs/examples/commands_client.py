@@ -1,7 +1,8 @@
 """A Cartesian line and a saved task, from docs/PROTOCOL.md and docs/protocol.schema.json alone: plain
 zenoh, json, struct and a JSON Schema validator (`pip install eclipse-zenoh jsonschema`), no simecs code.
 
-    python docs/examples/commands_client.py tcp/127.0.0.1:7447
+    python docs/examples/commands_client.py                      # this machine's private hub (simecs up)
+    python docs/examples/commands_client.py tcp/127.0.0.1:7447    # an open hub (simecs up --open)
 
 It creates a session on the Spider, places the arm, asks the server where that puts the tool (the
 plan of a joint path that stays put), moves the tool 10 cm along x and 5 cm down on a straight line,
@@ -22,6 +23,7 @@ from typing import Any
 
 import jsonschema
 import zenoh
+from joining import join
 
 USER = "integrator"
 SCHEMA = json.loads((Path(__file__).resolve().parent.parent / "protocol.schema.json").read_text())
@@ -96,14 +98,11 @@ def run(z: zenoh.Session, space: str) -> tuple[str, list[tuple[str, str]]]:
     return seen["run"], seen["steps"]
 
 
-def main(endpoint: str) -> int:
-    config = zenoh.Config()
-    config.insert_json5("mode", '"client"')
-    config.insert_json5("connect/endpoints", json.dumps([endpoint]))
-    config.insert_json5("scouting/multicast/enabled", "false")
+def main(endpoint: str | None) -> int:
+    config, user = join(endpoint, USER)
     with zenoh.open(config) as z:
-        snap = request(z, f"simecs/u/{USER}/sessions", {"op": "create", "v": 1, "model_id": "spider"})
-        space = f"simecs/u/{USER}/sessions/{snap['session']}"
+        snap = request(z, f"simecs/u/{user}/sessions", {"op": "create", "v": 1, "model_id": "spider"})
+        space = f"simecs/u/{user}/sessions/{snap['session']}"
         cmd = f"{space}/cmd"
         request(z, cmd, {"op": "set_initial", "v": 1, "joints": POSTURE})
         stay = {"kind": "joint_path", "nodes": [{"q": POSTURE}]}
@@ -155,4 +154,4 @@ def main(endpoint: str) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main(sys.argv[1] if len(sys.argv) > 1 else "tcp/127.0.0.1:7447"))
+    sys.exit(main(sys.argv[1] if len(sys.argv) > 1 else None))

@@ -1,7 +1,8 @@
 """A controller in the loop, from docs/PROTOCOL.md §6.3 alone: plain zenoh, json, struct and numpy.
 
-    python docs/examples/external_controller.py tcp/127.0.0.1:7447
-    python docs/examples/external_controller.py tcp/10.0.0.5:7447 --user alice --session <id> [--runs 1]
+    python docs/examples/external_controller.py                     # this machine's hub (simecs up)
+    python docs/examples/external_controller.py --session <id> [--runs 1]   # serve one of your sessions
+    python docs/examples/external_controller.py tcp/127.0.0.1:7447  # an open hub (simecs up --open)
 
 It reimplements the simulator's built-in joint-independent cascade as a digital controller: a P
 position loop on the load resolver with speed feed-forward, then a PI speed loop on the motor resolver
@@ -29,6 +30,7 @@ from typing import Any
 import numpy as np
 import zenoh
 import zenoh.ext
+from joining import join
 
 SCHEMA = json.loads((Path(__file__).resolve().parent.parent / "protocol.schema.json").read_text())
 HIL = SCHEMA["x-simecs-hil"]
@@ -182,9 +184,9 @@ def run(z: zenoh.Session, space: str, controller: Controller | None) -> str:
     return seen["run"]
 
 
-def demo(z: zenoh.Session) -> int:
-    snap = request(z, "simecs/u/integrator/sessions", {"op": "create", "v": 1, "model_id": "spider"})
-    space = f"simecs/u/integrator/sessions/{snap['session']}"
+def demo(z: zenoh.Session, user: str) -> int:
+    snap = request(z, f"simecs/u/{user}/sessions", {"op": "create", "v": 1, "model_id": "spider"})
+    space = f"simecs/u/{user}/sessions/{snap['session']}"
     joints = [link["joint"] for link in request(z, "simecs/library/spider")["links"]]
     cmd = f"{space}/cmd"
     request(z, cmd, {"op": "set_initial", "v": 1, "joints": POSTURE})
@@ -211,24 +213,18 @@ def main() -> int:
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
-    parser.add_argument("endpoint", nargs="?", default="tcp/127.0.0.1:7447")
-    parser.add_argument("--user", default="integrator")
-    parser.add_argument("--password", default="", help="on a secured mesh (TLS needs more configuration)")
+    parser.add_argument("endpoint", nargs="?", default=None, help="an open hub (default: this machine's)")
+    parser.add_argument("--user", default="", help="whose session (default: yours, or integrator)")
     parser.add_argument("--session", default="", help="serve this session's runs (else: the demo)")
     parser.add_argument("--runs", type=int, default=0, help="stop after this many runs ended (0: never)")
     parser.add_argument("--delay-ms", type=float, default=0.0, help="answer this late on purpose")
     args = parser.parse_args()
-    config = zenoh.Config()
-    config.insert_json5("mode", '"client"')
-    config.insert_json5("connect/endpoints", json.dumps([args.endpoint]))
-    config.insert_json5("scouting/multicast/enabled", "false")
-    if args.password:
-        config.insert_json5("transport/auth/usrpwd/user", json.dumps(args.user))
-        config.insert_json5("transport/auth/usrpwd/password", json.dumps(args.password))
+    config, user = join(args.endpoint, "integrator")
+    user = args.user or user
     with zenoh.open(config) as z:
         if not args.session:
-            return demo(z)
-        space = f"simecs/u/{args.user}/sessions/{args.session}"
+            return demo(z, user)
+        space = f"simecs/u/{user}/sessions/{args.session}"
         model = request(z, f"{space}/cmd", {"op": "get_session", "v": 1})["model_id"]
         joints = [link["joint"] for link in request(z, f"simecs/library/{model}")["links"]]
         controller = Controller(z, space, joints, args.delay_ms / 1e3)

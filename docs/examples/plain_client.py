@@ -1,7 +1,8 @@
 """A simecs client written from docs/PROTOCOL.md and docs/protocol.schema.json alone: plain zenoh, json,
 struct and a JSON Schema validator (`pip install eclipse-zenoh jsonschema`), no simecs code.
 
-    python docs/examples/plain_client.py tcp/127.0.0.1:7447
+    python docs/examples/plain_client.py                      # this machine's private hub (simecs up)
+    python docs/examples/plain_client.py tcp/127.0.0.1:7447    # an open hub (simecs up --open)
 
 It creates a session on the Spider, assigns a two-node joint path, runs it as fast as possible while
 counting live frames, reloads two variables at full resolution, then replays the run's recording as a
@@ -21,8 +22,9 @@ from typing import Any
 
 import jsonschema
 import zenoh
+from joining import join
 
-USER = "stranger"  # the user name is part of every key of the user's sessions and recordings
+USER = "stranger"  # on an open hub; the user name is part of every key of the user's sessions
 SCHEMA = json.loads((Path(__file__).resolve().parent.parent / "protocol.schema.json").read_text())
 #: The frame header as the schema describes it (x-simecs-frame, PROTOCOL.md §6.1): "<4sHHIIQQII".
 HEADER = struct.Struct(
@@ -104,17 +106,14 @@ def run_and_watch(z: zenoh.Session, space: str, command: dict) -> tuple[str, dic
     return seen["run"], seen.get("end", {}), seen["frames"]
 
 
-def main(endpoint: str) -> int:
-    config = zenoh.Config()
-    config.insert_json5("mode", '"client"')
-    config.insert_json5("connect/endpoints", json.dumps([endpoint]))
-    config.insert_json5("scouting/multicast/enabled", "false")
+def main(endpoint: str | None) -> int:
+    config, user = join(endpoint, USER)
     with zenoh.open(config) as z:
         models = message("ModelList", request(z, "simecs/library"))["models"]
         print("models:", ", ".join(m["id"] for m in models))
-        snap = request(z, f"simecs/u/{USER}/sessions", {"op": "create", "v": 1, "model_id": "spider"})
+        snap = request(z, f"simecs/u/{user}/sessions", {"op": "create", "v": 1, "model_id": "spider"})
         sid = snap["session"]
-        space = f"simecs/u/{USER}/sessions/{sid}"  # every key of the session is under it
+        space = f"simecs/u/{user}/sessions/{sid}"  # every key of the session is under it
         cmd = f"{space}/cmd"
         request(z, cmd, {"op": "set_initial", "v": 1, "joints": [0.0] * 7})
         path = {
@@ -143,7 +142,7 @@ def main(endpoint: str) -> int:
         recording = f"{sid}_{run_id}"
         for _ in range(50):  # the recorder closes the file a moment after the run ends
             try:
-                message("RecordingInfo", request(z, f"simecs/u/{USER}/recordings/{recording}/info"))
+                message("RecordingInfo", request(z, f"simecs/u/{user}/recordings/{recording}/info"))
                 break
             except RuntimeError:
                 time.sleep(0.1)
@@ -161,4 +160,4 @@ def main(endpoint: str) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main(sys.argv[1] if len(sys.argv) > 1 else "tcp/127.0.0.1:7447"))
+    sys.exit(main(sys.argv[1] if len(sys.argv) > 1 else None))
