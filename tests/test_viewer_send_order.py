@@ -27,8 +27,10 @@ def test_quick_edits_and_clicks_all_reach_the_server_in_order(browser: Any, guar
     try:
         first, second = srv.gui.add_text("First", ""), srv.gui.add_text("Second", "")
         boxes = [srv.gui.add_checkbox(f"Box {k}", False) for k in range(3)]
+        numbers = [srv.gui.add_number(f"Number {k}", 0.0, step=0.1) for k in range(3)]
+        position = srv.gui.add_vector3("Position", (0.0, 0.0, 0.0), step=0.1)
         add = srv.gui.add_button("Add")
-        for handle in (first, second, *boxes):
+        for handle in (first, second, *boxes, *numbers, position):
             handle.on_update(lambda _e, h=handle: heard.append((h.label, h.value)))
         add.on_click(lambda _e: heard.append(("Add", (first.value, second.value))))
         if guarded:
@@ -59,6 +61,33 @@ def test_quick_edits_and_clicks_all_reach_the_server_in_order(browser: Any, guar
         page.wait_for_timeout(300)
         assert heard == [(f"Box {k}", True) for k in range(3)]
         assert [page.get_by_label(f"Box {k}").is_checked() for k in range(3)] == [True] * 3
+
+        # number fields typed one after the other, each left with Enter and by going to the next (a
+        # number field writes back on Enter and on leaving what it knows), then a vector's three boxes
+        heard.clear()
+        fields = [chromium.labelled_input(page, f"Number {k}").element_handle() for k in range(3)]
+        fields += [chromium.vector_input(page, "Position", k).element_handle() for k in range(3)]
+        page.evaluate(
+            """(fields) => {
+  const setText = Object.getOwnPropertyDescriptor(HTMLInputElement.prototype, 'value').set;
+  fields.forEach((field, k) => {
+    field.focus();
+    setText.call(field, String(k + 1.5));
+    field.dispatchEvent(new Event('input', {bubbles: true}));
+    field.dispatchEvent(new KeyboardEvent('keydown', {key: 'Enter', code: 'Enter', bubbles: true}));
+  });
+  fields[0].focus();
+}""",
+            fields,
+        )
+        wait_until(
+            lambda: [n.value for n in numbers] == [1.5, 2.5, 3.5] and position.value == (4.5, 5.5, 6.5),
+            what=f"every typed number on the server (heard {heard})",
+        )
+        page.wait_for_timeout(300)
+        assert [n.value for n in numbers] == [1.5, 2.5, 3.5] and position.value == (4.5, 5.5, 6.5)
+        shown = [f.input_value() for f in fields]
+        assert [float(x) for x in shown] == [1.5, 2.5, 3.5, 4.5, 5.5, 6.5], shown  # none written back
         page.close()
     finally:
         srv.stop()

@@ -8,7 +8,8 @@ middle one never reaches the server, and the server acts on a value the page no 
 
 The page here keeps a copy of that throttle's state and holds back an edit or a click that would
 replace a message still waiting, then replays it once the waiting one has gone (a field's held
-edits replay as one, with the text the field then holds; a held box shows its tick at once).
+edits replay as one, with the text the field then holds, and its keys and its leaving after them;
+a held box shows its tick at once).
 Nothing is held when nothing waits, so a lone click or a typed field goes as before. Not covered:
 a hold button's repeats and a slider's drag (they stream; the next one carries the state) and a
 dropdown picked with the keyboard.
@@ -38,44 +39,75 @@ SEND_ORDER_JS = """(() => {
     else open = false;
     release();
   }, WINDOW_MS), 0);
-  // A field's or a box's newer message may replace its own waiting one: the latest state wins.
+  // A field's or a box's newer message may replace its own waiting one: the latest state wins. A
+  // field's key is its viser widget (a vector's boxes are one widget, one message of all its values).
   const admit = (key, kind) => {  // true: viser's throttle takes it without dropping another
     if (!open) { open = true; windowEnds(); return true; }
     if (waiting === null || (kind !== 'click' && waiting === key)) { waiting = key; return true; }
     return false;
   };
-  const release = () => {
-    while (held.length && admit(held[0].key, held[0].kind)) {
+  const release = () => {  // in the order made; a relayed event (no message of its own) in its turn
+    while (held.length && (held[0].kind === 'relay' || admit(held[0].key, held[0].kind))) {
       const h = held.shift();
       replaying = true;
-      try { h.replay(); } finally { replaying = false; }
+      try { h.kind === 'input' ? retype(h) : h.replay(); } finally { replaying = false; }
     }
   };
-  const gate = (e, key, kind, replay) => {
+  const gate = (e, el, key, kind, replay) => {
     if (replaying) return;
     if (!held.length && admit(key, kind)) return;
     e.stopImmediatePropagation();  // the page's own handlers (viser's) see it when it is replayed
     if (kind === 'click') e.preventDefault();
-    if (kind !== 'click' && held.some((h) => h.key === key)) return;  // replayed as it then stands
-    held.push({key, kind, replay});
+    const same = kind !== 'click' && held.find((h) => h.el === el && h.kind === kind);
+    if (same) {  // one replay, with the latest text
+      same.text = el.value;
+      return;
+    }
+    held.push({el, key, kind, replay, text: el.value});
   };
+  // A held edit's text is kept: the widget may be drawn again meanwhile (a vector's other box heard
+  // first), which writes back into the field the value viser knows.
+  const retype = (h) => {  // the prototype's setter: React's own on the element would hide the change
+    const setText = Object.getOwnPropertyDescriptor(Object.getPrototypeOf(h.el), 'value').set;
+    if (h.el.value !== h.text) setText.call(h.el, h.text);
+    h.el.dispatchEvent(new Event('input', {bubbles: true}));
+  };
+  const typedField = (el) =>
+    (el instanceof HTMLInputElement && !['checkbox', 'radio', 'file'].includes(el.type)) ||
+    el instanceof HTMLTextAreaElement;
   window.addEventListener('click', (e) => {
     const t = e.target instanceof Element ? e.target : null;
     if (t instanceof HTMLInputElement && t.type === 'checkbox') {
       // The box ticks at once (the browser's own toggle is let be); viser hears of it on replay: the
       // box is set back and clicked, so it ends as the user left it.
-      gate(e, t, 'box', () => { const want = t.checked; t.checked = !want; t.click(); });
+      gate(e, t, t, 'box', () => { const want = t.checked; t.checked = !want; t.click(); });
       return;
     }
     const el = t && t.closest('button, [role=option]');
-    if (el) gate(e, {}, 'click', () => el.click());
+    if (el) gate(e, el, {}, 'click', () => el.click());
   }, true);
   window.addEventListener('input', (e) => {
     const el = e.target;
-    const typed = (el instanceof HTMLInputElement && !['checkbox', 'radio', 'file'].includes(el.type)) ||
-      el instanceof HTMLTextAreaElement;
-    if (typed) gate(e, el, 'input', () => el.dispatchEvent(new Event('input', {bubbles: true})));
+    if (typedField(el)) {
+      const widget = el.closest('.mantine-Flex-root') || el;
+      gate(e, el, widget, 'input', null);
+    }
   }, true);
+  // While a field's edit is held, its keys, its change and its leaving wait behind it: a number
+  // field would otherwise write back, on Enter or on leaving, the value it has not heard of yet.
+  for (const type of ['keydown', 'keyup', 'change', 'focusout']) {
+    window.addEventListener(type, (e) => {
+      const el = e.target;
+      if (replaying || !typedField(el) || !held.some((h) => h.el === el && h.kind === 'input')) return;
+      e.stopImmediatePropagation();
+      if (type === 'change') return;  // the edit's replay tells viser the value
+      const again = type === 'focusout'
+        ? new FocusEvent('focusout', {bubbles: true, relatedTarget: e.relatedTarget})
+        : new KeyboardEvent(type, {key: e.key, code: e.code, bubbles: true, cancelable: true,
+            shiftKey: e.shiftKey, ctrlKey: e.ctrlKey, altKey: e.altKey, metaKey: e.metaKey});
+      held.push({el, key: null, kind: 'relay', replay: () => el.dispatchEvent(again)});
+    }, true);
+  }
 })();""".replace("__WINDOW_MS__", str(THROTTLE_MS))
 
 
