@@ -17,6 +17,8 @@ started with the arguments LocalMesh and tests/conftest.py use. Measured, in thi
    simulator; counted as effective: the puts of every key whose forgery shows anywhere (the run's
    states, results, recording, live frames and parameters, as a seal-checking client sees them), and
    apart (`forged_other_effective`) a direct request or a fake simulator that got a run;
+   `default_mode_forgeries_effective`: the same against the secured mesh, which is what `simecs up`
+   starts by default (private), sent by eve, a second user with her own password;
 3. `fuzz_internal_replies`: testing/fuzz.py against the plain mesh's service (null while it is missing);
 4. `slow_subscriber_other_session_rtf`: a subscriber of every session's `vars/full` and `vars/live`
    whose callback sleeps 200 ms per sample (on its own host), while its user's run goes as fast as
@@ -68,7 +70,7 @@ import zenoh
 from simecs.mesh import frames, keys
 from simecs.mesh import messages as m
 from simecs.mesh.client import MeshClient, SessionClient
-from simecs.mesh.config import MeshConfig, load, open_session
+from simecs.mesh.config import MeshConfig, TlsConfig, load, open_session
 from simecs.testing import netns
 from simecs.testing.launch import LocalMesh, clean_env, wait_until
 
@@ -129,6 +131,8 @@ class LanMesh(LocalMesh):
         super().__init__(endpoint=endpoint)
         self.hosts = hosts
         self.name = name
+        self.eve = ""  # secured: the second user's password
+        self.ca_file = ""
 
     def argv_prefix(self, module: str) -> list[str]:
         return self.hosts.prefixes["hub" if module == HUB else "sim"]
@@ -149,12 +153,15 @@ def plain_mesh(hosts: Hosts) -> LanMesh:
 
 
 def secured_mesh(hosts: Hosts) -> tuple[LanMesh, str]:
-    """As `simecs up --secure` and the `secured` fixture make it; returns the mesh and ann's password."""
+    """As `simecs up` (private, its default) and the `secured` fixture make it, with two users, ann and
+    eve; returns the mesh and ann's password (eve's: `mesh.eve`)."""
     from simecs.nodes.secure import SecureFolder
 
     mesh = LanMesh(hosts, hosts.endpoint("tls", TLS_PORT), "secured")
     folder = SecureFolder(mesh.folder / "secure")
     password = folder.add_user("ann")
+    mesh.eve = folder.add_user("eve")  # the attacker of the forgery trial, a user like any other
+    mesh.ca_file = str(folder.ca_file)
     folder.ensure_certificates([hosts.addresses["hub"]])
     hub = folder.hub_config([mesh.endpoint])
     nodes = str(folder.node_config(mesh.endpoint, str(mesh.key_file)))
@@ -293,12 +300,21 @@ def tls_ratio(plain: LanMesh, secured: LanMesh, password: str) -> dict[str, Any]
 
 # -- 2. forgeries ----------------------------------------------------------------------------------------
 def forgery_trial(mesh: LanMesh) -> dict[str, Any]:
-    """testing/forgery.py against ann's real-time run; which forgeries show anywhere."""
+    """testing/forgery.py against ann's real-time run; which forgeries show anywhere. On the secured
+    mesh (the private default) the attacker is eve, a user with her own password."""
     from simecs.testing import forgery
 
     client = mesh.client()  # holds the seal: sees what the viewer would show
     stop = 2.0
-    with MeshClient.open(MeshConfig(connect=[mesh.endpoint])) as attacker:
+    attacker_cfg = MeshConfig(connect=[mesh.endpoint])
+    if mesh.eve:
+        attacker_cfg = MeshConfig(
+            connect=[mesh.endpoint],
+            user="eve",
+            password=mesh.eve,
+            tls=TlsConfig(root_ca_certificate=mesh.ca_file),
+        )
+    with MeshClient.open(attacker_cfg) as attacker:
         fake = forgery.FakeSimulator(attacker.z)
         statuses: list[str] = []
 
@@ -308,11 +324,15 @@ def forgery_trial(mesh: LanMesh) -> dict[str, Any]:
 
         status_sub = client.z.declare_subscriber(keys.wildcard("node_status"), on_status)
         try:
-            wait_until(
-                lambda: ("simulator", forgery.FAKE_SIMULATOR) in client.live_nodes(),
-                10,
-                what="fake simulator",
-            )
+            try:  # the hub of the private default refuses the fake simulator's token
+                wait_until(
+                    lambda: ("simulator", forgery.FAKE_SIMULATOR) in client.live_nodes(),
+                    10 if not mesh.eve else 3,
+                    what="fake simulator",
+                )
+            except TimeoutError:
+                if not mesh.eve:
+                    raise
             s = prepared(client, "ann", stop, "realtime")
             states: list[m.SessionState] = []
             live: list[tuple[float, frames.Frame]] = []  # (when it came, frame)
@@ -412,6 +432,16 @@ def forgery_trial(mesh: LanMesh) -> dict[str, Any]:
         ],
         "fake_simulator_offered": fake.offered,
         "live_width": live_width,
+    }
+
+
+def default_mode_forgeries(secured: LanMesh) -> dict[str, Any]:
+    """The forgery trial against the private default (what `simecs up` starts), by a second user."""
+    r = forgery_trial(secured)
+    return {
+        "default_mode_forgeries_effective": r["forged_puts_effective"] + r["forged_other_effective"],
+        "default_mode_forgeries_sent": r["forged_puts_sent"] + r["forged_other_sent"],
+        "default_mode_forged_effects": r["forged_effects"],
     }
 
 
@@ -712,6 +742,7 @@ def inner_main(plan: dict[str, Any]) -> None:
         meshes.append(secured)
         time.sleep(2.0)  # warm workers finish compiling
         part("tls", lambda: tls_ratio(plain, secured, password))
+        part("default_mode_forgery", lambda: default_mode_forgeries(secured))
         secured.keep_logs(logs)
         secured.close()
         meshes.remove(secured)
@@ -742,6 +773,7 @@ TARGETS = {
     "simulator_crash_runs_lost": 0,
     "worker_crash_results_kept": True,
     "frames_after_failed": 0,
+    "default_mode_forgeries_effective": 0,
 }
 
 
@@ -760,6 +792,7 @@ def meets(result: dict[str, Any]) -> bool:
         r.get("simulator_crash_runs_lost") == 0,
         r.get("worker_crash_results_kept") is True,
         r.get("frames_after_failed") == 0,
+        r.get("default_mode_forgeries_effective") == 0,
     ]
     return all(checks)
 
@@ -856,6 +889,11 @@ def print_table(r: dict[str, Any]) -> None:
         ("simulator node crash: runs lost", _fmt(r["simulator_crash_runs_lost"]), "0"),
         ("worker crash: results kept", _fmt(r["worker_crash_results_kept"]), "True"),
         ("worker crash: frames after failed", _fmt(r["frames_after_failed"]), "0"),
+        (
+            "private default: forgeries effective",
+            f"{_fmt(r['default_mode_forgeries_effective'])} of {_fmt(r.get('default_mode_forgeries_sent'))}",
+            "0",
+        ),
     ]
     for label, value, target in rows:
         print(f"  {label:38s} {value:>14s}   (target {target})")
