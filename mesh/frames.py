@@ -8,7 +8,7 @@ frame (all little-endian), 40 bytes of header then the data:
     4      2     version (1)
     6      2     flags  (1 = final frame of the run, 2 = decimated live frame)
     8      4     run_index (matches RunLayout.run_index)
-    12     4     reserved (0)
+    12     4     attempt (matches RunLayout.context.attempt; 0: the producer does not say)
     16     8     seq: frame number within the run, from 0
     24     8     wall_ns: wall-clock time the producer sent it (ns since the Unix epoch)
     32     4     n_rows
@@ -34,7 +34,7 @@ HEADER_FIELDS = (
     ("version", 4, 2, "1"),
     ("flags", 6, 2, "1 = final frame of the run, 2 = decimated live frame"),
     ("run_index", 8, 4, "= RunLayout.run_index"),
-    ("reserved", 12, 4, "0"),
+    ("attempt", 12, 4, "= RunLayout.context.attempt (0: not said); a frame of another attempt is ignored"),
     ("seq", 16, 8, "frame number within the run (per stream), from 0"),
     ("wall_ns", 24, 8, "when the producer sent the sample (ns since the Unix epoch); live frames keep it"),
     ("n_rows", 32, 4, "rows of samples"),
@@ -54,10 +54,21 @@ class Frame:
     wall_ns: int
     rows: np.ndarray  # (n_rows, n_cols) float64
     flags: int = 0
+    attempt: int = 0  # the run's attempt it belongs to (0: not said)
 
     @property
     def final(self) -> bool:
         return bool(self.flags & FLAG_FINAL)
+
+    def of(self, run_index: int, attempt: int) -> bool:
+        """Whether it belongs to the run and attempt a layout announces (`belongs`)."""
+        return belongs(self.run_index, self.attempt, run_index, attempt)
+
+
+def belongs(run_index: int, attempt: int, layout_run_index: int, layout_attempt: int) -> bool:
+    """A frame belongs to a layout's run when the run indexes match and, if both say one, the attempts
+    too: a frame of an earlier attempt (a host taken for lost that goes on) is nobody's now."""
+    return run_index == layout_run_index and (not attempt or not layout_attempt or attempt == layout_attempt)
 
 
 @dataclass
@@ -70,18 +81,19 @@ class Header:
     wall_ns: int
     n_rows: int
     n_cols: int
+    attempt: int = 0
 
 
 def peek(payload: bytes | bytearray | memoryview) -> Header:
     """The header of a frame; FrameError if it is too short or not a frame."""
     if len(payload) < HEADER.size:
         raise FrameError(f"frame of {len(payload)} bytes is shorter than its {HEADER.size}-byte header")
-    magic, version, flags, run_index, _res, seq, wall_ns, n_rows, n_cols = HEADER.unpack_from(payload)
+    magic, version, flags, run_index, attempt, seq, wall_ns, n_rows, n_cols = HEADER.unpack_from(payload)
     if magic != MAGIC:
         raise FrameError(f"magic {bytes(magic)!r} is not {MAGIC!r}")
     if version != VERSION:
         raise FrameError(f"frame version {version} not supported (this node speaks {VERSION})")
-    return Header(flags, run_index, seq, wall_ns, n_rows, n_cols)
+    return Header(flags, run_index, seq, wall_ns, n_rows, n_cols, attempt)
 
 
 def encode(frame: Frame) -> bytes:
@@ -93,7 +105,7 @@ def encode(frame: Frame) -> bytes:
         VERSION,
         frame.flags,
         frame.run_index,
-        0,
+        frame.attempt,
         frame.seq,
         frame.wall_ns,
         rows.shape[0],
@@ -120,4 +132,4 @@ def decode(payload: bytes | bytearray | memoryview, last_row_only: bool = False)
         rows = np.frombuffer(buf, dtype="<f8", offset=HEADER.size, count=n_rows * n_cols).reshape(
             n_rows, n_cols
         )
-    return Frame(head.run_index, head.seq, head.wall_ns, rows.astype(np.float64), head.flags)
+    return Frame(head.run_index, head.seq, head.wall_ns, rows.astype(np.float64), head.flags, head.attempt)

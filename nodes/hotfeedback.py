@@ -78,9 +78,15 @@ class HotFeedback(Node):
         self.early: collections.OrderedDict[tuple[str, str], frames.Frame] = collections.OrderedDict()
         self.forwarded = 0
         self.unwatched = 0  # frames of sessions nobody watched live: not forwarded
+        self.stale = 0  # frames of an earlier attempt of a run: not forwarded
 
     def status_detail(self) -> dict[str, Any]:
-        return {"streams": len(self.streams), "forwarded": self.forwarded, "unwatched": self.unwatched}
+        return {
+            "streams": len(self.streams),
+            "forwarded": self.forwarded,
+            "unwatched": self.unwatched,
+            "stale": self.stale,
+        }
 
     def start(self) -> None:
         # Only workers write these keys: samples without the service's seal are ignored.
@@ -111,7 +117,7 @@ class HotFeedback(Node):
             stream = Stream(layout, idx, period_ns, publisher=pub, declared_ns=declared_ns)
             self.streams[(user, session)] = stream
             early = self.early.pop((user, session), None)
-            if early is not None and early.run_index == layout.run_index:
+            if early is not None and early.of(layout.run_index, layout.context.attempt):
                 self._take(stream, early)
 
     def _take(self, stream: Stream, frame: frames.Frame) -> None:
@@ -154,7 +160,10 @@ class HotFeedback(Node):
             return
         with self.lock:
             stream = self.streams.get(owner)
-            if stream is None or stream.layout.run_index != frame.run_index:
+            if stream is not None and stale(frame.run_index, frame.attempt, stream.layout):
+                self.stale += 1  # an earlier attempt's (a host taken for lost that goes on): nobody's
+                return
+            if stream is None or not frame.of(stream.layout.run_index, stream.layout.context.attempt):
                 # Its layout is not handled yet: keep the newest frame (a final one stays final).
                 before = self.early.pop(owner, None)
                 if before is not None and before.run_index == frame.run_index and before.final:
@@ -178,7 +187,10 @@ class HotFeedback(Node):
             return False
         with self.lock:
             stream = self.streams.get(owner)
-            if stream is None or stream.layout.run_index != head.run_index or stream.watched(time.time_ns()):
+            of_run = stream is not None and frames.belongs(
+                head.run_index, head.attempt, stream.layout.run_index, stream.layout.context.attempt
+            )
+            if stream is None or not of_run or stream.watched(time.time_ns()):
                 return False
             stream.pending = None
             self.unwatched += 1
@@ -194,7 +206,12 @@ class HotFeedback(Node):
             return
         stream.tokens = max(0.0, stream.tokens - 1.0)
         live = frames.Frame(
-            pending.run_index, stream.seq, pending.wall_ns, pending.rows, pending.flags | frames.FLAG_LIVE
+            pending.run_index,
+            stream.seq,
+            pending.wall_ns,
+            pending.rows,
+            pending.flags | frames.FLAG_LIVE,
+            pending.attempt,
         )
         stream.publisher.put(frames.encode(live))
         stream.seq += 1
@@ -233,6 +250,11 @@ class HotFeedback(Node):
     def stop(self) -> None:
         with self.wakeup:
             self.wakeup.notify()
+
+
+def stale(run_index: int, attempt: int, layout: m.RunLayout) -> bool:
+    """A frame of the layout's run from an earlier attempt than the layout's."""
+    return run_index == layout.run_index and 0 < attempt < layout.context.attempt
 
 
 def main(argv: list[str] | None = None) -> int:

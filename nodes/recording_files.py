@@ -285,7 +285,7 @@ class RunFiles:
         except frames.FrameError as exc:
             rec.writer.write_log(fmt.LOG_WARNING, f"undecodable frame skipped: {exc}", rec.sim_time)
             return
-        if frame.run_index != rec.layout.run_index:
+        if not frame.of(rec.layout.run_index, rec.layout.context.attempt):  # another run's, or attempt's
             rec.stray_frames += 1
             return
         if rec.next_seq is None and frame.rows.shape[0] and not rec.writer.rows:

@@ -224,7 +224,7 @@ class Run:
     def publish(self, rows: np.ndarray, final: bool = False) -> None:
         self.final_sent = self.final_sent or final
         flags = frames.FLAG_FINAL if final else 0
-        frame = frames.Frame(self.req.run_index, self.seq, time.time_ns(), rows, flags)
+        frame = frames.Frame(self.req.run_index, self.seq, time.time_ns(), rows, flags, self.req.attempt)
         self.full.put(frames.encode(frame))
         self.seq += 1
 

@@ -11,9 +11,10 @@ from simecs.mesh import frames
 
 def test_round_trip() -> None:
     rows = np.arange(12, dtype=float).reshape(3, 4) * 0.5
-    f = frames.Frame(run_index=7, seq=42, wall_ns=123456789, rows=rows, flags=frames.FLAG_FINAL)
+    f = frames.Frame(run_index=7, seq=42, wall_ns=123456789, rows=rows, flags=frames.FLAG_FINAL, attempt=3)
     back = frames.decode(frames.encode(f))
     assert (back.run_index, back.seq, back.wall_ns, back.flags) == (7, 42, 123456789, frames.FLAG_FINAL)
+    assert back.attempt == 3 == frames.peek(frames.encode(f)).attempt
     assert back.final
     np.testing.assert_array_equal(back.rows, rows)
 

@@ -80,9 +80,11 @@ def layout_sample(layout: m.RunLayout) -> Sample:
     return Sample(keys.layout(USER, SID), codec.dumps(layout))
 
 
-def frame_sample(seq: int, t: float, final: bool = False, rows: int = 1, forged: bool = False) -> Sample:
+def frame_sample(
+    seq: int, t: float, final: bool = False, rows: int = 1, forged: bool = False, attempt: int = 0
+) -> Sample:
     data = np.array([[t - (rows - 1 - k) * 0.01, 0.1 * t, 1.0] for k in range(rows)]).reshape(rows, 3)
-    fr = frames.Frame(1, seq, time.time_ns(), data, frames.FLAG_FINAL if final else 0)
+    fr = frames.Frame(1, seq, time.time_ns(), data, frames.FLAG_FINAL if final else 0, attempt)
     return Sample(keys.vars_full(USER, SID), frames.encode(fr), forged)
 
 
@@ -169,3 +171,21 @@ def test_a_forged_frame_of_a_watched_session_is_not_forwarded() -> None:
     assert pub.sent == [] and hf.unsealed == 1
     hf._on_full(frame_sample(0, 0.025))  # type: ignore[arg-type]
     assert len(pub.sent) == 1 and pub.sent[0][1].rows[0, 0] == pytest.approx(0.025)
+
+
+def test_a_frame_of_an_earlier_attempt_is_not_forwarded() -> None:
+    """A run started again after its host was lost has a new layout (context.attempt 2); a host that was
+    only cut off may still send frames of attempt 1: they are nobody's (issue 33, 1: the fence)."""
+    hf, pub, layout = node(rate_hz=100.0)
+    layout.context.attempt = 2
+    hf._on_layout(layout_sample(layout))  # type: ignore[arg-type]
+    hf._on_full(frame_sample(0, 0.5, attempt=1))  # type: ignore[arg-type]
+    hf._on_full(frame_sample(1, 0.6, final=True, attempt=1))  # type: ignore[arg-type]
+    assert pub.sent == [] and hf.stale == 2
+    hf._on_full(frame_sample(0, 0.025, attempt=2))  # type: ignore[arg-type]
+    assert (
+        len(pub.sent) == 1
+        and pub.sent[0][1].attempt == 2
+        and pub.sent[0][1].rows[0, 0] == pytest.approx(0.025)
+    )
+    assert frames.belongs(1, 0, 1, 2) and not frames.belongs(1, 1, 1, 2) and not frames.belongs(2, 2, 1, 2)

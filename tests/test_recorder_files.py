@@ -175,3 +175,18 @@ def test_a_run_whose_final_frame_and_end_were_both_lost_is_asked_for_and_closed(
     files.housekeeping(time.monotonic() + ENDED_GRACE_S + MODEL_WAIT_S + 1.0)
     ((owner, run_id, gaps),) = mesh.fills  # closed: its tail asked of the results
     assert run_id == "r1" and len(gaps) == 1 and math.isinf(gaps[0].before)
+
+
+def test_a_frame_of_an_earlier_attempt_is_not_recorded(tmp_path: Path) -> None:
+    """A run started again after its host was lost (layout context.attempt 2): frames of attempt 1, from
+    a host that was only cut off, are strays; those of attempt 2 (and those that do not say) are kept."""
+    _library, _mesh, files = run_files(tmp_path)
+    layout = layout_for(SID)
+    layout.context.attempt = 2
+    rows = make_rows(arm_model(), 20)
+    files.on_layout(keys.layout(USER, SID), codec.dumps(layout))
+    for attempt in (1, 2):
+        frame = frames.Frame(1, 0, time.time_ns(), rows[:10] + attempt, 0, attempt)
+        files.on_full(keys.vars_full(USER, SID), frames.encode(frame))
+    rec = files.active[(USER, SID)]
+    assert rec.stray_frames == 1 and rec.writer.rows == 10

@@ -83,8 +83,8 @@ class RunStream:
     def take_frame(self, frame: frames.Frame) -> Sample | None:
         """Add a live frame of the shown run to the window; None if it belongs to no run shown."""
         layout = self.layout
-        if layout is None or frame.run_index != layout.run_index:
-            return None
+        if layout is None or not frame.of(layout.run_index, layout.context.attempt):
+            return None  # another run's, or an earlier attempt's
         rows = frame.rows
         if rows.ndim != 2 or rows.shape[0] == 0 or rows.shape[1] != len(layout.live_columns):
             return None
