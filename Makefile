@@ -37,7 +37,7 @@ $(CHROMIUM):
 
 # Compile the drive kernels into numba's cache once, so no node or test pays it on its first run.
 warm: $(STAMP)
-	$(BIN)/python -c "from simecs import models; print(f'drives compiled in {models.warmup():.1f} s')"
+	$(BIN)/python -c "from simecs import models; print(f'drives compiled in {models.warmup(alongside=True):.1f} s')"
 
 up: $(STAMP) warm
 	$(BIN)/simecs up
