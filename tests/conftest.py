@@ -91,10 +91,14 @@ def secured() -> Iterator[Secured]:
         mesh.spawn("hub", "simecs.nodes.hub", "--mesh-config", str(hub), node_id="hub")
         mesh.client()
         data = mesh.folder / "data"
-        mesh.start("proxy", "--data-dir", str(data), "--mesh-config", nodes)
-        mesh.start("simulator", "--results-dir", str(data / "results"), "--mesh-config", nodes)
-        mesh.start("hotfeedback", "--mesh-config", nodes)
-        mesh.start("recorder", "--dir", str(mesh.folder / "rec"), "--mesh-config", nodes)
+        mesh.start_together(  # their start-ups overlap, as `simecs up` starts them
+            {
+                "simulator": ("--results-dir", str(data / "results"), "--mesh-config", nodes),
+                "proxy": ("--data-dir", str(data), "--mesh-config", nodes),
+                "hotfeedback": ("--mesh-config", nodes),
+                "recorder": ("--dir", str(mesh.folder / "rec"), "--mesh-config", nodes),
+            }
+        )
         yield Secured(mesh, folder, passwords, nodes)
     finally:
         mesh.close()
