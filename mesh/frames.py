@@ -71,6 +71,12 @@ def belongs(run_index: int, attempt: int, layout_run_index: int, layout_attempt:
     return run_index == layout_run_index and (not attempt or not layout_attempt or attempt == layout_attempt)
 
 
+def superseded(run_index: int, attempt: int, layout_run_index: int, layout_attempt: int) -> bool:
+    """A frame of the layout's run from an earlier attempt than the layout's: nobody's, for good (a
+    later attempt's frame only came before its layout)."""
+    return run_index == layout_run_index and 0 < attempt < layout_attempt
+
+
 @dataclass
 class Header:
     """A frame's header, read without touching its data (e.g. to count what is dropped)."""

@@ -73,10 +73,9 @@ def secure_setup(args: argparse.Namespace) -> tuple[str, list[str], list[str], s
     key_file = str(seal.key_file(""))
     seal.load(key_file, create=True)
     client_file = os.path.join(os.path.abspath(args.data_dir), CLIENT_FILE)
-    me = folder.write_local_client(Path(client_file), local, key_file, tls)
+    me, password = folder.write_local_client(Path(client_file), local, key_file, tls)
     hub_flags = ["--mesh-config", str(folder.hub_config(listen))]  # after the local user is made
     node_flags = ["--mesh-config", str(folder.node_config(local, key_file))]
-    password = folder.users()[me].password
     note = (
         f"private: the hub takes users with a password only ({len(folder.users())} in "
         f"{folder.dir}/users.json; `simecs users add NAME` adds one, then start again)\n"

@@ -160,7 +160,9 @@ class HotFeedback(Node):
             return
         with self.lock:
             stream = self.streams.get(owner)
-            if stream is not None and stale(frame.run_index, frame.attempt, stream.layout):
+            if stream is not None and frames.superseded(
+                frame.run_index, frame.attempt, stream.layout.run_index, stream.layout.context.attempt
+            ):
                 self.stale += 1  # an earlier attempt's (a host taken for lost that goes on): nobody's
                 return
             if stream is None or not frame.of(stream.layout.run_index, stream.layout.context.attempt):
@@ -250,11 +252,6 @@ class HotFeedback(Node):
     def stop(self) -> None:
         with self.wakeup:
             self.wakeup.notify()
-
-
-def stale(run_index: int, attempt: int, layout: m.RunLayout) -> bool:
-    """A frame of the layout's run from an earlier attempt than the layout's."""
-    return run_index == layout.run_index and 0 < attempt < layout.context.attempt
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -68,15 +68,17 @@ class ResultsStore:
 
     def partial(self, user: str, session: str, run: StoredRun) -> PartialResults:
         """Where the worker of `run` appends its rows as they are computed."""
-        npy, _meta = self._paths(user, session, run.run_id)
-        return PartialResults(npy.with_name(f".{run.run_id}.partial"), run)
+        return PartialResults(self._partial_path(user, session, run.run_id), run)
+
+    def _partial_path(self, user: str, session: str, run_id: str) -> Path:
+        npy, _meta = self._paths(user, session, run_id)
+        return npy.with_name(f".{run_id}.partial")
 
     def salvage(self, user: str, session: str, run_id: str, reason: str) -> StoredRun | None:
         """Store what a dead worker's partial file holds as the run's results (phase failed, ended
         where its rows end); None when there is none (the run had not started, or ended properly)."""
-        npy, _meta = self._paths(user, session, run_id)
-        rows_path = npy.with_name(f".{run_id}.partial")
-        meta_path = rows_path.with_name(rows_path.name + ".json")
+        rows_path = self._partial_path(user, session, run_id)
+        meta_path = PartialResults.meta_of(rows_path)
         try:
             data: dict[str, Any] = files.read_json(meta_path)
             data.pop("saved", None)
@@ -126,11 +128,16 @@ class PartialResults:
 
     def __init__(self, path: Path, run: StoredRun) -> None:
         self.path = path
-        self.meta = path.with_name(path.name + ".json")
+        self.meta = self.meta_of(path)
         path.parent.mkdir(parents=True, exist_ok=True)
         files.write_json(self.meta, vars(run))
         # unbuffered: each append is one write straight into the system's hands (no copy kept here)
         self._fh = open(path, "wb", buffering=0)  # noqa: SIM115 - open for the run's length, closed by discard()
+
+    @staticmethod
+    def meta_of(path: Path) -> Path:
+        """What the rows at `path` are (their StoredRun), beside them."""
+        return path.with_name(path.name + ".json")
 
     def append(self, rows: np.ndarray) -> None:
         np.ascontiguousarray(rows, dtype="<f8").tofile(self._fh)

@@ -195,17 +195,17 @@ class SecureFolder:
             return name, users[name].password
         return name, self.add_user(name)
 
-    def write_local_client(self, path: Path, hub: str, service_key_file: str, tls: bool) -> str:
+    def write_local_client(self, path: Path, hub: str, service_key_file: str, tls: bool) -> tuple[str, str]:
         """The local user's client configuration at `path` (owner-only), which the CLI, the Python
         client and the examples read when told nothing else (mesh/config.py `load_client`); with the
-        service key, so that those clients check the service's seal. Returns the user name."""
+        service key, so that those clients check the service's seal. Returns (name, password)."""
         name, password = self.local_user()
         config = self.client_config(name, password, hub)
         if not tls:  # a unix socket: only this machine's accounts that may open it reach it
             del config["tls"]
         config["service_key_file"] = service_key_file
         _write_private(path, json.dumps(config, indent=1) + "\n")
-        return name
+        return name, password
 
     def user_config(self, name: str, hub: str) -> dict[str, Any]:
         users = self.users()
