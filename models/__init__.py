@@ -142,7 +142,7 @@ def costs(seconds: float = 0.25) -> dict[str, float]:
 def warmup(alongside: bool = False) -> float:
     """Compile (or load from the numba cache) the drive kernels; returns the seconds it took.
     `alongside`: the planner's kernels compile in a second process meanwhile, on another core (`make
-    warm` on a fresh clone: a cold compile is about 70 s for the drives and 17 s for the planner)."""
+    warm` on a fresh clone: a cold compile is about 45 s for the drives and 17 s for the planner)."""
     import subprocess
     import sys
     import time

@@ -444,12 +444,16 @@ def controlled_signals(P, j, X, ql, qdl, qr, qdr, jmode, live, out):
     """`joint_signals` of joint j under whichever controller has it: the built-in cascade in the
     command's mode, or an external controller's current set point (live[j, LV_IREF]), in which
     case out[2], out[3] keep the command's set points (what the controller was sent)."""
-    if live[j, LV_EXTERNAL] > 0.5:
-        joint_signals(P, j, X, ql, qdl, live[j, LV_IREF], 0.0, JM_CURRENT, out)
+    external = live[j, LV_EXTERNAL] > 0.5
+    if external:
+        a, b, mode = live[j, LV_IREF], 0.0, JM_CURRENT
+    else:
+        a, b, mode = qr, qdr, jmode[j]
+    # one call: its body is inlined here, and compiling it twice doubled the kernels' compile time
+    joint_signals(P, j, X, ql, qdl, a, b, mode, out)
+    if external:
         out[2] = qr
         out[3] = qdr
-    else:
-        joint_signals(P, j, X, ql, qdl, qr, qdr, jmode[j], out)
 
 
 @njit(cache=_CACHE, inline="always", error_model="numpy", fastmath=_FAST)
