@@ -17,8 +17,8 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from simecs.mesh.client import MeshClient
-from simecs.mesh.config import load
+from simecs.mesh.client import MeshClient, NoReply, RemoteError, SessionClient
+from simecs.mesh.config import load, open_session
 from simecs.nodes.secure import SecureFolder
 from simecs.testing import browser as chromium
 from simecs.testing.launch import LocalMesh, clean_env
@@ -41,7 +41,7 @@ def pytest_runtest_makereport(item: pytest.Item, call: pytest.CallInfo[None]) ->
     if not report.failed:
         return
     funcargs = getattr(item, "funcargs", {})
-    meshes = [v.mesh if isinstance(v, Secured) else v for v in funcargs.values()]
+    meshes = [v.mesh if isinstance(v, (Secured, Service)) else v for v in funcargs.values()]
     for mesh in [m for m in meshes if isinstance(m, LocalMesh)][:1]:
         kept = ARTIFACTS / "failed" / "".join(c if c.isalnum() or c in "-_." else "_" for c in item.nodeid)
         try:
@@ -139,9 +139,98 @@ def restart_every_node(mesh: LocalMesh) -> Service:
 
 
 @pytest.fixture
-def service(mesh: LocalMesh) -> Service:
-    """Hub, proxy, simulator and hot-feedback on an isolated mesh."""
-    return start_service(mesh)
+def service(request: pytest.FixtureRequest) -> Iterator[Service]:
+    """Hub, proxy, simulator and hot-feedback on an isolated mesh, for this test alone (it may stop,
+    kill or restart its nodes); with the mark `shares_service`, the module's (`shared_service`)."""
+    if request.node.get_closest_marker("shares_service") is not None:
+        yield from shared_service(request.getfixturevalue("service_keeper"))
+    else:
+        yield start_service(request.getfixturevalue("mesh"))
+
+
+class SessionKeepingClient(MeshClient):
+    """A client that keeps the sessions it opened, so that a test on a shared service closes them
+    after it: the next test finds no run going and its user's quotas free."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self.opened: list[SessionClient] = []
+
+    def create_session(self, user: str, model_id: str) -> SessionClient:
+        session = super().create_session(user, model_id)
+        self.opened.append(session)
+        return session
+
+    def close_opened(self) -> None:
+        for session in self.opened:
+            try:
+                session.close()
+            except (RemoteError, NoReply):
+                pass  # closed by the test already, or its node gone (the next test gets a new service)
+        self.opened.clear()
+
+
+@dataclass
+class SharedService(Service):
+    """The module's service as one test sees it: its own client, whose sessions close after it."""
+
+    own_client: SessionKeepingClient
+
+    @property
+    def client(self) -> MeshClient:
+        return self.own_client
+
+
+#: The processes of a service (`start_service`) and its hub.
+SERVICE_NODES = ("hub", "proxy", "simulator", "hotfeedback")
+
+
+class ServiceKeeper:
+    """One service for the tests of a module that leave its nodes alone (starting one costs 2-4 s on a
+    loaded 2-core machine): a new one after a test whose nodes did not all survive it."""
+
+    def __init__(self) -> None:
+        self.mesh: LocalMesh | None = None
+        self.service: Service | None = None
+
+    def healthy(self) -> Service:
+        if self.mesh is not None and self.service is not None:
+            procs = self.mesh.procs
+            if all(name in procs and procs[name].poll() is None for name in SERVICE_NODES):
+                return self.service
+            self.mesh.close()
+        self.mesh = LocalMesh()
+        self.mesh.start_hub()
+        self.service = start_service(self.mesh)
+        return self.service
+
+    def close(self) -> None:
+        if self.mesh is not None:
+            self.mesh.close()
+
+
+@pytest.fixture(scope="module")
+def service_keeper() -> Iterator[ServiceKeeper]:
+    keeper = ServiceKeeper()
+    try:
+        yield keeper
+    finally:
+        keeper.close()
+
+
+def shared_service(service_keeper: ServiceKeeper) -> Iterator[SharedService]:
+    """The module's service (hub, proxy, simulator, hot-feedback), shared by the tests marked
+    `shares_service`: they neither stop nor restart its nodes, and the sessions a test opens through
+    `client` are closed after it."""
+    base = service_keeper.healthy()
+    client = SessionKeepingClient(
+        open_session(base.mesh.config), timeout=10.0, owns_session=True, seal=base.mesh.client().seal
+    )
+    try:
+        yield SharedService(base.mesh, base.data_dir, client)
+    finally:
+        client.close_opened()
+        client.close()
 
 
 @pytest.fixture

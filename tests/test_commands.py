@@ -49,6 +49,7 @@ def run_to_end(
     return s.results(run_id)
 
 
+@pytest.mark.shares_service
 def test_a_lin_move_ends_on_its_target_and_stays_near_its_line(service: Service) -> None:
     s = service.client.create_session("ann", "spider")
     s.set_initial(SPIDER_Q0)
@@ -78,6 +79,7 @@ def test_a_lin_move_ends_on_its_target_and_stays_near_its_line(service: Service)
     assert along.min() > -2e-3 and along.max() < np.linalg.norm(p1 - p0) + 2e-3
 
 
+@pytest.mark.shares_service
 def test_a_ptp_move_to_a_pose_reaches_it_on_the_puma(service: Service) -> None:
     s = service.client.create_session("ann", "puma560")
     s.set_initial(PUMA_Q0)
@@ -101,6 +103,7 @@ IMPORTED = ["panda", "ur5", "jaco2"]
 
 
 @pytest.mark.parametrize("model_id", IMPORTED)
+@pytest.mark.shares_service
 def test_an_imported_model_runs_a_joint_and_a_cartesian_move(service: Service, model_id: str) -> None:
     """Each model imported from URDF takes the same commands as the Spider, through the service."""
     pkg = models.get_model(model_id)
@@ -126,6 +129,7 @@ def test_an_imported_model_runs_a_joint_and_a_cartesian_move(service: Service, m
     assert angle < 5e-3
 
 
+@pytest.mark.shares_service
 def test_an_open_loop_current_step_moves_the_joint_as_its_inertia_predicts(service: Service) -> None:
     s = service.client.create_session("ann", "spider")
     s.set_initial(SPIDER_Q0)
@@ -160,6 +164,7 @@ def test_an_open_loop_current_step_moves_the_joint_as_its_inertia_predicts(servi
     sim.close()
 
 
+@pytest.mark.shares_service
 def test_a_closed_loop_position_step_settles_and_a_speed_set_point_is_held(service: Service) -> None:
     s = service.client.create_session("ann", "spider")
     s.set_initial(SPIDER_Q0)
@@ -256,6 +261,7 @@ def test_a_saved_mission_survives_a_restart_of_every_node_and_runs_step_by_step(
     assert mcapread.load(path).context().command == mission
 
 
+@pytest.mark.shares_service
 def test_every_refusal_names_its_field_and_changes_nothing(service: Service) -> None:
     s = service.client.create_session("ann", "spider")
     s.set_initial(SPIDER_Q0)
@@ -344,6 +350,7 @@ def test_a_level_the_model_does_not_list_is_unsupported() -> None:
     assert "accepts joint_path commands, not mission" in err.value.message
 
 
+@pytest.mark.shares_service
 def test_the_command_is_published_for_every_client_of_the_session(service: Service) -> None:
     """<session>/command carries the command with its plan after each set_command (cached: a late
     subscriber gets the latest); a refused command publishes nothing."""

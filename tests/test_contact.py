@@ -106,6 +106,7 @@ def _box_above_the_tool(p0: np.ndarray, gap: float) -> m.Obstacle:
     return m.Obstacle("box1", "box", centre, size=size, friction=0.2)
 
 
+@pytest.mark.shares_service
 def test_a_path_through_a_box_is_refused_then_simulated_on_purpose(service: Service) -> None:
     s = service.client.create_session("ann", "spider")
     assert [ob.name for ob in s.snapshot().obstacles] == ["plate"]  # the model's own
@@ -150,6 +151,7 @@ def test_a_path_through_a_box_is_refused_then_simulated_on_purpose(service: Serv
     assert layouts and layouts[-1].context.obstacles == stored
 
 
+@pytest.mark.shares_service
 def test_bad_obstacles_are_refused_by_field_and_change_nothing(service: Service) -> None:
     s = service.client.create_session("bob", "spider")
     before = s.snapshot().obstacles

@@ -43,6 +43,7 @@ def _line(s: SessionClient) -> tuple[np.ndarray, np.ndarray, m.CommandPlan]:
     return p1, R1, plan
 
 
+@pytest.mark.shares_service
 def test_opspace_motion_reaches_a_cartesian_target_and_holds_it(service: Service) -> None:
     s = service.client.create_session("ann", "spider")
     assert "opspace_motion" in service.client.describe("spider").control_systems
@@ -80,6 +81,7 @@ def test_opspace_motion_reaches_a_cartesian_target_and_holds_it(service: Service
     assert np.linalg.norm(rows_j[-1, tool_columns(cols_j)][:3] - p1) < 0.5e-3
 
 
+@pytest.mark.shares_service
 def test_control_system_refusals_name_their_field(service: Service) -> None:
     client = service.client
     s = client.create_session("ann", "spider")
@@ -160,6 +162,7 @@ def test_the_spider_redundancy_follows_the_planned_posture() -> None:
 HYBRID_FORCE_N = 20.0
 
 
+@pytest.mark.shares_service
 def test_opspace_hybrid_slides_on_a_plane_holding_the_commanded_force(service: Service) -> None:
     """The tool touches a plane above it and slides 0.1 m along it, pushing with 20 N (paper §5's
     hybrid control: force along the plane's normal, motion along the plane). Tolerances: at rest the

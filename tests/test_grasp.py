@@ -119,6 +119,7 @@ def _messages(path: Path, topic: str) -> list[dict]:
     return [json.loads(msg.data) for msg in found]
 
 
+@pytest.mark.shares_service
 def test_the_grasps_rules_are_refused_before_the_run(service: Service) -> None:
     s = service.client.create_session("ann", "spider")
     box, task, p0 = _pick_and_place(s)
@@ -153,6 +154,7 @@ def test_the_grasps_rules_are_refused_before_the_run(service: Service) -> None:
     assert s.set_command(task).kind == "task"
 
 
+@pytest.mark.shares_service
 def test_a_carried_box_that_would_hit_an_obstacle_is_refused_naming_it(service: Service) -> None:
     s = service.client.create_session("ann", "spider")
     box, task, p0 = _pick_and_place(s)

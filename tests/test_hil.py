@@ -60,6 +60,7 @@ def run(s: SessionClient, timeout: float = 60.0) -> m.SessionState:
     return s.wait_for(["finished", "failed", "aborted"], timeout, run_id)
 
 
+@pytest.mark.shares_service
 def test_the_reference_controller_in_another_process_matches_the_builtin_cascade(service: Service) -> None:
     s = session(service, 2.0, pacing="fast")
     builtin = run(s)
@@ -92,6 +93,7 @@ def test_a_silent_controller_fails_the_run_with_its_reason_and_frees_the_slot(me
     assert run(s, timeout=30).phase == "finished"
 
 
+@pytest.mark.shares_service
 def test_late_answers_are_counted_and_told_on_a_paced_run(service: Service) -> None:
     s = session(service, 0.3, pacing="realtime", controller="external")
     proc = controller(service.mesh.endpoint, s, "--runs", "1", "--delay-ms", "3")
@@ -125,6 +127,7 @@ class Answerer:
         self.pub.undeclare()
 
 
+@pytest.mark.shares_service
 def test_bad_actuator_frames_are_refused_by_name_and_only_the_external_joints_obey(service: Service) -> None:
     s = session(service, 0.5, pacing="fast", controller="external", external_joints=["joint7"])
     answered: set[int] = set()

@@ -43,6 +43,7 @@ def running(s: SessionClient, stop_time: float) -> str:
     return run_id
 
 
+@pytest.mark.shares_service
 def test_a_joint_jog_moves_the_joint_and_the_deadman_stops_it(service: Service) -> None:
     s = service.client.create_session("ann", "spider")
     run_id = running(s, 3.0)
@@ -70,6 +71,7 @@ def test_a_joint_jog_moves_the_joint_and_the_deadman_stops_it(service: Service) 
     assert time.monotonic() - released < 30
 
 
+@pytest.mark.shares_service
 def test_a_cartesian_jog_moves_the_tool_along_its_axis(service: Service) -> None:
     s = service.client.create_session("ann", "spider")
     run_id = running(s, 2.5)
@@ -86,6 +88,7 @@ def test_a_cartesian_jog_moves_the_tool_along_its_axis(service: Service) -> None
     assert any("qd has 3 values for a 7-joint arm" in w for w in warnings), warnings
 
 
+@pytest.mark.shares_service
 def test_jog_messages_to_a_run_paced_as_fast_as_possible_change_nothing(service: Service) -> None:
     """Jog messages to a run paced as fast as possible change nothing (jogging is real-time only)."""
     s = service.client.create_session("ann", "spider")
@@ -123,6 +126,7 @@ def sim_time_past(s: SessionClient, t: float, what: str) -> m.SessionState:
     return wait_until(past, timeout=60, what=what)
 
 
+@pytest.mark.shares_service
 def test_an_idle_arm_is_jogged_in_a_run_until_stopped_and_stop_finishes_it(service: Service) -> None:
     """No command, settings that say fast and 0.2 s: the run goes on in real time, holding the pose,
     until `stop`; a jog of joint 2 moves it at the jog's speed and the pose then holds."""
@@ -179,6 +183,7 @@ def test_an_idle_arm_is_jogged_in_a_run_until_stopped_and_stop_finishes_it(servi
     assert abs(q[-1] - ref[-1]) < 5e-3
 
 
+@pytest.mark.shares_service
 def test_stop_finishes_a_timed_run_early_even_paused(service: Service) -> None:
     s = service.client.create_session("ann", "spider")
     run_id = running(s, 5.0)
@@ -198,6 +203,7 @@ def test_stop_finishes_a_timed_run_early_even_paused(service: Service) -> None:
     assert err.value.code == "conflict" and err.value.error.message == phases.refusal("stop", "finished")
 
 
+@pytest.mark.shares_service
 def test_a_run_says_how_long_it_was_jogged_and_an_unjogged_run_says_zero(service: Service) -> None:
     """Two real-time runs of the same command and settings: the jogged one says for how long (in the
     session's list of runs and in its results), the other says 0; the comparison is no longer blind."""

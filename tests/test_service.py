@@ -49,6 +49,7 @@ class Recorder:
         self.watch.close()
 
 
+@pytest.mark.shares_service
 def test_whole_run(service: Service) -> None:
     c = service.client
     assert {s.id for s in c.list_models()} >= {"spider"}
@@ -102,6 +103,7 @@ def test_whole_run(service: Service) -> None:
     assert "running" in phases and phases[-1] == "finished"
 
 
+@pytest.mark.shares_service
 def test_two_sessions_are_isolated(service: Service) -> None:
     c = service.client
     a = c.create_session("ann", "spider")
@@ -145,6 +147,7 @@ def test_two_sessions_are_isolated(service: Service) -> None:
     assert a.snapshot().state.phase == "finished"
 
 
+@pytest.mark.shares_service
 def test_pause_resume_abort_within_a_chunk(service: Service) -> None:
     c = service.client
     s = c.create_session("ann", "spider")
@@ -179,6 +182,7 @@ def test_pause_resume_abort_within_a_chunk(service: Service) -> None:
 
 
 @pytest.mark.parametrize("rate_hz", [20.0, 2.0])
+@pytest.mark.shares_service
 def test_decimated_rate_holds_from_the_first_frame_and_the_final_frame_goes(
     service: Service, rate_hz: float
 ) -> None:
@@ -217,6 +221,7 @@ def test_decimated_rate_holds_from_the_first_frame_and_the_final_frame_goes(
     assert rec.live[-1][1].rows[-1, 0] == pytest.approx(3.0)
 
 
+@pytest.mark.shares_service
 def test_a_realtime_run_sends_a_frame_every_25_ms_each_at_its_time(service: Service) -> None:
     """A paced run simulates two frames per solver call (fewer wake-ups, cheaper runs) and still sends
     40 frames per second, each when it is due, not two at a time."""
@@ -236,6 +241,7 @@ def test_a_realtime_run_sends_a_frame_every_25_ms_each_at_its_time(service: Serv
     assert 15.0 < float(np.median(gaps)) < 35.0, np.round(gaps, 1)
 
 
+@pytest.mark.shares_service
 def test_a_first_run_starts_at_once_and_the_session_keeps_its_last_ten_runs(service: Service) -> None:
     """The simulator is ready only once a worker is warm: the first run's first frame comes at once."""
     c = service.client
@@ -263,6 +269,7 @@ def test_a_first_run_starts_at_once_and_the_session_keeps_its_last_ten_runs(serv
     assert sorted(p.name for p in folder.glob("*.npy")) == sorted(f"r{i}.npy" for i in range(3, 13))
 
 
+@pytest.mark.shares_service
 def test_results_selectors_are_strict(service: Service) -> None:
     c = service.client
     s = c.create_session("ann", "spider")
@@ -301,6 +308,7 @@ def test_parameter_sets_and_sessions_survive_a_restart_of_every_node(mesh: Mesh)
     assert c.create_session("bob", "spider").list_param_sets() == []
 
 
+@pytest.mark.shares_service
 def test_bad_values_are_refused_with_the_reason_and_nothing_applied(service: Service) -> None:
     s = service.client.create_session("ann", "spider")
     before = s.snapshot().values
@@ -487,6 +495,7 @@ HOSTILE = [
 ]
 
 
+@pytest.mark.shares_service
 def test_hostile_payloads_get_errors_naming_the_field_and_nodes_survive(service: Service) -> None:
     """One service takes them all in turn: each is answered, and none leaves a node the worse for it."""
     c = service.client
@@ -537,6 +546,7 @@ def test_proxy_restart_during_a_run_loses_nothing(mesh: Mesh) -> None:
     assert b.wait_for(["finished", "failed"], 60, rb).phase == "finished"
 
 
+@pytest.mark.shares_service
 def test_numerical_failure_ends_the_run_with_the_reason(service: Service) -> None:
     s = service.client.create_session("ann", "spider")
     prepare(s, stop_time=1.0, step=0.01)  # far beyond the drives' stability limit
@@ -550,6 +560,7 @@ def test_numerical_failure_ends_the_run_with_the_reason(service: Service) -> Non
     assert s.wait_for(["finished", "failed"], 60, s.run()).phase == "finished"
 
 
+@pytest.mark.shares_service
 def test_notices_about_a_run_reach_its_state(service: Service) -> None:
     c = service.client
     s = c.create_session("ann", "spider")
@@ -619,6 +630,7 @@ def test_a_simulator_node_killed_alone_costs_no_run(service: Service) -> None:
     wait_until(lambda: not running(worker), timeout=10, what="the worker ended")
 
 
+@pytest.mark.shares_service
 def test_a_client_with_the_service_key_takes_no_forged_answer(service: Service) -> None:
     """A peer answering queries in place of the proxy (the library, a session's commands), quicker than
     it: a client holding the service's key ignores the unsealed answers and takes the proxy's (issue 33,
