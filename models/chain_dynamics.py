@@ -143,6 +143,13 @@ def bias_forces(pre_R, pre_p, masses, coms, inertias, gravity, q, qd, out):
 
 
 @njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
+def gravity_torques(pre_R, pre_p, masses, coms, inertias, gravity, q, out):
+    """out = g(q): the joint torques that hold the chain still at q against gravity (the bias forces
+    at rest); what a controller feeds forward and what the drives must give to hold a pose."""
+    bias_forces(pre_R, pre_p, masses, coms, inertias, gravity, q, np.zeros(q.shape[0]), out)
+
+
+@njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
 def bias_forces_at(R_all, p_all, masses, coms, inertias, gravity, qd, out):
     """`bias_forces` from the joint frames of `chain_frames`."""
     n = qd.shape[0]

@@ -29,8 +29,9 @@ from simecs.mesh.robot_commands import COMMAND_LEVELS
 
 from . import contact, grasp
 from . import drive as dr
-from .docs import build_docs
+from .docs import build_docs, gravity_text
 from .errors import ParameterError
+from .mechanics import GRAVITY_PARAMS
 from .meshes import MeshStore
 from .opspace import GAIN_INFO
 from .spec import ArmSpec
@@ -182,6 +183,19 @@ class ArmDescription:
                 appearance=True,
             )
         )
+        for name, value in zip(GRAVITY_PARAMS, s.gravity, strict=True):
+            out.append(
+                Parameter(
+                    name,
+                    float(value),
+                    "m/s^2",
+                    f"gravity along the world {name[-1]} axis (the model's: {gravity_text(s.gravity)}); "
+                    "0, 0, 0 for a test in zero gravity",
+                    -100.0,
+                    100.0,
+                    "gravity",
+                )
+            )
         for name, value, unit, what, top in (
             ("max_speed", s.cart_max_speed, "m/s", "tool point speed", 10.0),
             ("max_acc", s.cart_max_acc, "m/s^2", "tool point acceleration", 100.0),
@@ -318,21 +332,26 @@ class ArmDescription:
             ),
             InitEquation(
                 "jointN.q_motor",
-                "n * q",
-                "q_m = n q_l: gear untwisted, centred in the backlash "
-                "(zero gravity: no static gear load, paper §5.2)",
+                "n * (q + tau_g/k + sign(tau_g)*b/2)",
+                "the gear twisted by the static load it carries, tau_g = g(q) (the gravity torque of "
+                "the joint at q; 0 in zero gravity: untwisted, centred in the backlash b)",
             ),
             InitEquation("jointN.qd_motor", "0", "robot at rest"),
             InitEquation("jointN.friction_z", "0", "LuGre bristles unloaded"),
             InitEquation(
                 "jointN.i_ref",
-                "(-tau_detent(q_m) - B) / A",
-                "the speed-loop integrator holds the current "
-                "that cancels the detent torque and the current-sensor offsets; A = torque per ampere of "
-                "commanded amplitude at the rotor angle, B = torque of the offsets "
-                "(see the initialisation page)",
+                "(tau_g*f/n - tau_detent(q_m) - B) / A",
+                "the current that holds the static load at the motor shaft (f = (eta + 1/eta)/2, the "
+                "efficiency's switch at rest) and cancels the detent torque and the current-sensor "
+                "offsets; A = torque per ampere of commanded amplitude at the rotor angle, B = torque of "
+                "the offsets (see the initialisation page)",
             ),
-            InitEquation("jointN.ctrl.x_vel", "i_ref", "speed PI integrator (its error is zero at rest)"),
+            InitEquation(
+                "jointN.ctrl.x_vel",
+                "i_ref - ff_gravity*tau_g*f/(n*kt)",
+                "speed PI integrator (its error is zero at rest): the current the gravity feed-forward "
+                "does not give",
+            ),
             InitEquation(
                 "jointN.i_a",
                 "-i_ref*sin(p*q_m') - offset_a",

@@ -6,6 +6,7 @@ parameter defaults, so the documentation never disagrees with the model.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 
 from simecs.mesh.model import DocPage, InitEquation, Parameter
@@ -91,11 +92,15 @@ velocity feed-forward:
 
     w_ref = n (kp_pos (q_ref - q') + ff_vel qd_ref)
     e_v = w_ref - w_m'
-    i_ref = sat(kp_vel e_v + x_v, i_max)
-    dx_v/dt = ki_vel e_v + (ki_vel/kp_vel) (i_ref - (kp_vel e_v + x_v))
+    i_g = ff_gravity g_j(q_ref) f / (n kt),   f = (eta + 1/eta) / 2
+    i_ref = sat(kp_vel e_v + x_v + i_g, i_max)
+    dx_v/dt = ki_vel e_v + (ki_vel/kp_vel) (i_ref - (kp_vel e_v + x_v + i_g))
 
+i_g is the model-based gravity feed-forward: the current whose motor torque holds the joint's gravity
+torque g_j at the set points (the model's own chain and gravity, renewed every step); ff_gravity = 0
+leaves the arm's weight to the loops, which let it sag until the integrator has caught up.
 i_ref goes to the commutation of doc:{id}.current. With ki_vel = 0 a constant disturbance torque
-tau_d leaves a position error tau_d / (kt n kp_vel n kp_pos) (at the gear input).""",
+tau_d at the joint (at the gear's output) leaves a position error tau_d / (kt n kp_vel n kp_pos).""",
     ),
     "traj": (
         "Trajectory generator",
@@ -126,6 +131,14 @@ def _const_table(n: int, by: dict[str, Parameter], sub: str) -> str:
             f"| {nm} | {ps[0].unit} | {vals} | [{ps[0].min:g}, {ps[0].max:g}] | {ps[0].description} |"
         )
     return "\n".join(rows)
+
+
+def gravity_text(g: Sequence[float]) -> str:
+    """The gravity vector as a reader wants it: its size and direction, or "zero gravity"."""
+    norm = math.sqrt(sum(x * x for x in g))
+    if norm == 0.0:
+        return "zero gravity"
+    return f"{norm:g} m/s^2 along ({', '.join(f'{x / norm:.3g}' for x in g)})"
 
 
 def build_docs(
@@ -204,7 +217,7 @@ sits at the joint, x along the link; shapes hang on it, and one pipe per link is
 {chr(10).join(link_rows)}
 
 Base at {list(s.base_translation)}, tool point {list(s.tool_translation)} in the last link's frame after
-its final translation. Zero gravity.
+its final translation. Gravity: {gravity_text(s.gravity)} (the `gravity.*` parameters).
 
 Equations of motion (Exudyn ObjectKinematicTree, minimal coordinates q):
 
@@ -324,20 +337,22 @@ Back to [{s.name}](doc:{mid}).
             "Initialisation equations",
             f"""# Initialisation equations
 
-The user only chooses joint positions of a robot at rest (paper §5.2). Zero gravity: no static gear
-load, so the gear is untwisted and centred in its backlash. The remaining unknowns follow from "every
-derivative is zero":
+The user only chooses joint positions of a robot at rest (paper §5.2): the arm stands still there,
+each gear carrying the joint's gravity torque tau_g = g(q) (none in zero gravity: the gear is untwisted
+and centred in its backlash). The remaining unknowns follow from "every derivative is zero":
 
 {eqs}
 
-with, at the motor angle q_m = n q and its resolver reading q_m' (p pole pairs):
+with, at the motor angle q_m (n q plus the gear's twist under load) and its resolver reading q_m'
+(p pole pairs):
 
     A = -k_a s_a sin(p q_m') + k_b s_b cos(p q_m')
     B = -(k_a s_a offset_a + k_b s_b offset_b)
-    tau_motor = A i_ref + B = -T_det sin(4 p q_m)
+    tau_motor = A i_ref + B = tau_g f / n - T_det sin(4 p q_m)
 
-so the detent torque and the current-sensor offsets are held by the speed-loop integrator from t = 0,
-and the run starts without transients. See [the motor](doc:{mid}.motor) for s_a, s_b, k_a, k_b.
+so the load, the detent torque and the current-sensor offsets are held (by the gravity feed-forward
+and the speed-loop integrator) from t = 0, and the run starts without transients. See
+[the motor](doc:{mid}.motor) for s_a, s_b, k_a, k_b.
 """,
             parent=mid,
         )

@@ -64,6 +64,7 @@ DRIVE_PARAMS = (
     "ctrl.kp_vel",
     "ctrl.ki_vel",
     "ctrl.ff_vel",
+    "ctrl.ff_gravity",
     "traj.max_speed",
     "traj.max_acc",
 )
@@ -104,6 +105,7 @@ NP = len(DRIVE_PARAMS)
     P_KPV,
     P_KIV,
     P_FF,
+    P_FFG,
     P_VMAX,
     P_AMAX,
 ) = range(NP)
@@ -192,9 +194,10 @@ JM_POSITION, JM_SPEED, JM_CURRENT, JM_HOLD = 0, 1, 2, 3
 
 # live inputs per joint, changed between solver calls (Simulation.jog, Simulation.set_actuators):
 # the jog (offset at t0, rate, t0) and an external controller's current set point, which replaces
-# the built-in cascade of the joint while LV_EXTERNAL is 1 (the drive's current loops stay).
-NLIVE = 5
-LV_OFFSET, LV_RATE, LV_T0, LV_EXTERNAL, LV_IREF = range(NLIVE)
+# the built-in cascade of the joint while LV_EXTERNAL is 1 (the drive's current loops stay); and,
+# renewed every step (step.gravity_feedforward), the cascade's gravity feed-forward current.
+NLIVE = 6
+LV_OFFSET, LV_RATE, LV_T0, LV_EXTERNAL, LV_IREF, LV_GRAVITY = range(NLIVE)
 
 
 @njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
@@ -268,6 +271,14 @@ def _sat(x, lim):
     return x
 
 
+@njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
+def resting_gear_factor(eta):
+    """tau_in / (tau_gear / n) of a gear at rest: the efficiency's smooth switch (joint_signals) is
+    halfway between driving (1/eta) and driven (eta) when no power flows. The motor torque that holds a
+    static load tau is tau / n times this (init_states, the gravity feed-forward)."""
+    return 0.5 * (eta + 1.0 / eta)
+
+
 @njit(cache=_CACHE, inline="always", error_model="numpy", fastmath=_FAST)
 def phase_shapes(h3, s1, c1):
     """(s_a, s_b): the phases' shape functions at electrical angle th_e (s1 = sin, c1 = cos), each with
@@ -318,12 +329,13 @@ def load_resolver(P, j, ql, qdl):
 
 
 @njit(cache=_CACHE, inline="always", error_model="numpy", fastmath=_FAST)
-def joint_signals(P, j, X, ql, qdl, qr, qdr, mode, out):
+def joint_signals(P, j, X, ql, qdl, qr, qdr, mode, i_ff, out):
     """All algebraic signals of joint j; fills out[0..NO) in OUTPUTS order and returns nothing.
 
     `mode` (JM_*) says what qr, qdr are: position and speed set points (JM_POSITION, JM_HOLD), a
     speed set point in qdr with the position loop bypassed (JM_SPEED), or the current amplitude set
     point in qr with the position and speed loops bypassed (JM_CURRENT, the speed integrator frozen).
+    i_ff: a current fed forward past the speed loop (the gravity feed-forward), not in JM_CURRENT.
 
     Extra slots: out[NO] = u_b, out[NO+1] = d x_v/dt, out[NO+2] = d x_a/dt, out[NO+3] = d x_b/dt,
     out[NO+4] = z_dot, out[NO+5] = tau_in (gear reaction at motor shaft), out[NO+6] = tau_detent.
@@ -356,7 +368,7 @@ def joint_signals(P, j, X, ql, qdl, qr, qdr, mode, out):
         ev = w_ref - om_meas
         kpv = P[j, P_KPV]
         kiv = P[j, P_KIV]
-        iu = kpv * ev + X[j, S_XV]
+        iu = kpv * ev + X[j, S_XV] + i_ff
         iref = _sat(iu, P[j, P_IMAX])
         dxv = 0.0
         if kiv > 0.0:
@@ -450,7 +462,7 @@ def controlled_signals(P, j, X, ql, qdl, qr, qdr, jmode, live, out):
     else:
         a, b, mode = qr, qdr, jmode[j]
     # one call: its body is inlined here, and compiling it twice doubled the kernels' compile time
-    joint_signals(P, j, X, ql, qdl, a, b, mode, out)
+    joint_signals(P, j, X, ql, qdl, a, b, mode, live[j, LV_GRAVITY], out)
     if external:
         out[2] = qr
         out[3] = qdr

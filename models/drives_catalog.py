@@ -97,6 +97,14 @@ META = {
         False,
     ),
     "ctrl.ff_vel": ("-", "velocity feed-forward weight (0..1) of the trajectory speed", 0.0, 1.0, False),
+    "ctrl.ff_gravity": (
+        "-",
+        "gravity feed-forward weight (0..1): the share of the model's gravity torque at the set point "
+        "the controller adds (0: the position and speed loops alone carry the arm's weight)",
+        0.0,
+        1.0,
+        False,
+    ),
     "traj.max_speed": ("rad/s", "maximum joint speed (100 % of a path node's speed)", 1e-3, 10.0, False),
     "traj.max_acc": (
         "rad/s^2",
@@ -194,6 +202,7 @@ def size_class(
         ctrl_kp_vel=kp_vel,
         ctrl_ki_vel=10.0 * kp_vel,
         ctrl_ff_vel=1.0,
+        ctrl_ff_gravity=1.0,
         traj_max_speed=max_speed,
         traj_max_acc=max_acc,
     )

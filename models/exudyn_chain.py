@@ -18,10 +18,6 @@ from .mechanics import ChainArrays
 
 _EXU: Any = None
 
-#: m/s^2 in world axes. The models run in zero gravity (paper §5.2); the drives' in-step load
-#: predictor (chain_dynamics.bias_forces) takes the same vector, so the two never disagree once it changes.
-GRAVITY = (0.0, 0.0, 0.0)
-
 
 def exudyn() -> Any:
     """The exudyn module, imported on first use; the faster build (no range checks) unless exudyn was
@@ -40,8 +36,14 @@ class ExudynChain:
     """The Exudyn system of one arm: `mbs` (the MainSystem), `kt` (the KinematicTree object number)."""
 
     def __init__(
-        self, mech: ChainArrays, tool_local: np.ndarray, prestep: Callable[[Any, float], bool]
+        self,
+        mech: ChainArrays,
+        tool_local: np.ndarray,
+        gravity: np.ndarray,
+        prestep: Callable[[Any, float], bool],
     ) -> None:
+        """`gravity`: m/s^2 in world axes, the model's (the `gravity.*` parameters); the drives' in-step
+        load predictor (chain_dynamics.bias_forces) takes the same vector."""
         exu = exudyn()
         from exudyn.itemInterface import NodeGenericODE2, ObjectKinematicTree, SensorKinematicTree
 
@@ -68,7 +70,7 @@ class ExudynChain:
                 linkCOMs=exu.Vector3DList([coms[i] for i in range(n)]),
                 linkMasses=list(masses),
                 jointForceVector=[0.0] * n,
-                gravity=list(GRAVITY),
+                gravity=[float(g) for g in gravity],
             )
         )
         self.sens_p: list[Any] = []
@@ -121,6 +123,9 @@ class ExudynChain:
             self.kt, "linkInertiasCOM", exu.Matrix3DList([inertias[i] for i in range(self.n)])
         )
         mbs.SetSensorParameter(self.sens_tool, "localPosition", list(tool_local))
+
+    def set_gravity(self, gravity: np.ndarray) -> None:
+        self.mbs.SetObjectParameter(self.kt, "gravity", [float(g) for g in gravity])
 
     def sensor_poses(self, Rrpy: np.ndarray) -> np.ndarray:
         """Link and tool poses now (rows x, y, z, qw, qx, qy, qz), read from the Exudyn sensors: the

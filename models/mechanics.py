@@ -19,6 +19,8 @@ from .spec import ArmSpec
 
 # parameters whose change alters the chain (masses, lengths, radii, payload): Exudyn items are updated
 MECH_PREFIXES = ("link", "payload.")
+#: The parameters of the gravity vector (m/s^2, world axes).
+GRAVITY_PARAMS = ("gravity.x", "gravity.y", "gravity.z")
 
 
 class ChainArrays(NamedTuple):
@@ -31,7 +33,7 @@ class ChainArrays(NamedTuple):
     inertias: np.ndarray  # (n, 3, 3) inertia about the COM in the joint frame
 
 
-def vec(a: Sequence[float]) -> np.ndarray:
+def vec(a: Sequence[float] | np.ndarray) -> np.ndarray:
     return np.asarray(a, dtype=float)
 
 
@@ -115,18 +117,46 @@ def drive_array(n: int, values: Mapping[str, float]) -> np.ndarray:
     return P
 
 
-def init_states(P: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Initialisation equations (paper §5.2): drive states and held reference of a robot at rest at q.
+def gravity_of(values: Mapping[str, float]) -> np.ndarray:
+    """The gravity vector (m/s^2, world axes) of a value set."""
+    return np.array([float(values[name]) for name in GRAVITY_PARAMS])
+
+
+def gear_twist(P: np.ndarray, j: int, tau: float) -> float:
+    """The output twist (rad) at which joint j's gear carries the static torque tau: tau / stiffness,
+    plus half the backlash on the side the load pushes (none without load: centred)."""
+    if tau == 0.0:
+        return 0.0
+    return tau / P[j, dr.P_K] + math.copysign(0.5 * P[j, dr.P_BL], tau)
+
+
+def holding_capacity(P: np.ndarray) -> np.ndarray:
+    """Per joint, the largest static torque (N m) its drive holds: the motor's peak current through
+    the gear at rest, i_max kt n / f (f: the efficiency's switch at rest, drive.resting_gear_factor)."""
+    return np.array(
+        [
+            P[j, dr.P_IMAX] * P[j, dr.P_KT] * P[j, dr.P_N] / dr.resting_gear_factor(P[j, dr.P_ETA])
+            for j in range(P.shape[0])
+        ]
+    )
+
+
+def init_states(
+    P: np.ndarray, q: np.ndarray, load: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """Initialisation equations (paper §5.2): drive states and held reference of a robot at rest at q,
+    its gears carrying the static joint torques `load` (gravity's g(q); None: none).
 
     Every derivative is zero, so the run starts without transients; description.py lists the same
     equations for clients and docs.py explains them."""
     n = q.shape[0]
     X = np.zeros((n, dr.NL))
     hold = np.zeros(n)
+    tau = np.zeros(n) if load is None else load
     for j in range(n):
         nn = P[j, dr.P_N]
         p = P[j, dr.P_POLES]
-        th = nn * q[j]
+        th = nn * (q[j] + gear_twist(P, j, float(tau[j])))
         th_meas = th + P[j, dr.P_EM] * math.sin(p * th)
         te = p * th
         tem = p * th_meas
@@ -139,7 +169,8 @@ def init_states(P: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         A = -ka * sa * math.sin(tem) + kb * sb * math.cos(tem)
         B = -(ka * sa * offa + kb * sb * offb)
         tau_det = P[j, dr.P_DET] * math.sin(4 * p * th)
-        iref = (-tau_det - B) / A if abs(A) > 1e-12 else 0.0
+        tau_in = tau[j] / nn * dr.resting_gear_factor(P[j, dr.P_ETA])  # the load at the motor shaft
+        iref = (tau_in - tau_det - B) / A if abs(A) > 1e-12 else 0.0
         iref = float(np.clip(iref, -P[j, dr.P_IMAX], P[j, dr.P_IMAX]))
         ia = -iref * math.sin(tem) - offa
         ib = iref * math.cos(tem) - offb
@@ -149,10 +180,11 @@ def init_states(P: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         X[j, dr.S_IB] = ib
         X[j, dr.S_XA] = P[j, dr.P_R] * ia
         X[j, dr.S_XB] = P[j, dr.P_R] * ib
+        i_ff = P[j, dr.P_FFG] * tau_in / P[j, dr.P_KT]  # the gravity feed-forward's share of it
         if P[j, dr.P_KIV] > 0:
-            X[j, dr.S_XV] = iref
+            X[j, dr.S_XV] = iref - i_ff
             hold[j] = q_meas
-        else:  # P-only speed loop: the current comes from a standing position error
+        else:  # P-only speed loop: the rest of the current comes from a standing position error
             g = P[j, dr.P_KPV] * nn * P[j, dr.P_KPP]
-            hold[j] = q_meas + (iref / g if g > 0 else 0.0)
+            hold[j] = q_meas + ((iref - i_ff) / g if g > 0 else 0.0)
     return X, hold

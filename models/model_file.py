@@ -31,6 +31,8 @@ FORMAT = 1
 MODEL_FILE = "model.json5"
 
 Vec3 = Annotated[list[float], Meta(min_length=3, max_length=3)]
+#: m/s^2 per world axis (the bounds of the `gravity.*` parameters)
+Acceleration3 = Annotated[list[Annotated[float, Meta(ge=-100.0, le=100.0)]], Meta(min_length=3, max_length=3)]
 Positive = Annotated[float, Meta(gt=0.0)]
 NonNegative = Annotated[float, Meta(ge=0.0)]
 #: Drive size class name -> DRIVE_PARAMS name -> its value and metadata (as ArmSpec.drives).
@@ -145,6 +147,8 @@ class ModelFile(Record, kw_only=True):
     base_translation: Vec3 = msgspec.field(default_factory=lambda: [0.0, 0.0, 0.0])
     tool_translation: Vec3 = msgspec.field(default_factory=lambda: [0.0, 0.0, 0.0])
     payload: Payload = msgspec.field(default_factory=Payload)
+    #: m/s^2 in world axes: Earth's, pointing down the world z axis, unless the file says otherwise
+    gravity: Acceleration3 = msgspec.field(default_factory=lambda: [0.0, 0.0, -9.81])
     default_step: Annotated[float, Meta(ge=1e-5, le=0.01)] = 1e-3
     substeps: Annotated[int, Meta(ge=1, le=100)] = 5
     standard_target: list[float] = []
@@ -235,6 +239,7 @@ def load_model_dir(directory: str | Path) -> ArmSpec:
             tool_translation=tool_translation,
             payload_mass=model.payload.mass,
             payload_size=model.payload.size,
+            gravity=_t3(model.gravity),
             default_step=model.default_step,
             substeps=model.substeps,
             assumptions=docs["assumptions"],

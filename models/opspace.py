@@ -44,7 +44,7 @@ import numpy as np
 from numba import njit
 
 from . import drive as dr
-from .chain_dynamics import chain_frames, chain_state
+from .chain_dynamics import chain_frames, chain_state, gravity_torques
 from .chain_kinematics import (
     cholesky,
     cholesky_solve,
@@ -402,6 +402,15 @@ def control_update(
             for i in range(n):
                 q_m[i], qd_m[i] = dr.load_resolver(P, i, q[i], qd[i])
             Rm_all, pm_all, M_m, b_m = chain_state(pre_R, pre_p, masses, coms, inertias, gravity, q_m, qd_m)
+            break
+    # the law compensates gravity through b, each joint's share by its ctrl.ff_gravity
+    for j in range(n):
+        if P[j, dr.P_FFG] != 1.0 and (gravity[0] != 0.0 or gravity[1] != 0.0 or gravity[2] != 0.0):
+            g = np.empty(n)
+            gravity_torques(pre_R, pre_p, masses, coms, inertias, gravity, q_m, g)
+            b_m = b_m.copy()
+            for i in range(n):
+                b_m[i] -= (1.0 - P[i, dr.P_FFG]) * g[i]
             break
     saturated = opspace_currents(
         P,

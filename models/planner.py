@@ -41,7 +41,7 @@ from simecs.mesh.robot_commands import ACTION_ARGS, NAME_ARG
 
 from . import contact, contact_geometry, grasp, signals
 from . import drive as dr
-from .chain_dynamics import chain_frames
+from .chain_dynamics import chain_frames, gravity_torques
 from .description import ArmDescription
 from .errors import CommandError
 from .ik import (
@@ -56,7 +56,7 @@ from .ik import (
 )
 from .jit import CACHE as _CACHE
 from .jit import FAST as _FAST
-from .mechanics import chain_arrays
+from .mechanics import chain_arrays, drive_array, gravity_of, holding_capacity
 
 #: s: the closest two rows of a sampled reference may be (where a move curves fast; slow or straight
 #: stretches take fewer rows, spaced by accuracy).
@@ -82,6 +82,10 @@ TOOL_PATH_POINTS = 1000
 #: s between the set points a path is checked at against the obstacles (before a run): at 1 m/s a
 #: sphere moves 2 mm between two, a fifth of the thinnest one.
 PATH_CHECK_PERIOD = 2e-3
+#: s between the poses whose gravity load the hold check weighs, and rad the joints may turn together
+#: between two of them (gravity changes slowly along a path)
+HOLD_CHECK_PERIOD = 0.02
+HOLD_CHECK_STEP = 0.02
 #: m: how far a point of the arm may move between two of those checks of a reference table (whose
 #: rows may be far apart in time on a slow move): the same 2 mm.
 PATH_CHECK_STEP = 2e-3
@@ -616,6 +620,39 @@ class Planner:
             )
             if hit >= 0:
                 return self._touch(plan, int(rows[hit]), float(times[rows[hit]]), world.obstacles, found)
+        return None
+
+    def holding_problem(self, plan: Plan) -> tuple[str, str] | None:
+        """(field, why) when a drive cannot hold the arm against gravity at the initial pose or at a
+        pose of the planned path: the joint's gravity torque there (payload included) exceeds what its
+        motor gives at rest through its gear (i_max kt n / f, f the efficiency's switch at rest). The
+        motion's own torques are not counted: the drives' current limit shapes them in the run."""
+        gravity = gravity_of(self.values)
+        if not np.any(gravity):
+            return None
+        P = drive_array(self.n, self.values)
+        capacity = holding_capacity(P)
+        sampled = plan.joint_samples(self.q0, HOLD_CHECK_PERIOD, HOLD_CHECK_STEP)
+        times, qs = sampled if sampled is not None else (np.zeros(1), self.q0[None, :])
+        g = np.empty(self.n)
+        for k in range(qs.shape[0]):
+            gravity_torques(*self._arrays, gravity, np.ascontiguousarray(qs[k]), g)
+            over = np.flatnonzero(np.abs(g) > capacity)
+            if over.size:
+                j = int(over[np.argmax(np.abs(g[over]) / capacity[over])])
+                need = (
+                    f"joint{j + 1} cannot hold the arm against gravity: it needs {abs(g[j]):.3g} N m, its "
+                    f"drive gives at most {capacity[j]:.3g} N m at rest (motor.i_max {P[j, dr.P_IMAX]:g} A, "
+                    f"motor.kt {P[j, dr.P_KT]:g} N m/A, gear.ratio {P[j, dr.P_N]:g})"
+                )
+                if k == 0:
+                    return "initial", f"at the initial pose {need}: choose another pose or a lighter payload"
+                step = plan.step_at(float(times[k]))
+                return (
+                    f"command.{step.path}" if step is not None else "command",
+                    f"at t = {float(times[k]):.3f} s of the planned path {need}: change the path or lighten "
+                    "the payload",
+                )
         return None
 
     def _touch(

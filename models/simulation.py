@@ -21,16 +21,17 @@ from simecs.mesh.model import CONTROL_SYSTEMS
 
 from . import chain_dynamics, grasp
 from . import drive as dr
+from .chain_dynamics import gravity_torques
 from .contact import contact_prestep, pair_width
 from .contact_geometry import link_bounds, sphere_table
 from .description import ArmDescription
 from .errors import SimulationError
-from .exudyn_chain import GRAVITY, ExudynChain, exudyn
-from .mechanics import MECH_PREFIXES, chain_arrays, drive_array, init_states, tool_point, vec
+from .exudyn_chain import ExudynChain, exudyn
+from .mechanics import MECH_PREFIXES, chain_arrays, drive_array, gravity_of, init_states, tool_point, vec
 from .opspace import OpspaceController
 from .output_row import output_row
 from .sensors import sensor_row
-from .step import chain_step
+from .step import chain_step, gravity_feedforward
 
 #: The step kernel, called with its arguments spread from tuples cached per solver call (the stub's
 #: exact signature cannot follow the star arguments).
@@ -50,10 +51,10 @@ class Simulation:
         self.columns, self.units = columns.run_columns(self._desc)
         self.P = drive_array(self.n, self.values)
         self._mech = chain_arrays(package.spec, self.values)
-        self._gravity = np.array(GRAVITY, dtype=float)
+        self._gravity = gravity_of(self.values)  # changed in place: the step's argument tuples hold it
         self.q0 = np.zeros(self.n)
         self.qd0 = np.zeros(self.n)
-        self.X, self.hold = init_states(self.P, self.q0)
+        self.X, self.hold = self._at_rest()
         self.seg = np.zeros((0, 3 + 2 * self.n))
         self.tab = np.zeros((0, 1 + 2 * self.n))  # a sampled reference (planner.py), when not a joint path
         self.jmode = np.zeros(self.n, dtype=np.int64)
@@ -91,12 +92,21 @@ class Simulation:
         self._grasp_state = grasp.no_grasp()
         self._notices: list[str] = []
         self._contact_tables()
-        self._chain = ExudynChain(self._mech, self._tool_local(), self._prestep)
+        self._chain = ExudynChain(self._mech, self._tool_local(), self._gravity, self._prestep)
         self._mbs: Any = self._chain.mbs  # the hot path reads these two on every step
         self._kt = self._chain.kt
 
     def _tool_local(self) -> np.ndarray:
         return tool_point(self.package.spec, self.values)
+
+    @property
+    def gravity(self) -> np.ndarray:
+        """m/s^2 in world axes (the `gravity.*` parameters)."""
+        return self._gravity.copy()
+
+    def _at_rest(self) -> tuple[np.ndarray, np.ndarray]:
+        """The drive states and held set points of the arm at rest at q0, its gears carrying gravity."""
+        return init_states(self.P, self.q0, self.holding_torques(self.q0))
 
     def _update_mechanics(self) -> None:
         held = self._held
@@ -169,7 +179,11 @@ class Simulation:
         self.P[:] = drive_array(self.n, full)  # in place: no rebuild
         if mech_changed:
             self._update_mechanics()  # Exudyn item parameters: no rebuild either
-        self.X, self.hold = init_states(self.P, self.q0)
+        gravity = gravity_of(full)
+        if not np.array_equal(gravity, self._gravity):
+            self._gravity[:] = gravity
+            self._chain.set_gravity(gravity)
+        self.X, self.hold = self._at_rest()
 
     def set_initial(self, q: Sequence[float] | np.ndarray, qd: Sequence[float] | None = None) -> None:
         """Joint positions at rest -> every internal state; `qd` (extension) is for drives-off studies."""
@@ -181,7 +195,7 @@ class Simulation:
                 raise ValueError(f"{lk.joint}: {qv[i]:g} rad outside [{lk.joint_min:g}, {lk.joint_max:g}]")
         self.q0 = qv.copy()
         self.qd0 = np.zeros(self.n) if qd is None else vec(qd).copy()
-        self.X, self.hold = init_states(self.P, self.q0)
+        self.X, self.hold = self._at_rest()
         self.seg = np.zeros((0, 3 + 2 * self.n))
 
     def set_joint_path(self, nodes: Sequence[tuple[Sequence[float], float, float]]) -> None:
@@ -397,7 +411,7 @@ class Simulation:
         mbs.SetObjectParameter(self._kt, "jointForceVector", [0.0] * self.n)
         mbs.systemData.SetODE2Coordinates(list(self.q0), configuration=exu.ConfigurationType.Initial)
         mbs.systemData.SetODE2Coordinates_t(list(self.qd0), configuration=exu.ConfigurationType.Initial)
-        self.X, self.hold = init_states(self.P, self.q0)
+        self.X, self.hold = self._at_rest()
         self._nodes_copy = list(self._nodes)
         self.seg = self._plan(0.0) if self._nodes else np.zeros((0, 3 + 2 * self.n))
         self._Xbak = self.X.copy()
@@ -651,6 +665,8 @@ class Simulation:
         self._rows = np.empty((n_max, len(self.columns)))
         self._nrows = 0
         if self._k_next == 0:
+            if np.any(self._gravity):  # the t = 0 row's currents with the feed-forward of the first step
+                gravity_feedforward(*self._command_state(), *self._mech_arrays, self._gravity, 0.0)
             self._row_now()  # t = 0
         # the chunk ends on the last grid point within `until`; at an output sample, exactly on its time
         t_mid = math.floor(until / h + 1e-9) * h
@@ -701,6 +717,12 @@ class Simulation:
         pre_R, pre_p, masses, coms, inertias = self._mech
         chain_dynamics.mass_matrix(pre_R, pre_p, masses, coms, inertias, vec(q), M)
         return M
+
+    def holding_torques(self, q: Sequence[float] | np.ndarray) -> np.ndarray:
+        """g(q): the joint torques that hold the arm still at q against gravity (N m)."""
+        out = np.zeros(self.n)
+        gravity_torques(*self._mech, self._gravity, vec(q), out)
+        return out
 
     def _finalize(self) -> None:
         if self._solver is not None and self._running:

@@ -90,6 +90,7 @@ class ArmSpec:
     tool_translation: Vec3 = (0.0, 0.0, 0.0)
     payload_mass: float = 0.0
     payload_size: float = 0.2
+    gravity: Vec3 = (0.0, 0.0, -9.81)  # m/s^2 in world axes (the `gravity.*` parameters' defaults)
     default_step: float = 1e-3
     substeps: int = 5
     assumptions: str = ""

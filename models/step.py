@@ -8,9 +8,11 @@ and the controller and the drives each used to compute the same frames, mass mat
 
 from __future__ import annotations
 
+import numpy as np
 from numba import njit
 
-from .chain_dynamics import chain_state
+from . import drive as dr
+from .chain_dynamics import chain_state, gravity_torques
 from .chain_kinematics import spd_inverse
 from .drive import drive_step
 from .jit import CACHE as _CACHE
@@ -60,6 +62,8 @@ def chain_step(
     STEP_*)."""
     R_all, p_all, M, bias = chain_state(pre_R, pre_p, masses, coms, inertias, gravity, q, qd)
     Minv = spd_inverse(M)
+    if gravity[0] != 0.0 or gravity[1] != 0.0 or gravity[2] != 0.0:
+        gravity_feedforward(P, seg, hold, tab, jmode, live, pre_R, pre_p, masses, coms, inertias, gravity, t)
     spheres, bounds, obs, _pairs, caps, _cw, _scratch = tables
     if control_due:
         control_update(
@@ -117,3 +121,18 @@ def chain_step(
         work,
         tables,
     )
+
+
+@njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
+def gravity_feedforward(P, seg, hold, tab, jmode, live, pre_R, pre_p, masses, coms, inertias, gravity, t):
+    """The cascade's gravity feed-forward for the step from t, into live[:, LV_GRAVITY]: the current
+    whose motor torque holds the model's gravity torque at the set points (not at the measured pose: a
+    model-based feed-forward, as a real controller computes it), weighted per joint by ctrl.ff_gravity."""
+    n = live.shape[0]
+    refs = np.empty((3, n))
+    qr, qdr, g = refs[0], refs[1], refs[2]
+    dr.ref_eval(seg, hold, tab, jmode, live, t, qr, qdr)
+    gravity_torques(pre_R, pre_p, masses, coms, inertias, gravity, qr, g)
+    for j in range(n):
+        holding = g[j] / P[j, dr.P_N] * dr.resting_gear_factor(P[j, dr.P_ETA])
+        live[j, dr.LV_GRAVITY] = P[j, dr.P_FFG] * holding / P[j, dr.P_KT]

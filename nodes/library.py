@@ -126,14 +126,14 @@ class ModelLibrary:
     ) -> Any:
         """The command expanded for this model, values and initial pose (models.planner.Plan) among
         `obstacles` (what grasps take), or a refusal naming the field inside `command` (a level the
-        model does not accept: unsupported). With `collisions`, a path that makes the arm touch an
-        obstacle is refused too (naming the step)."""
+        model does not accept: unsupported). A path whose drives cannot hold the arm against gravity is
+        refused, and with `collisions` one that makes the arm touch an obstacle (naming the step)."""
         planner = self._planner(model_id, command.kind, "command", values, initial, stop_time, obstacles)
         with _refused_as("command"):
             plan = planner.plan(command)
-        touch = planner.collision(plan) if collisions else None
-        if touch is not None:
-            raise RequestError("bad_request", touch[1], touch[0])
+        problem = planner.holding_problem(plan) or (planner.collision(plan) if collisions else None)
+        if problem is not None:
+            raise RequestError("bad_request", problem[1], problem[0])
         return plan
 
     def check_program(

@@ -340,7 +340,7 @@ def test_docs_navigable(spider):
             assert ch in ids
     resizable = [s for s in d.shapes if s.resizable]
     assert sorted(s.link for s in resizable) == list(range(len(d.links)))
-    assert d.init_equations and any("n * q" in e.expression for e in d.init_equations)
+    assert d.init_equations and any("n * (q + tau_g/k" in e.expression for e in d.init_equations)
 
 
 def test_specs_are_keyword_only_and_docs_need_no_package(spider):
@@ -503,7 +503,7 @@ def test_each_ripple_source_at_its_own_harmonic(spider, source, harmonic):
     for te in np.arange(turns) * 2 * math.pi / turns:
         X = np.zeros((P.shape[0], dr.NL))
         X[j, dr.S_TH] = te / p
-        dr.joint_signals(P, j, X, 0.0, 0.0, amps, 0.0, dr.JM_CURRENT, out)
+        dr.joint_signals(P, j, X, 0.0, 0.0, amps, 0.0, dr.JM_CURRENT, 0.0, out)
         torque.append(out[10])
     spectrum = np.abs(np.fft.rfft(torque)) / turns * 2
     mean = np.mean(torque)
