@@ -622,17 +622,18 @@ class Planner:
                 return self._touch(plan, int(rows[hit]), float(times[rows[hit]]), world.obstacles, found)
         return None
 
-    def holding_problem(self, plan: Plan) -> tuple[str, str] | None:
+    def holding_problem(self, plan: Plan | None) -> tuple[str, str] | None:
         """(field, why) when a drive cannot hold the arm against gravity at the initial pose or at a
-        pose of the planned path: the joint's gravity torque there (payload included) exceeds what its
-        motor gives at rest through its gear (i_max kt n / f, f the efficiency's switch at rest). The
-        motion's own torques are not counted: the drives' current limit shapes them in the run."""
+        pose of the planned path (`plan` None: a run without a command, which holds the initial pose):
+        the joint's gravity torque there (payload included) exceeds what its drive gives at rest
+        (mechanics.holding_capacity). The motion's own torques are not counted: the drives' current
+        limit shapes them in the run."""
         gravity = gravity_of(self.values)
         if not np.any(gravity):
             return None
         P = drive_array(self.n, self.values)
         capacity = holding_capacity(P)
-        sampled = plan.joint_samples(self.q0, HOLD_CHECK_PERIOD, HOLD_CHECK_STEP)
+        sampled = None if plan is None else plan.joint_samples(self.q0, HOLD_CHECK_PERIOD, HOLD_CHECK_STEP)
         times, qs = sampled if sampled is not None else (np.zeros(1), self.q0[None, :])
         g = np.empty(self.n)
         for k in range(qs.shape[0]):
@@ -647,7 +648,7 @@ class Planner:
                 )
                 if k == 0:
                     return "initial", f"at the initial pose {need}: choose another pose or a lighter payload"
-                step = plan.step_at(float(times[k]))
+                step = plan.step_at(float(times[k])) if plan is not None else None
                 return (
                     f"command.{step.path}" if step is not None else "command",
                     f"at t = {float(times[k]):.3f} s of the planned path {need}: change the path or lighten "

@@ -136,6 +136,13 @@ class ModelLibrary:
             raise RequestError("bad_request", problem[1], problem[0])
         return plan
 
+    def check_hold(self, model_id: str, values: Mapping[str, float], initial: Sequence[float]) -> None:
+        """Refuse a run without a command whose arm its drives cannot hold at the initial pose."""
+        kind = self.describe(model_id).command_levels[0]  # any: the planner is only asked about q0
+        problem = self._planner(model_id, kind, "initial", values, initial).holding_problem(None)
+        if problem is not None:
+            raise RequestError("bad_request", problem[1], problem[0])
+
     def check_program(
         self, model_id: str, values: Mapping[str, float], program: m.Program, where: str
     ) -> None:

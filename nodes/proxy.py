@@ -335,6 +335,8 @@ class Proxy(Node):
         if check and "joint_path" in levels:
             command = m.JointPath([m.PathNode(initial)])  # planned as a hold
         if command is None:
+            if isinstance(cmd, m.Run):
+                self.models.check_hold(model_id, values, initial)
             return None
         return self.models.plan(model_id, values, initial, command, stop_time, obstacles, check)
 

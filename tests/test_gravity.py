@@ -138,7 +138,8 @@ def test_gravity_changes_per_session_and_the_holding_currents_follow_it() -> Non
 def test_a_pose_the_drives_cannot_hold_is_refused_naming_the_joint(service: Service) -> None:
     """A 20 kg payload on the PUMA: stretched out, its shoulder would need more than its drive gives.
     As the initial pose, and as a path's goal, the command is refused before any run, naming the
-    joint, the torque needed and the limit; at home the same payload is held."""
+    joint, the torque needed and the limit; at home the same payload is held. A run without a command,
+    which holds its initial pose, is refused there too."""
     package = get_model("puma560")
     s = service.client.create_session("ann", "puma560")
     s.set_params({"payload.mass": 20.0})
@@ -160,3 +161,13 @@ def test_a_pose_the_drives_cannot_hold_is_refused_naming_the_joint(service: Serv
     assert capacity[1] <= float(said[1]) <= abs(need[1]) * 1.01 and error.message.startswith("at t = ")
     plan = s.set_command(m.JointPath([m.PathNode(home, 50.0, 50.0)]))
     assert plan.kind == "joint_path"
+    # a run without a command holds its initial pose: stretched out, it is refused too
+    idle = service.client.create_session("ann", "puma560")
+    idle.set_params({"payload.mass": 20.0})
+    idle.set_initial(stretched)
+    with pytest.raises(Exception) as refused:
+        idle.run()
+    error = refused.value.error  # type: ignore[attr-defined]
+    assert error.field == "initial", error
+    assert error.message.startswith("at the initial pose joint2 cannot hold"), error
+    assert idle.snapshot().state.phase == "configured" and not idle.runs()
