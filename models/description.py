@@ -360,10 +360,13 @@ class ArmDescription:
             InitEquation("jointN.i_b", "i_ref*cos(p*q_m') - offset_b", "phase B current"),
             InitEquation(
                 "jointN.current.x_a",
-                "R * i_a",
-                "current PI integrators = phase voltages at rest (no back-EMF, di/dt = 0)",
+                "R * i_a  [R * (i_a*cos(p*q_m') + i_b*sin(p*q_m')) if rotor_frame]",
+                "current PI integrators = phase voltages at rest (no back-EMF, di/dt = 0); with the "
+                "PIs in the rotor's frame, its d and q voltages",
             ),
-            InitEquation("jointN.current.x_b", "R * i_b", ""),
+            InitEquation(
+                "jointN.current.x_b", "R * i_b  [R * (-i_a*sin(p*q_m') + i_b*cos(p*q_m')) if rotor_frame]", ""
+            ),
         ]
         return eqs
 

@@ -46,6 +46,7 @@ DRIVE_PARAMS = (
     "current.ki",
     "current.offset_a",
     "current.offset_b",
+    "current.rotor_frame",
     "gear.ratio",
     "gear.efficiency",
     "gear.J_gear",
@@ -87,6 +88,7 @@ NP = len(DRIVE_PARAMS)
     P_KII,
     P_OFFA,
     P_OFFB,
+    P_FOC,
     P_N,
     P_ETA,
     P_JG,
@@ -400,12 +402,29 @@ def joint_signals(P, j, X, ql, qdl, qr, qdr, mode, i_ff, out):
         umax = P[j, P_UMAX]
         ea = ia_s - (ia + P[j, P_OFFA])
         eb = ib_s - (ib + P[j, P_OFFB])
-        uau = kpi * ea + X[j, S_XA]
-        ubu = kpi * eb + X[j, S_XB]
-        ua = _sat(uau, umax)
-        ub = _sat(ubu, umax)
-        dxa = kii * ea + (kii / kpi) * (ua - uau)
-        dxb = kii * eb + (kii / kpi) * (ub - ubu)
+        if P[j, P_FOC] > 0.5:
+            # field-oriented: the PIs act on the errors in the rotor's frame (d, q at the resolver's
+            # electrical angle), where the set points are constant at any speed; x_a, x_b hold u_d, u_q
+            ed = ea * cm + eb * sm
+            eq = -ea * sm + eb * cm
+            # decoupling and back-EMF feed-forward from the measured currents and speed, as servo
+            # drives do: the PIs then only correct what the motor model misses
+            ma = ia + P[j, P_OFFA]
+            mb = ib + P[j, P_OFFB]
+            wl = p * om_meas * P[j, P_L]
+            udu = kpi * ed + X[j, S_XA] - wl * (-ma * sm + mb * cm)
+            uqu = kpi * eq + X[j, S_XB] + wl * (ma * cm + mb * sm) + kt * om_meas
+            ua = _sat(udu * cm - uqu * sm, umax)
+            ub = _sat(udu * sm + uqu * cm, umax)
+            dxa = kii * ed + (kii / kpi) * (ua * cm + ub * sm - udu)
+            dxb = kii * eq + (kii / kpi) * (-ua * sm + ub * cm - uqu)
+        else:  # one PI per phase in the stationary frame (the paper's analog loops)
+            uau = kpi * ea + X[j, S_XA]
+            ubu = kpi * eb + X[j, S_XB]
+            ua = _sat(uau, umax)
+            ub = _sat(ubu, umax)
+            dxa = kii * ea + (kii / kpi) * (ua - uau)
+            dxb = kii * eb + (kii / kpi) * (ub - ubu)
     tau_em = ka * sa * ia + kb * sb * ib
     tau_det = P[j, P_DET] * 4.0 * s1 * c1 * (c1 * c1 - s1 * s1)  # T_det sin(4 p th)
     # LuGre friction at the gear input

@@ -61,6 +61,15 @@ META = {
     ),
     "current.offset_a": ("A", "current sensor offset of phase A (sensor polarisation)", -1.0, 1.0, False),
     "current.offset_b": ("A", "current sensor offset of phase B (sensor polarisation)", -1.0, 1.0, False),
+    "current.rotor_frame": (
+        "-",
+        "1: the current PIs act in the rotor's frame (field-oriented control: torque per ampere kept at "
+        "speed); 0: one PI per phase in the stationary frame (the paper's analog loops, which lag the "
+        "phase currents at high electrical frequency)",
+        0.0,
+        1.0,
+        True,
+    ),
     "gear.ratio": ("-", "reduction ratio n (motor angle = n * load angle)", 1.0, 1000.0, False),
     "gear.efficiency": ("-", "mechanical efficiency (applied on the power flow direction)", 0.3, 1.0, False),
     "gear.J_gear": ("kg*m^2", "gear train inertia referred to the input (motor) shaft", 0.0, 1e-2, False),
@@ -156,6 +165,7 @@ def size_class(
     u_max: float = 48.0,
     offset_a: float = 0.0,
     offset_b: float = 0.0,
+    current_frame: str = "rotor",
 ) -> dict[str, ParamInfo]:
     """A drive from a few design quantities; controller gains follow documented tuning rules.
 
@@ -184,6 +194,7 @@ def size_class(
         current_ki=R * wc,
         current_offset_a=offset_a,
         current_offset_b=offset_b,
+        current_rotor_frame=1 if current_frame == "rotor" else 0,
         gear_ratio=ratio,
         gear_efficiency=efficiency,
         gear_J_gear=J_gear,

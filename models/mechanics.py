@@ -178,8 +178,12 @@ def init_states(
         X[j, dr.S_TH] = th
         X[j, dr.S_IA] = ia
         X[j, dr.S_IB] = ib
-        X[j, dr.S_XA] = P[j, dr.P_R] * ia
-        X[j, dr.S_XB] = P[j, dr.P_R] * ib
+        ua, ub = P[j, dr.P_R] * ia, P[j, dr.P_R] * ib  # the phase voltages at rest
+        if P[j, dr.P_FOC] > 0.5:  # the current PIs' integrators hold them in the rotor's frame
+            sm, cm = math.sin(tem), math.cos(tem)
+            ua, ub = ua * cm + ub * sm, -ua * sm + ub * cm
+        X[j, dr.S_XA] = ua
+        X[j, dr.S_XB] = ub
         i_ff = P[j, dr.P_FFG] * tau_in / P[j, dr.P_KT]  # the gravity feed-forward's share of it
         if P[j, dr.P_KIV] > 0:
             X[j, dr.S_XV] = iref - i_ff

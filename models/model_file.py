@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Literal
 
 import json5
 import msgspec
@@ -74,6 +74,8 @@ class DriveClass(Record, kw_only=True):
     u_max: Positive = 48.0
     offset_a: float = 0.0
     offset_b: float = 0.0
+    #: where the current PIs act: "rotor" (field-oriented) or "stationary" (one per phase, the paper's)
+    current_frame: Literal["rotor", "stationary"] = "rotor"
 
 
 class LinkRow(Record, kw_only=True):
