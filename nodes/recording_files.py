@@ -226,29 +226,30 @@ class RunFiles:
             run_meta["restarted"] = layout.context.restarted
         if name != base:
             run_meta["continues"] = base
+        info = m.RecordingInfo(
+            name,
+            layout.session,
+            layout.run_id,
+            layout.model_id,
+            0,
+            False,
+            layout.stop_time,
+            created=mcapread.iso_utc(time.time_ns()),
+        )
+        # Open before the file exists: a download that finds the file (a quick run's client asks at once)
+        # then waits for its end instead of taking the bytes written so far.
+        self.library.opened(path, info)
         try:
             path.parent.mkdir(parents=True, exist_ok=True)
             writer = RunWriter(path, layout, viz_rate_hz=self.viz_rate_hz, run_meta=run_meta)
         except (OSError, fmt.FormatError) as exc:
+            self.library.closed(path)
             self.log.error("cannot record run %s of %s into %s: %s", layout.run_id, layout.session, path, exc)
             return
         rec = Active(
             user, layout, name, writer, last_data=time.monotonic(), next_seq=None if name != base else 0
         )
         self.active[(user, layout.session)] = rec
-        self.library.opened(
-            path,
-            m.RecordingInfo(
-                name,
-                layout.session,
-                layout.run_id,
-                layout.model_id,
-                0,
-                False,
-                layout.stop_time,
-                created=mcapread.iso_utc(writer.created_ns),
-            ),
-        )
         self.stats["files"] += 1
         note = f" (continues {base}: the recorder restarted during the run)" if name != base else ""
         if layout.context.attempt > 1:

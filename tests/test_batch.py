@@ -168,4 +168,6 @@ def test_simecs_run_embedded_starts_and_stops_a_private_mesh(tmp_path: Path) -> 
     )
     assert out.returncode == 0, out.stderr
     recording = mcapread.load(tmp_path / "e.mcap")
-    assert recording.rows.shape[0] == 251 and recording.context("").command.kind == "action"
+    said = [entry.get("message") for entry in recording.logs]  # what the recorder wrote, if it went wrong
+    assert recording.rows.shape[0] == 251, (recording.rows.shape, said, out.stderr)
+    assert recording.context("").command.kind == "action"
