@@ -665,8 +665,8 @@ class Simulation:
         self._rows = np.empty((n_max, len(self.columns)))
         self._nrows = 0
         if self._k_next == 0:
-            if np.any(self._gravity):  # the t = 0 row's currents with the feed-forward of the first step
-                gravity_feedforward(*self._command_state(), *self._mech_arrays, self._gravity, 0.0)
+            # the t = 0 row's currents with the feed-forward of the first step
+            gravity_feedforward(*self._command_state(), *self._mech_arrays, self._gravity, 0.0)
             self._row_now()  # t = 0
         # the chunk ends on the last grid point within `until`; at an output sample, exactly on its time
         t_mid = math.floor(until / h + 1e-9) * h

@@ -62,8 +62,7 @@ def chain_step(
     STEP_*)."""
     R_all, p_all, M, bias = chain_state(pre_R, pre_p, masses, coms, inertias, gravity, q, qd)
     Minv = spd_inverse(M)
-    if gravity[0] != 0.0 or gravity[1] != 0.0 or gravity[2] != 0.0:
-        gravity_feedforward(P, seg, hold, tab, jmode, live, pre_R, pre_p, masses, coms, inertias, gravity, t)
+    gravity_feedforward(P, seg, hold, tab, jmode, live, pre_R, pre_p, masses, coms, inertias, gravity, t)
     spheres, bounds, obs, _pairs, caps, _cw, _scratch = tables
     if control_due:
         control_update(
@@ -127,8 +126,16 @@ def chain_step(
 def gravity_feedforward(P, seg, hold, tab, jmode, live, pre_R, pre_p, masses, coms, inertias, gravity, t):
     """The cascade's gravity feed-forward for the step from t, into live[:, LV_GRAVITY]: the current
     whose motor torque holds the model's gravity torque at the set points (not at the measured pose: a
-    model-based feed-forward, as a real controller computes it), weighted per joint by ctrl.ff_gravity."""
+    model-based feed-forward, as a real controller computes it), weighted per joint by ctrl.ff_gravity.
+    Nothing to compute (0 written) in zero gravity or when no joint is under the cascade."""
     n = live.shape[0]
+    cascade = False
+    for j in range(n):
+        cascade = cascade or live[j, dr.LV_EXTERNAL] <= 0.5
+    if not cascade or (gravity[0] == 0.0 and gravity[1] == 0.0 and gravity[2] == 0.0):
+        for j in range(n):
+            live[j, dr.LV_GRAVITY] = 0.0
+        return
     refs = np.empty((3, n))
     qr, qdr, g = refs[0], refs[1], refs[2]
     dr.ref_eval(seg, hold, tab, jmode, live, t, qr, qdr)

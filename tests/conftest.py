@@ -190,23 +190,22 @@ class ServiceKeeper:
     loaded 2-core machine): a new one after a test whose nodes did not all survive it."""
 
     def __init__(self) -> None:
-        self.mesh: LocalMesh | None = None
         self.service: Service | None = None
 
     def healthy(self) -> Service:
-        if self.mesh is not None and self.service is not None:
-            procs = self.mesh.procs
+        if self.service is not None:
+            procs = self.service.mesh.procs
             if all(name in procs and procs[name].poll() is None for name in SERVICE_NODES):
                 return self.service
-            self.mesh.close()
-        self.mesh = LocalMesh()
-        self.mesh.start_hub()
-        self.service = start_service(self.mesh)
+            self.service.mesh.close()
+        mesh = LocalMesh()
+        mesh.start_hub()
+        self.service = start_service(mesh)
         return self.service
 
     def close(self) -> None:
-        if self.mesh is not None:
-            self.mesh.close()
+        if self.service is not None:
+            self.service.mesh.close()
 
 
 @pytest.fixture(scope="module")
