@@ -61,7 +61,9 @@ format: $(TEST_STAMP)
 schema: $(STAMP)
 	$(BIN)/python -m simecs.mesh.schema
 
-test: lint $(CHROMIUM) warm
+# Lint and the drives' compile run side by side (one core each): on a fresh clone that saves half a minute.
+test: $(TEST_STAMP) $(CHROMIUM)
+	$(MAKE) --no-print-directory -j2 --output-sync=target lint warm
 	$(BIN)/python -m pytest -q -n 2 --dist loadfile --durations=20
 
 bench: $(STAMP) warm

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import ctypes
+import faulthandler
 import logging
 import os
 import signal
@@ -464,6 +465,7 @@ def main_for(node_cls: type[Node], argv: list[str] | None = None, prog: str | No
         add(parser)
     args = parser.parse_args(argv)
     setup_logging(f"{node_cls.role}", args.log_level)
+    faulthandler.enable()  # a crash in a native library leaves every thread's stack in the node's log
     try:
         node = node_cls.from_args(args)
         node.cpu_choice = args.cpu

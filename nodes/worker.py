@@ -11,6 +11,7 @@ them from, and exits.
 from __future__ import annotations
 
 import argparse
+import faulthandler
 import json
 import logging
 import os
@@ -480,6 +481,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--simulator", default="", help="the node id of the simulator that started it")
     args = parser.parse_args(argv)
     setup_logging("worker", args.log_level)
+    faulthandler.enable()  # a crash in a native library leaves every thread's stack in the log
     os.set_blocking(sys.stdout.fileno(), False)  # a simulator that does not read never stalls a run
     code = 0
     # Warming up (imports, compiling) is background work: it must not slow the runs going on.
