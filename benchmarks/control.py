@@ -17,6 +17,13 @@
   `hybrid_force_error_n`: the RMS of the measured normal force (`contact.tool_fn`) less 20 N while it
   slides, after the first 0.5 s; `hybrid_force_error_rest_n` over the last 0.5 s (at rest);
   `hybrid_path_error_mm`: the largest distance of the tool from the line across the axis;
+- `rtf_contact_urdf`: the Panda (imported from URDF) with the lowest corner of its hand's collision
+  solids pressed 3 mm into a box (k = 1e5 N/m, friction 0.3) while joint 7 turns the hand 0.5 rad on
+  it at 20 % and holds, 3 s, under gravity; `contact_urdf_force_n` the mean of link7's contact force,
+  `contact_urdf_fraction` of the samples in contact;
+- `self_collision_detected`: 1 when, for each of the `self_collision_models` arms (Spider, Panda,
+  UR5, Jaco2), the single-joint motion from home that folds it into itself (testing/collision.py) is
+  refused by the planner naming the two links;
 - `contact_energy_drift`: drives off (a free chain), the Spider turning on joint 1 at 0.5 rad/s into
   a frictionless, undamped wall (an elastic impact): |E after - E before| / E before, E = qd^T M qd / 2
   out of contact.
@@ -129,6 +136,51 @@ def _contact_figures() -> dict[str, float]:
     return out
 
 
+def _urdf_figures() -> dict[str, float]:
+    """An imported arm's contact through its URDF collision solids, and every arm against itself."""
+    from simecs import models
+    from simecs.mesh import messages as m
+    from simecs.testing.collision import fold_target, link_hull_points
+
+    pkg = models.get_model("panda")
+    values = pkg.describe().default_values()
+    q0 = np.array(pkg.spec.home)
+    hand = link_hull_points(pkg, q0, pkg.n - 1)
+    k = int(np.argmin(hand[:, 2]))
+    top = float(hand[k, 2]) + URDF_PRESS_M  # the hand's lowest corner pressed into the box
+    box = m.Obstacle(
+        "table", "box", [float(hand[k, 0]), float(hand[k, 1]), top - 0.05], size=[0.25, 0.25, 0.1]
+    )
+    goal = q0.copy()
+    goal[-1] += 0.5  # the hand turns on the box about its own axis
+    stop, walls = 3.0, []
+    for _ in range(3):
+        sim = pkg.build(values)
+        sim.set_obstacles([box])
+        sim.set_initial(q0)
+        sim.set_joint_path([(list(goal), 20.0, 20.0)])
+        sim.start(stop, 0.002)
+        rows, wall = _run(sim, stop)
+        walls.append(wall)
+        cols = list(sim.columns)
+        sim.close()
+    force = rows[:, cols.index(f"contact.link{pkg.n}.force")]
+    out = {
+        "rtf_contact_urdf": stop / min(walls),
+        "contact_urdf_force_n": float(force.mean()),
+        "contact_urdf_fraction": float(np.mean(force > 0)),
+    }
+    folds = {model_id: fold_target(models.get_model(model_id)) for model_id in SELF_COLLISION_MODELS}
+    out["self_collision_models"] = float(len(folds))
+    out["self_collision_detected"] = float(all(found is not None for found in folds.values()))
+    return out
+
+
+#: m: how far the Panda's hand is pressed into the box in `rtf_contact_urdf`.
+URDF_PRESS_M = 0.003
+#: The models with a single-joint motion from home that folds them into themselves (the PUMA has
+#: none within its ranges: its forearm sits beside the upper arm).
+SELF_COLLISION_MODELS = ("spider", "panda", "ur5", "jaco2")
 HYBRID_FORCE_N = 20.0
 SETTLE_S = 0.5
 
@@ -180,7 +232,7 @@ def run_control_bench(as_json: bool = False) -> dict[str, Any]:
     warmup()
     per_model = {model_id: _figures(model_id) for model_id in MODELS}
     result: dict[str, Any] = dict(per_model["spider"])
-    contact = {**_hybrid_figures(), **_contact_figures()}
+    contact = {**_hybrid_figures(), **_contact_figures(), **_urdf_figures()}
     per_model["spider"].update(contact)
     result.update(contact)
     result["per_model"] = per_model

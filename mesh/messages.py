@@ -130,8 +130,9 @@ class RunSettings(Record):
     collisions: Annotated[
         Literal["refuse", "simulate"],
         Meta(
-            description="refuse: a run whose planned path makes the arm touch an obstacle is refused, "
-            "naming the step and the obstacle; simulate: it runs, and the contact is simulated"
+            description="refuse: a run whose planned path makes the arm touch an obstacle or itself is "
+            "refused, naming the step and the obstacle or the two links; simulate: it runs, the contact "
+            "with obstacles is simulated and links touching each other are told as notices"
         ),
     ] = "refuse"
 

@@ -1,10 +1,11 @@
 """The arm's contact geometry and the obstacles' (contact.py uses them): the tables the kernels read and
 the distance of a sphere from an obstacle's surface.
 
-The arm touches the world through spheres: per link a row of spheres along the link's segment (its
+The arm touches the world through spheres. An imported arm's come from its URDF collision solids
+(collision_spheres.py); a drawn arm has per link a row of spheres along the link's segment (its
 central translation, then its final translation) with the link's radius, at most one radius apart,
-the first one at the joint as wide as the joint housing, and a thin probe from the last link's end to
-the tool point whose last sphere is the tool tip. Each link has a bound sphere around its spheres: a
+the first one at the joint as wide as the joint housing. Both end in a thin probe from the last link's
+end to the tool point whose last sphere is the tool tip. Each link has a bound sphere around its spheres: a
 step looks at a link's spheres only when an obstacle comes near its bound.
 """
 
@@ -18,6 +19,7 @@ from numba import njit
 from simecs.mesh.environment import OBSTACLE_KINDS, Obstacle
 from simecs.mesh.kinematics import rot_rpy
 
+from .collision_spheres import solid_spheres
 from .jit import CACHE as _CACHE
 from .jit import FAST as _FAST
 from .spec import ArmSpec
@@ -45,18 +47,27 @@ K_BOX, K_CYLINDER, K_SPHERE, K_PLANE = (
 
 
 def sphere_table(spec: ArmSpec, values: Mapping[str, float]) -> np.ndarray:
-    """The arm's contact spheres at these link lengths and radii (rows of SP_*)."""
+    """The arm's contact spheres (rows of SP_*): an imported arm's from its URDF collision solids, a
+    drawn arm's at these link lengths and radii; then the tool probe."""
     rows: list[list[float]] = []
     n = len(spec.links)
-    for i, lk in enumerate(spec.links):
-        Rr = rot_rpy(lk.rpy)
-        r = float(values[f"link{i + 1}.radius"])
-        L = float(values[f"link{i + 1}.length"])
-        end = np.array([L, 0.0, 0.0])
-        final = end + np.asarray(lk.final, dtype=float)
-        rows.append([i, 0.0, 0.0, 0.0, 1.25 * r, ON_LINK])  # the joint housing
-        for a, b in ((np.zeros(3), end), (end, final)):
-            _row_of_spheres(rows, i, Rr, a, b, r, ON_LINK, skip_first=True)
+    if spec.collisions:
+        for i, lk in enumerate(spec.links):
+            Rr = rot_rpy(lk.rpy)  # a solid's pose is in the link's coordinates (x along the link)
+            for solid in spec.collisions:
+                if solid.link == i:
+                    for *c, r in solid_spheres(solid.geometry, solid.near):
+                        rows.append([i, *(Rr @ np.asarray(c)), r, ON_LINK])
+    else:
+        for i, lk in enumerate(spec.links):
+            Rr = rot_rpy(lk.rpy)
+            r = float(values[f"link{i + 1}.radius"])
+            L = float(values[f"link{i + 1}.length"])
+            end = np.array([L, 0.0, 0.0])
+            final = end + np.asarray(lk.final, dtype=float)
+            rows.append([i, 0.0, 0.0, 0.0, 1.25 * r, ON_LINK])  # the joint housing
+            for a, b in ((np.zeros(3), end), (end, final)):
+                _row_of_spheres(rows, i, Rr, a, b, r, ON_LINK, skip_first=True)
     lk = spec.links[-1]
     Rr = rot_rpy(lk.rpy)
     L = float(values[f"link{n}.length"])

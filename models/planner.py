@@ -57,6 +57,7 @@ from .ik import (
 from .jit import CACHE as _CACHE
 from .jit import FAST as _FAST
 from .mechanics import chain_arrays, drive_array, gravity_of, holding_capacity
+from .self_collision import SelfCollision
 
 #: s: the closest two rows of a sampled reference may be (where a move curves fast; slow or straight
 #: stretches take fewer rows, spaced by accuracy).
@@ -621,6 +622,34 @@ class Planner:
             if hit >= 0:
                 return self._touch(plan, int(rows[hit]), float(times[rows[hit]]), world.obstacles, found)
         return None
+
+    @functools.cached_property
+    def self_check(self) -> SelfCollision:
+        """The arm's check against itself at these values (self_collision.py), made when first asked."""
+        spec = self.model.spec
+        return SelfCollision.of(spec, self._spheres, self._arrays.pre_R, self._arrays.pre_p, spec.home)
+
+    def self_touch(self, plan: Plan) -> tuple[str, str] | None:
+        """(field, why) when the planned path makes two links of the arm touch (`initial`, or the step's
+        path under `command`); a path that follows speeds or currents is not known: None."""
+        sampled = plan.joint_samples(self.q0, PATH_CHECK_PERIOD, PATH_CHECK_STEP / self.kin.reach)
+        if sampled is None:
+            return None
+        times, qs = sampled
+        hit = self.self_check.first_touch(qs)
+        if hit is None:
+            return None
+        k, a, b, depth = hit
+        what = f"{a} would touch {b} ({depth * 1000:.1f} mm deep)"
+        if k == 0:
+            return "initial", f"at the initial pose {what}: choose a pose where the arm is clear of itself"
+        t = float(times[k])
+        step = plan.step_at(t)
+        return (
+            f"command.{step.path}" if step is not None else "command",
+            f"{what} at t = {t:.3f} s of the planned path: change the path, or set settings.collisions to "
+            "simulate",
+        )
 
     def holding_problem(self, plan: Plan | None) -> tuple[str, str] | None:
         """(field, why) when a drive cannot hold the arm against gravity at the initial pose or at a

@@ -127,11 +127,14 @@ class ModelLibrary:
         """The command expanded for this model, values and initial pose (models.planner.Plan) among
         `obstacles` (what grasps take), or a refusal naming the field inside `command` (a level the
         model does not accept: unsupported). A path whose drives cannot hold the arm against gravity is
-        refused, and with `collisions` one that makes the arm touch an obstacle (naming the step)."""
+        refused, and with `collisions` one that makes the arm touch an obstacle or itself (naming the
+        step)."""
         planner = self._planner(model_id, command.kind, "command", values, initial, stop_time, obstacles)
         with _refused_as("command"):
             plan = planner.plan(command)
-        problem = planner.holding_problem(plan) or (planner.collision(plan) if collisions else None)
+        problem = planner.holding_problem(plan)
+        if problem is None and collisions:
+            problem = planner.collision(plan) or planner.self_touch(plan)
         if problem is not None:
             raise RequestError("bad_request", problem[1], problem[0])
         return plan

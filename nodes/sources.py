@@ -9,6 +9,7 @@ from __future__ import annotations
 from typing import Any, Protocol
 
 import numpy as np
+from simecs.mesh import columns
 from simecs.mesh import messages as m
 from simecs.mesh.client import MeshClient, NoReply, RemoteError
 
@@ -58,6 +59,7 @@ class SimulationSource:
         from simecs import models
         from simecs.models.contact import ContactLog
         from simecs.models.planner import Planner
+        from simecs.models.self_collision import SelfContactLog
 
         self.req = req
         self.model_id = req.model_id
@@ -89,6 +91,8 @@ class SimulationSource:
         )
         self.sim.set_obstacles(req.obstacles)
         self.contacts = ContactLog(self.columns, [ob.name for ob in req.obstacles], self.sim.n)
+        q_columns = [self.columns.index(columns.joint_column(j, columns.JOINT_POSITION)) for j in self.joints]
+        self.self_contacts = SelfContactLog(planner.self_check, q_columns)
         self.sim.set_initial(req.initial)
         if self.plan is not None:
             self.plan.apply(self.sim)
@@ -114,7 +118,7 @@ class SimulationSource:
         """What the user must be told about the run's next rows (the contacts that began in them, a
         grasp that took nothing), however they were made (the source's advance, or an external
         controller's exchange)."""
-        return self.sim.take_notices() + self.contacts.scan(rows)
+        return self.sim.take_notices() + self.contacts.scan(rows) + self.self_contacts.scan(rows)
 
     def seek(self, t: float) -> None:
         raise ValueError("a simulation cannot seek: only replay runs can")
