@@ -51,6 +51,7 @@ lint: $(TEST_STAMP)
 	$(BIN)/ruff format --check $(CODE)
 	@mkdir -p $(TYPES) && for p in $(PACKAGES); do ln -sfn ../../../$$p $(TYPES)/$$p; done
 	$(BIN)/mypy
+	PYTHONPATH=.simecs/types $(BIN)/lint-imports --no-cache
 	$(BIN)/python -m simecs.mesh.schema --check
 
 format: $(TEST_STAMP)

@@ -30,7 +30,7 @@ import numpy as np
 from simecs.mesh import affinity, batch, frames, keys
 from simecs.mesh import messages as m
 from simecs.mesh.client import MeshClient, SessionClient
-from simecs.testing.launch import LocalMesh, clean_env, wait_until
+from simecs.nodes.local_mesh import LocalMesh, clean_env, wait_until
 
 EXAMPLE = Path(__file__).resolve().parent.parent / "docs" / "examples" / "external_controller.py"
 POSTURE = [0.3, -0.4, 0.2, 0.6, -0.3, 0.2, 0.1]

@@ -71,8 +71,8 @@ from simecs.mesh import frames, keys
 from simecs.mesh import messages as m
 from simecs.mesh.client import MeshClient, SessionClient
 from simecs.mesh.config import MeshConfig, TlsConfig, load, open_session
+from simecs.nodes.local_mesh import LocalMesh, clean_env, wait_until
 from simecs.testing import netns
-from simecs.testing.launch import LocalMesh, clean_env, wait_until
 
 HOSTS = ("hub", "sim", "client", "slow")
 HUB = "simecs.nodes.hub"

@@ -34,7 +34,7 @@ from simecs.mesh.client import MeshClient
 from simecs.mesh.config import MeshConfig, open_session
 from simecs.mesh.seal import SealedPublisher
 from simecs.nodes import mcapread
-from simecs.testing.launch import LocalMesh, clean_env
+from simecs.nodes.local_mesh import LocalMesh, clean_env
 
 STOP = 5.0
 OUTPUT = 0.002

@@ -32,8 +32,8 @@ import zenoh.ext
 from simecs.mesh import codec, keys
 from simecs.mesh import messages as m
 from simecs.mesh.client import SessionClient
+from simecs.nodes.local_mesh import LocalMesh, wait_until
 from simecs.testing import netns
-from simecs.testing.launch import LocalMesh, wait_until
 
 PATH = [([0.4, -0.3, 0.5, 0.2, -0.2, 0.3, 0.1], 30.0, 30.0)]
 MAX_SESSIONS = 64

@@ -29,7 +29,7 @@ import zenoh
 from simecs.mesh import affinity, frames, keys
 from simecs.mesh.client import MeshClient, SessionClient
 from simecs.mesh.config import MeshConfig, open_session
-from simecs.testing.launch import LocalMesh, clean_env
+from simecs.nodes.local_mesh import LocalMesh, clean_env
 
 STOP = 5.0
 OUTPUT = 0.002

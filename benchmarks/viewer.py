@@ -47,8 +47,8 @@ import urllib.request
 from collections.abc import Callable
 from typing import Any
 
+from simecs.nodes.local_mesh import LocalMesh
 from simecs.testing import browser
-from simecs.testing.launch import LocalMesh
 from simecs.viewer.cartesian_pendant import GIZMO
 
 STANDARD_TARGET = (0.8, 0.6, -0.7, 1.0, 0.9, -0.8, 1.2)  # rad: standard_target of models/library/spider

@@ -89,7 +89,7 @@ class MeshConfig:
             "timestamping/enabled": True,
         }
         if self.mode == "client":
-            # A client retries its router instead of failing at once (STACK-NOTES).
+            # A client retries its router instead of failing at once (a hub that is restarting comes back).
             entries["connect/timeout_ms"] = {"client": 10000}
             entries["connect/exit_on_failure"] = {"client": True}
             # After losing the hub (a restart), look for it again every 0.1 s, backing off to 1 s:

@@ -3,8 +3,9 @@
 A node subclasses `Node`, declares what it serves in `start()`, and lets the runtime do the rest:
 it opens the zenoh session (retrying while the hub comes up), announces a liveliness token and a
 `NodeStatus`, turns SIGINT/SIGTERM into a normal exit that undeclares everything and closes the
-session (a declared callback otherwise keeps the process alive forever: STACK-NOTES), answers every
-bad request with an `Error` naming what was wrong, and keeps running whatever a handler raises.
+session (a declared callback otherwise keeps the process alive forever: zenoh's threads hold it),
+answers every bad request with an `Error` naming what was wrong, and keeps running whatever a
+handler raises.
 
 Callbacks from zenoh must return at once (a slow one stalls the whole link), so `subscribe()` hands
 samples to a worker thread through a bounded queue that drops the oldest sample when full.

@@ -1,6 +1,6 @@
 """A worker thread fed by a bounded queue: what every zenoh callback hands its work to.
 
-A zenoh callback must return at once (a slow one stalls the whole link: STACK-NOTES), so handlers run
+A zenoh callback must return at once (a slow one stalls every other sample on the same link), so handlers run
 here; when the queue is full the oldest item is dropped and counted, so a slow handler costs only its
 own stream.
 """

@@ -21,7 +21,7 @@ _EXU: Any = None
 
 def exudyn() -> Any:
     """The exudyn module, imported on first use; the faster build (no range checks) unless exudyn was
-    already imported by someone else (STACK-NOTES)."""
+    already imported by someone else (the two builds cannot share a process)."""
     global _EXU
     if _EXU is None:
         if "exudyn" not in sys.modules:

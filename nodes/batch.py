@@ -138,7 +138,7 @@ def read_inputs(
 def mesh_client(args: argparse.Namespace) -> Iterator[MeshClient]:
     """A client of the mesh the arguments name, or of a private one started (and stopped) here."""
     if args.embedded:
-        from simecs.testing.launch import LocalMesh
+        from simecs.nodes.local_mesh import LocalMesh
 
         args.user = args.user or "batch"
 

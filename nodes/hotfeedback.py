@@ -9,7 +9,7 @@ A session nobody subscribes to live gets nothing forwarded but its final frame (
 status of its publisher, once zenoh has had time to learn it).
 Its work per full frame is a few microseconds (header, one row, at most one put), done right in
 zenoh's callback to save a thread wake-up; slow consumers downstream have their own queues, so
-nothing stalls the simulator (a slow zenoh callback would stall the whole link: STACK-NOTES).
+nothing stalls the simulator (a slow zenoh callback would stall every other sample on the link).
 A forwarded frame keeps the `wall_ns` of the full frame it came from, so any subscriber can measure
 the end-to-end latency from the simulator.
 """

@@ -1,4 +1,4 @@
-"""One run in its own process (Exudyn holds the GIL for a whole solve: STACK-NOTES).
+"""One run in its own process (Exudyn holds the GIL for a whole solve).
 
 Started warm by the simulator node: it imports the models and compiles their drives first, says
 `ready` on stdout, then waits for one `RunRequest` line on stdin. It runs that request in chunks

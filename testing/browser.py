@@ -1,7 +1,7 @@
 """Driving the viewer in a real browser (Debian chromium through Playwright): shared by the browser
 tests and `simecs bench viewer`.
 
-viser's websocket lives in a Web Worker, out of Playwright's sight (STACK-NOTES), so `PROBE_JS`
+viser's websocket lives in a Web Worker, out of Playwright's sight, so `PROBE_JS`
 wraps the page's `Worker` before viser creates it and timestamps every message batch that moves a
 link of the 3D arm: those are the pose updates the tab actually received. It also notes every
 binary glTF mesh (an imported model's links) the tab received, the batches that move the goal

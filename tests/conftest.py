@@ -19,10 +19,10 @@ from typing import Any
 import pytest
 from simecs.mesh.client import MeshClient, NoReply, RemoteError, SessionClient
 from simecs.mesh.config import load, open_session
+from simecs.nodes.local_mesh import LocalMesh, clean_env
+from simecs.nodes.local_mesh import wait_until as wait_until  # the tests import it from here
 from simecs.nodes.secure import SecureFolder
 from simecs.testing import browser as chromium
-from simecs.testing.launch import LocalMesh, clean_env
-from simecs.testing.launch import wait_until as wait_until  # the tests import it from here
 
 ARTIFACTS = Path(__file__).resolve().parent.parent / "artifacts"
 

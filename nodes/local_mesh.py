@@ -1,4 +1,4 @@
-"""Start a private mesh of node processes: for tests, benchmarks and headless use.
+"""Start a private mesh of node processes: for `simecs run --embedded`, the tests and the benchmarks.
 
 Each `LocalMesh` has its own hub on a unix socket in a fresh temporary folder (no ports, no races,
 no cross-talk with anything else on the machine or the LAN; multicast scouting and shared memory stay
