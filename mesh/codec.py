@@ -12,9 +12,9 @@ from __future__ import annotations
 import json
 import math
 import re
+import threading
 import types
 import typing
-from functools import cache
 from typing import Any, TypeVar, Union, get_args, get_origin
 
 import msgspec
@@ -75,9 +75,24 @@ def to_obj(obj: Any) -> Any:
 
 
 # -- decoding --------------------------------------------------------------------------------------
-@cache
+# msgspec builds a Struct type's decoding information on its first use, running Python code (the
+# annotations' evaluation) while the half-built information is already attached to the class: a second
+# thread decoding into the same type then reads it and the process dies (SIGSEGV, msgspec 0.22; seen
+# in `simecs sweep` and in a viewer reopening two tabs). So the first use of each type is made here,
+# one thread at a time, before any decoding into it.
+_types_lock = threading.Lock()
+_decoders: dict[Any, msgspec.json.Decoder[Any]] = {}
+
+
 def _decoder(tp: Any) -> msgspec.json.Decoder[Any]:  # tp: a class or a union, both hashable
-    return msgspec.json.Decoder(tp)
+    """The decoder of `tp`, made (with msgspec's information for every type within it) once."""
+    found = _decoders.get(tp)
+    if found is None:
+        with _types_lock:
+            found = _decoders.get(tp)
+            if found is None:
+                found = _decoders[tp] = msgspec.json.Decoder(tp)
+    return found
 
 
 Payload = bytes | bytearray | memoryview | str
@@ -118,6 +133,7 @@ def from_obj(tp: type[T], value: Any) -> T: ...
 def from_obj(tp: Any, value: Any) -> Any: ...
 def from_obj(tp: Any, value: Any) -> Any:
     """Decode an already-parsed JSON value into `tp`, as strictly as `loads`."""
+    _decoder(tp)  # msgspec's information for tp is complete before convert reads it
     try:
         obj = msgspec.convert(value, tp)
     except msgspec.ValidationError as exc:

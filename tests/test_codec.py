@@ -254,3 +254,14 @@ def test_an_action_argument_that_is_a_name_is_checked_as_one() -> None:
     with pytest.raises(codec.DecodeError) as refused:
         codec.loads(messages.Action, b'{"kind":"action","primitive":"grasp","args":{"object":"two words"}}')
     assert refused.value.field == "args.object" and "not 'two words'" in str(refused.value)
+
+
+def test_threads_decoding_into_new_types_at_once_do_not_crash_the_process() -> None:
+    """msgspec builds a type's decoding information on first use; two threads doing it at once killed
+    `simecs sweep` and a viewer reopening two tabs (SIGSEGV). codec makes each first use alone: 60 fresh
+    types, 8 threads each, switching as often as the interpreter can (without it, every run crashed)."""
+    done = subprocess.run(
+        [sys.executable, "-m", "tests.codec_race", "60", "8"], capture_output=True, text=True, timeout=120
+    )
+    assert done.returncode == 0, done.stderr[-3000:]
+    assert "decoded 60 fresh types" in done.stdout
