@@ -604,7 +604,7 @@ SIM_CRASH_STOP, SIM_CRASH_AT = 4.0, 1.0
 
 
 def worker_of(mesh: LocalMesh, s: SessionClient, run_id: str) -> int:
-    line = re.compile(rf"run {re.escape(s.id)}/{re.escape(run_id)} handed to worker pid (\d+)")
+    line = re.compile(rf"run {re.escape(s.id)}/{re.escape(run_id)} handed to (?:warm|cold) worker pid (\d+)")
     hit = wait_until(lambda: line.search(mesh.log("simulator")), 30, what=f"the worker of {run_id}")
     return int(hit.group(1))
 

@@ -252,7 +252,8 @@ class Simulator(Node):
                 self.fast.add(key)
             else:
                 threading.Thread(target=self._refill, daemon=True).start()
-        self.log.info("run %s/%s handed to worker pid %d", run.session, run.run_id, proc.pid)
+        state = "warm" if warm else "cold"
+        self.log.info("run %s/%s handed to %s worker pid %d", run.session, run.run_id, state, proc.pid)
         return m.Accepted(self.node_id, proc.pid)
 
     def stop(self) -> None:

@@ -243,15 +243,15 @@ def test_a_realtime_run_sends_a_frame_every_25_ms_each_at_its_time(service: Serv
 
 @pytest.mark.shares_service
 def test_a_first_run_starts_at_once_and_the_session_keeps_its_last_ten_runs(service: Service) -> None:
-    """The simulator is ready only once a worker is warm: the first run's first frame comes at once."""
+    """The simulator is ready only once a worker is warm: the first run finds one and does not wait
+    for a worker to start (the simulator's log says which kind took it)."""
     c = service.client
     s = c.create_session("ann", "spider")
     prepare(s, stop_time=1.0, pacing="realtime")
     rec = Recorder(s)
-    t0 = time.monotonic()
     run_id = s.run()
     wait_until(lambda: rec.full, timeout=10, what="first frame")
-    assert time.monotonic() - t0 < 1.5
+    assert f"run {s.id}/{run_id} handed to warm worker" in service.mesh.log("simulator")
     s.wait_for(["finished"], 30, run_id)
     rec.close()
     prepare(s, stop_time=0.02, pacing="fast")
@@ -350,7 +350,7 @@ def worker_pids(parent: int) -> list[int]:
 def worker_of(service: Service, sid: str, run_id: str) -> int:
     """The pid of the worker the simulator handed this run to, from its own log line (CPU use cannot
     tell a realtime-paced run from a warm idle worker on a busy machine)."""
-    line = re.compile(rf"run {re.escape(sid)}/{re.escape(run_id)} handed to worker pid (\d+)")
+    line = re.compile(rf"run {re.escape(sid)}/{re.escape(run_id)} handed to (?:warm|cold) worker pid (\d+)")
     hit = wait_until(
         lambda: line.search(service.mesh.log("simulator")), timeout=30, what=f"the worker of {run_id}"
     )
