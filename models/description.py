@@ -14,7 +14,7 @@ import msgspec
 import numpy as np
 from simecs.mesh import columns
 from simecs.mesh.codec import DecodeError
-from simecs.mesh.kinematics import rot_rpy
+from simecs.mesh.kinematics import rot_rpy, rpy_of
 from simecs.mesh.model import (
     CONTROL_SYSTEMS,
     InitEquation,
@@ -35,7 +35,6 @@ from .mechanics import GRAVITY_PARAMS
 from .meshes import MeshStore
 from .opspace import GAIN_INFO
 from .spec import ArmSpec
-from .urdf import matrix_to_rpy
 
 # variable catalog per joint: (unit, description, sub-component); the order is drive.OUTPUTS
 VAR_INFO = {
@@ -384,7 +383,7 @@ class ArmDescription:
                     [float(a) for a in pose[:3, 3]],
                     color=list(v.color),
                     mesh=v.name,
-                    rotation_rpy=list(matrix_to_rpy(pose[:3, :3])),
+                    rotation_rpy=[float(a) for a in rpy_of(pose[:3, :3])],
                     scale=[float(a) for a in v.geometry.scale],
                 )
             )

@@ -27,6 +27,7 @@ from .contact import (
 from .jit import CACHE as _CACHE
 from .jit import FAST as _FAST
 from .jit import NO_REFCOUNTS as _NO_REFCOUNTS
+from .trapezoid import trapezoid
 
 # ---- per-joint parameter layout -------------------------------------------------------------------
 DRIVE_PARAMS = (
@@ -170,22 +171,7 @@ def traj_eval(seg, hold, t, qr, qdr):
         if t < seg[i, 0] + seg[i, 1]:
             k = i
             break
-    t0, T, ta = seg[k, 0], seg[k, 1], seg[k, 2]
-    tau = t - t0
-    if tau >= T:
-        s, sd = 1.0, 0.0
-    else:
-        v = 1.0 / (T - ta)
-        if tau < ta:
-            s = 0.5 * v / ta * tau * tau
-            sd = v * tau / ta
-        elif tau < T - ta:
-            s = v * (tau - 0.5 * ta)
-            sd = v
-        else:
-            tr = T - tau
-            s = 1.0 - 0.5 * v / ta * tr * tr
-            sd = v * tr / ta
+    s, sd = trapezoid(seg[k, 1], seg[k, 2], t - seg[k, 0])
     for j in range(n):
         qr[j] = seg[k, 3 + j] + seg[k, 3 + n + j] * s
         qdr[j] = seg[k, 3 + n + j] * sd

@@ -58,6 +58,7 @@ from .jit import CACHE as _CACHE
 from .jit import FAST as _FAST
 from .mechanics import chain_arrays, drive_array, gravity_of, holding_capacity
 from .self_collision import SelfCollision
+from .trapezoid import trapezoid_samples
 
 #: s: the closest two rows of a sampled reference may be (where a move curves fast; slow or straight
 #: stretches take fewer rows, spaced by accuracy).
@@ -236,20 +237,6 @@ class Plan:
 
 def _floats(q: np.ndarray) -> list[float]:
     return [float(x) for x in q]
-
-
-def _trapezoid(T: float, ta: float, tau: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Path parameter s in [0, 1] and its rate at times tau of a trapezoid of duration T and
-    acceleration time ta (the profile of drive.traj_eval)."""
-    tau = np.clip(tau, 0.0, T)
-    v = 1.0 / (T - ta)
-    s = np.where(
-        tau < ta,
-        0.5 * v / ta * tau**2,
-        np.where(tau < T - ta, v * (tau - 0.5 * ta), 1.0 - 0.5 * v / ta * (T - tau) ** 2),
-    )
-    sd = np.where(tau < ta, v * tau / ta, np.where(tau < T - ta, v, v * (T - tau) / ta))
-    return s, sd
 
 
 def _trapezoid_times(T: float, ta: float, motion: float) -> np.ndarray:
@@ -540,7 +527,7 @@ class _Reference:
         if T <= 0.0:
             return
         times = _trapezoid_times(T, ta, self.reach * float(np.sum(np.abs(dest - self.q))))
-        s, sd = _trapezoid(T, ta, times)
+        s, sd = trapezoid_samples(T, ta, times)
         dq = dest - self.q
         self.add(path, times, self.q + s[:, None] * dq, sd[:, None] * dq)
         self.q = dest.copy()

@@ -9,7 +9,6 @@ simulator should not pay trimesh's import to read six joints. yourdfpy stays wha
 
 from __future__ import annotations
 
-import math
 import xml.etree.ElementTree as ET
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -334,14 +333,6 @@ def _refuse_cycles(robot: UrdfRobot, root: str) -> None:
     unreached = [name for name in robot.links if name not in seen]
     if unreached:
         raise UrdfError(f'link "{unreached[0]}"', "is not connected to the root link")
-
-
-def matrix_to_rpy(R: np.ndarray) -> tuple[float, float, float]:
-    """(roll, pitch, yaw) with R = Rz(yaw) Ry(pitch) Rx(roll), the inverse of `rot_rpy`."""
-    pitch = math.atan2(-R[2, 0], math.hypot(R[0, 0], R[1, 0]))
-    if math.hypot(R[0, 0], R[1, 0]) < 1e-12:  # pitch = +-90 deg: only roll -+ yaw is defined
-        return (math.atan2(-R[1, 2], R[1, 1]), pitch, 0.0)
-    return (math.atan2(R[2, 1], R[2, 2]), pitch, math.atan2(R[1, 0], R[0, 0]))
 
 
 def resolve_uri(uri: str, near: Path) -> Path:

@@ -21,8 +21,9 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
+from simecs.mesh.kinematics import rpy_of
 
-from .urdf import Geometry, UrdfError, UrdfJoint, UrdfRobot, matrix_to_rpy
+from .urdf import Geometry, UrdfError, UrdfJoint, UrdfRobot
 
 Vec3 = tuple[float, float, float]
 
@@ -243,11 +244,11 @@ def serial_chain(
         reach = math.hypot(w[0], w[1])
         phi = math.atan2(w[1], w[0]) if reach > 1e-12 else 0.0
         A[i + 1] = A0 @ _rz(phi)
-        rpy.append(matrix_to_rpy(A[i].T @ R_next @ A[i + 1]))
+        rpy.append(_v3(rpy_of(A[i].T @ R_next @ A[i + 1])))
         lengths.append(reach)
         finals.append((0.0, 0.0, float(w[2])))
     R_t, p_t = tool_pose[:3, :3], tool_pose[:3, 3]
-    rpy.append(matrix_to_rpy(A[n - 1].T @ R_t))
+    rpy.append(_v3(rpy_of(A[n - 1].T @ R_t)))
     v = R_t.T @ p_t
     last_length = max(float(v[0]), 0.0)
     lengths.append(last_length)
@@ -286,7 +287,7 @@ def serial_chain(
         base_link=base,
         tool_link=tool,
         base_translation=_v3(J1[:3, 3]),
-        base_rpy=matrix_to_rpy(J1[:3, :3] @ A[0]),
+        base_rpy=_v3(rpy_of(J1[:3, :3] @ A[0])),
         tool_translation=tool_translation,
         links=links,
         base_visuals=_geometries(robot, body_of, pose_in_body, 0, np.eye(3), "visuals"),

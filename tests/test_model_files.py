@@ -243,12 +243,12 @@ def test_the_shipped_models_check(tmp_path: Path) -> None:
 
 
 def test_rpy_round_trip() -> None:
-    from simecs.models.urdf import matrix_to_rpy
+    from simecs.mesh.kinematics import rpy_of
 
     rng = np.random.default_rng(0)
     for rpy in [*rng.uniform(-3, 3, (50, 3)), (0.3, math.pi / 2, 0.2), (0.1, -math.pi / 2, 0.4)]:
         R = rot_rpy(rpy)
-        assert np.abs(rot_rpy(matrix_to_rpy(R)) - R).max() < 1e-12
+        assert np.abs(rot_rpy(rpy_of(R)) - R).max() < 1e-12
 
 
 def test_the_proxy_serves_each_mesh_a_model_names(service: Service) -> None:
