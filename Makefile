@@ -70,6 +70,7 @@ test: $(TEST_STAMP) $(CHROMIUM)
 bench: $(STAMP) warm
 	$(BIN)/simecs bench model
 	$(BIN)/simecs bench commands
+	$(BIN)/simecs bench control
 	$(BIN)/simecs bench service
 	$(BIN)/simecs bench recorder
 	$(BIN)/simecs bench lan
