@@ -170,7 +170,7 @@ def lan_mesh(
     `placement` (node name -> host) run on their host and join the hub over the LAN. The harness
     itself (and nodes not placed) stays on the machine and joins through the hub's unix socket.
     `cpus` pins nodes (by name) to one CPU each, as a host of that size."""
-    from .launch import LocalMesh
+    from simecs.nodes.local_mesh import LocalMesh
 
     lan_endpoint = f"tcp/{lan.address(hub_host)}:7447"
 

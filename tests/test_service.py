@@ -241,10 +241,10 @@ def test_a_realtime_run_sends_a_frame_every_25_ms_each_at_its_time(service: Serv
     assert 15.0 < float(np.median(gaps)) < 35.0, np.round(gaps, 1)
 
 
-@pytest.mark.shares_service
 def test_a_first_run_starts_at_once_and_the_session_keeps_its_last_ten_runs(service: Service) -> None:
-    """The simulator is ready only once a worker is warm: the first run finds one and does not wait
-    for a worker to start (the simulator's log says which kind took it)."""
+    """The simulator is ready only once a worker is warm: the first run of a new service finds one
+    and does not wait for a worker to start (the simulator's log says which kind took it). A service
+    of its own: on a shared one, the run before may have taken the warm worker."""
     c = service.client
     s = c.create_session("ann", "spider")
     prepare(s, stop_time=1.0, pacing="realtime")
