@@ -95,7 +95,7 @@ _TABLE = (
         answerer="proxy",
         reply="glb",
         meaning="the triangle mesh a `mesh` shape of the model names, as binary glTF 2.0 (binary reply; "
-        "colours as face colours; decimated to about 4000 triangles), for drawing",
+        "colours as face colours; decimated toward 4000 triangles), for drawing",
     ),
     KeySpec(
         name="sessions",
