@@ -251,7 +251,8 @@ _TABLE = (
         kind="cached put",
         writer="worker",
         payload="RunLayout",
-        meaning="what the frames of a run mean, once per run before its first frame",
+        meaning="what the frames of a run mean, once per run before its first frame; cached only while "
+        "the run's worker lives (a finished run's columns come with its results/<run>)",
     ),
     KeySpec(
         name="vars_full",
