@@ -201,6 +201,9 @@ def _actions_table(schema: dict[str, Any]) -> str:
     rows = ["| primitive | what it does | argument | size | unit | required / default | bounds | meaning |"]
     rows.append("|---" * 8 + "|")
     for name, entry in schema["x-simecs-actions"].items():
+        if not entry["args"]:  # a primitive without arguments still has its row
+            rows.append(f"| `{name}` | {_cell(entry['does'])} | (none) |  |  |  |  |  |")
+            continue
         first = True
         for arg, a in entry["args"].items():
             need = (

@@ -27,7 +27,14 @@ Percent = Annotated[float, Meta(gt=0.0, le=100.0, description="percent of the ma
 Seconds = Annotated[float, Meta(ge=0.0, le=1e9)]
 Vec3 = Annotated[list[float], Meta(min_length=3, max_length=3)]
 #: A label a user may leave empty: "" or a name.
-Label = Annotated[str, Meta(pattern=r"^([A-Za-z0-9][A-Za-z0-9_.-]{0,63})?$")]
+Label = Annotated[
+    str,
+    Meta(
+        pattern=r"^([A-Za-z0-9][A-Za-z0-9_.-]{0,63})?$",
+        description="the user's label: empty, or 1-64 letters, digits, '_', '-', '.' starting with a "
+        "letter or digit (no spaces)",
+    ),
+]
 #: Points of a piecewise-linear signal, and samples a generator may expand to (limits.reference_samples).
 MAX_POINTS = 100_000
 
