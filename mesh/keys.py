@@ -13,6 +13,7 @@ import re
 import secrets
 from dataclasses import dataclass
 
+from .limits import RUNS_KEPT
 from .primitives import NAME_PATTERN, SESSION_ID_PATTERN
 
 ROOT = "simecs"
@@ -277,7 +278,7 @@ _TABLE = (
         writer="client",
         answerer="proxy",
         reply="RunList",
-        meaning="the runs the session keeps (the last 10), oldest first",
+        meaning=f"the runs the session keeps (the last {RUNS_KEPT}), oldest first",
     ),
     KeySpec(
         name="results",

@@ -13,6 +13,10 @@ from dataclasses import dataclass
 
 from .primitives import MAX_NUMBERS, MAX_TEXT
 
+#: Runs whose full-resolution results are kept per session (the oldest go first): the proxy lists
+#: these, the simulator keeps these.
+RUNS_KEPT = 10
+
 KiB = 1024
 MiB = 1024 * KiB
 GiB = 1024 * MiB
@@ -111,7 +115,7 @@ _TABLE = (
         "bytes",
         "proxy",
         "busy",
-        "results kept for one user's sessions (the last 10 runs of each)",
+        f"results kept for one user's sessions (the last {RUNS_KEPT} runs of each)",
         "--max-results-mb-per-user",
     ),
     Limit(

@@ -107,8 +107,3 @@ def results_reply(
     names = [columns[i] for i in idx]
     unit_of = [units[i] if i < len(units) else "" for i in idx]
     return Binary(frames.encode(frame), ResultsAttachment(names, unit_of, run, context))
-
-
-#: Runs whose full-resolution results are kept per session (the oldest go first): the proxy lists
-#: these, the simulator keeps these.
-RUNS_KEPT = 10

@@ -34,7 +34,7 @@ from .sessions import SessionRecord, SessionStore
 HANDOVER_TIMEOUT_S = 10.0
 HUB_WAIT_S = 60.0  # a hand-over that met a hub restart waits this long for the hub, then tries again
 BUSY = '"code":"busy"'
-HUB_AWAY_S = 10.0  # queued runs wait this long after a hub restart for the simulators to be back
+QUEUE_WAITS_AFTER_HUB_S = 10.0  # queued runs wait this long after a hub restart for the simulators to be back
 #: A queued run's wait estimate is published again when it moved by this much (and this fraction).
 WAIT_CHANGE_S = 1.0
 
@@ -117,7 +117,7 @@ class Admission:
                 self.pending.pop(sid, None)
                 continue
             if not self.hosts.live:
-                if self.hub is not None and self.hub.lost_since(time.monotonic() - HUB_AWAY_S):
+                if self.hub is not None and self.hub.lost_since(time.monotonic() - QUEUE_WAITS_AFTER_HUB_S):
                     break  # the hub went away lately: its simulators come back with it
                 self._fail_head(request, "no simulator node is on the mesh")
                 continue

@@ -10,7 +10,7 @@ from dataclasses import dataclass
 
 from simecs.mesh import limits, phases
 from simecs.mesh import messages as m
-from simecs.mesh.results import RUNS_KEPT
+from simecs.mesh.limits import RUNS_KEPT
 from simecs.mesh.runtime import RequestError
 
 from .sessions import SessionRecord, SessionStore

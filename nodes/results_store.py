@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 from simecs.mesh import files, keys
-from simecs.mesh.results import RUNS_KEPT
+from simecs.mesh.limits import RUNS_KEPT
 
 
 @dataclass

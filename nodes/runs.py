@@ -33,7 +33,7 @@ TOKEN_QUERY_S = 1.0  # asking whether a run's token is still up
 WORKER_REPORTS_S = 3.0
 TOKEN_QUERY_TRIES = 3  # queries that time out before one counts as an answer
 #: How long runs whose tokens went with the hub wait for it to come back before they are settled.
-HUB_AWAY_S = 120.0
+RUNS_WAIT_FOR_HUB_S = 120.0
 
 log = logging.getLogger("simecs.proxy")
 
@@ -523,7 +523,7 @@ class RunTracker:
 
         def check() -> None:
             assert self.hub is not None
-            back = self.hub.wait_back(HUB_AWAY_S)
+            back = self.hub.wait_back(RUNS_WAIT_FOR_HUB_S)
             alive = set()
             if back:
                 for reply in self.z().liveliness().get(keys.RUN_TOKENS, timeout=1.0):
@@ -541,7 +541,8 @@ class RunTracker:
                     elif back:
                         self._settle_ended_run(rec, "its simulator process was lost while the hub was away")
                     else:
-                        self.end_run(rec, "failed", f"the hub was unreachable for more than {HUB_AWAY_S:g} s")
+                        away = f"the hub was unreachable for more than {RUNS_WAIT_FOR_HUB_S:g} s"
+                        self.end_run(rec, "failed", away)
                 self.admission.update()
 
         self._hub_check = threading.Thread(target=check, name="hub-check", daemon=True)

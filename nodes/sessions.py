@@ -16,8 +16,8 @@ from typing import Any
 from simecs.mesh import codec, files, keys, phases
 from simecs.mesh import messages as m
 from simecs.mesh.environment import Obstacle
+from simecs.mesh.limits import RUNS_KEPT
 from simecs.mesh.model import ModelDescription
-from simecs.mesh.results import RUNS_KEPT
 from simecs.mesh.runtime import RequestError
 
 log = logging.getLogger("simecs.proxy")

@@ -16,6 +16,7 @@ import numpy as np
 from simecs.mesh import messages as m
 from simecs.mesh import phases
 from simecs.mesh.client import NoReply, RemoteError
+from simecs.mesh.limits import RUNS_KEPT
 
 from . import events as ev
 from .compare import recording_of_key, track_columns, track_every, track_of
@@ -121,7 +122,7 @@ class ResultsIO:
     def _ended(self, run_id: str) -> m.RunInfo:
         run = next((r for r in self.c.runs if r.run_id == run_id), None)
         if run is None:
-            raise ValueError(f"run {run_id} is no longer kept by the server (it keeps the last 10)")
+            raise ValueError(f"run {run_id} is no longer kept by the server (it keeps the last {RUNS_KEPT})")
         if run.phase not in phases.ENDED:
             raise ValueError(f"run {run_id} is still going on: compare it once it ends")
         return run
