@@ -1,14 +1,13 @@
 """A URDF collision solid as contact spheres: how an imported arm touches obstacles and itself.
 
 The contact kernels see the arm as spheres (contact_geometry.py). A URDF's `<collision>` solids
-(meshes, boxes, cylinders, spheres) become spheres here, inside the solid's convex hull: candidate
-centres on a grid inside the hull, each with the largest radius the hull holds there, and a greedy
-cover that keeps adding the candidate reaching the most still-uncovered points of the hull's surface
-(a point counts when it lies within TOLERANCE of the sphere) until nearly all are reached or the solid
-has MAX_SPHERES. The spheres never bulge past the hull, so nothing touches before its drawn surface
-does; the hull's sharp edges and corners are rounded off by up to about TOLERANCE (docs/MODELS.md
-gives the measured figures). trimesh reads the files, as for drawing (meshes.py); the fit is made once
-per solid and kept.
+(meshes, boxes, cylinders, spheres) become spheres here: candidate centres on a grid inside the
+solid's convex hull, each with its distance to the hull's boundary plus an allowance (BULGE of the
+solid's thickness, MIN_BULGE..MAX_BULGE), and a greedy cover that keeps adding the candidate reaching
+the most still-uncovered points of the hull's surface (within REACH) until COVERED of them are reached
+or the solid has MAX_SPHERES. No sphere reaches more than MAX_BULGE past its solid; sharp edges and
+corners are rounded off (docs/MODELS.md gives the measured figures). trimesh reads the files, as for
+drawing (meshes.py); the fit is made once per solid and kept.
 """
 
 from __future__ import annotations
@@ -64,9 +63,8 @@ def solid_spheres(geo: Geometry, near: Path | None) -> np.ndarray:
     return known.copy()
 
 
-def fit_spheres(hull: Any, max_spheres: int | None = None, bulge: float | None = None) -> np.ndarray:
-    """Spheres covering the surface of the convex trimesh `hull` (rows x, y, z, r), none reaching more
-    than `bulge` past it (default: BULGE x its thickness, within MIN_BULGE..MAX_BULGE)."""
+def fit_spheres(hull: Any) -> np.ndarray:
+    """Spheres covering the surface of the convex trimesh `hull` (rows x, y, z, r)."""
     import trimesh
 
     normals = np.asarray(hull.face_normals, dtype=float)
@@ -74,7 +72,7 @@ def fit_spheres(hull: Any, max_spheres: int | None = None, bulge: float | None =
     lo, hi = np.asarray(hull.bounds[0], dtype=float), np.asarray(hull.bounds[1], dtype=float)
     extent = hi - lo
     thickness = float(max(extent.min(), 2 * MIN_RADIUS))
-    allowed = min(max(BULGE * thickness, MIN_BULGE), MAX_BULGE) if bulge is None else bulge
+    allowed = min(max(BULGE * thickness, MIN_BULGE), MAX_BULGE)
     step = max(float(np.prod(np.maximum(extent, 1e-4)) / CANDIDATES) ** (1 / 3), 1e-4)
     axes = [
         np.arange(lo[a] + step / 2, hi[a], step) if extent[a] > step else np.array([(lo[a] + hi[a]) / 2])
@@ -92,8 +90,7 @@ def fit_spheres(hull: Any, max_spheres: int | None = None, bulge: float | None =
     gain = np.count_nonzero(reach, axis=1)
     covered = np.zeros(points.shape[0], dtype=bool)
     chosen: list[int] = []
-    most = MAX_SPHERES if max_spheres is None else max_spheres
-    while len(chosen) < most and covered.mean() < COVERED:
+    while len(chosen) < MAX_SPHERES and covered.mean() < COVERED:
         best = int(np.argmax(gain))
         if gain[best] == 0:
             break

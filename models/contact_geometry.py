@@ -46,21 +46,27 @@ K_BOX, K_CYLINDER, K_SPHERE, K_PLANE = (
 # pair row columns: sphere, obstacle, the friction's viscous cap (N*s/m), c0, then J (3 x n) row-major
 
 
+def link_axes(spec: ArmSpec, link: int) -> np.ndarray:
+    """Rotation from link `link`'s own coordinates (x along the link; a URDF solid's pose is given in
+    them) to its joint frame, the frame the sphere table's centres are in."""
+    return rot_rpy(spec.links[link].rpy)
+
+
 def sphere_table(spec: ArmSpec, values: Mapping[str, float]) -> np.ndarray:
     """The arm's contact spheres (rows of SP_*): an imported arm's from its URDF collision solids, a
     drawn arm's at these link lengths and radii; then the tool probe."""
     rows: list[list[float]] = []
     n = len(spec.links)
     if spec.collisions:
-        for i, lk in enumerate(spec.links):
-            Rr = rot_rpy(lk.rpy)  # a solid's pose is in the link's coordinates (x along the link)
+        for i in range(n):
+            Rr = link_axes(spec, i)
             for solid in spec.collisions:
                 if solid.link == i:
                     for *c, r in solid_spheres(solid.geometry, solid.near):
                         rows.append([i, *(Rr @ np.asarray(c)), r, ON_LINK])
     else:
         for i, lk in enumerate(spec.links):
-            Rr = rot_rpy(lk.rpy)
+            Rr = link_axes(spec, i)
             r = float(values[f"link{i + 1}.radius"])
             L = float(values[f"link{i + 1}.length"])
             end = np.array([L, 0.0, 0.0])
@@ -69,7 +75,7 @@ def sphere_table(spec: ArmSpec, values: Mapping[str, float]) -> np.ndarray:
             for a, b in ((np.zeros(3), end), (end, final)):
                 _row_of_spheres(rows, i, Rr, a, b, r, ON_LINK, skip_first=True)
     lk = spec.links[-1]
-    Rr = rot_rpy(lk.rpy)
+    Rr = link_axes(spec, n - 1)
     L = float(values[f"link{n}.length"])
     start = np.array([L, 0.0, 0.0]) + np.asarray(lk.final, dtype=float)
     tip = start + np.asarray(spec.tool_translation, dtype=float)

@@ -187,6 +187,12 @@ class Plan:
         k = bisect.bisect_right(self._starts, t + 1e-12)
         return self.steps[k - 1] if k else None
 
+    def field_at(self, t: float) -> str:
+        """The command field a refusal at simulated time t names: the step's (`command.nodes[2]`), or
+        `command` before the first step."""
+        step = self.step_at(t)
+        return f"command.{step.path}" if step is not None else "command"
+
     @functools.cached_property
     def _starts(self) -> list[float]:
         return [step.start for step in self.steps]
@@ -631,9 +637,8 @@ class Planner:
         if k == 0:
             return "initial", f"at the initial pose {what}: choose a pose where the arm is clear of itself"
         t = float(times[k])
-        step = plan.step_at(t)
         return (
-            f"command.{step.path}" if step is not None else "command",
+            plan.field_at(t),
             f"{what} at t = {t:.3f} s of the planned path: change the path, or set settings.collisions to "
             "simulate",
         )
@@ -664,9 +669,8 @@ class Planner:
                 )
                 if k == 0:
                     return "initial", f"at the initial pose {need}: choose another pose or a lighter payload"
-                step = plan.step_at(float(times[k])) if plan is not None else None
                 return (
-                    f"command.{step.path}" if step is not None else "command",
+                    plan.field_at(float(times[k])) if plan is not None else "command",
                     f"at t = {float(times[k]):.3f} s of the planned path {need}: change the path or lighten "
                     "the payload",
                 )
@@ -684,9 +688,8 @@ class Planner:
         depth = f"{found[2] * 1000:.1f} mm deep"
         if k == 0:
             return "initial", f"at the initial pose {what} ({depth}): move the arm or the obstacle clear"
-        step = plan.step_at(t)
         return (
-            f"command.{step.path}" if step is not None else "command",
+            plan.field_at(t),
             f"{what} at t = {t:.3f} s of the planned path ({depth}): change the path, move the obstacle "
             "(set_obstacles), or set settings.collisions to simulate",
         )

@@ -82,10 +82,10 @@ def _place(g, x, R_all, p_all, out):
 
 
 @njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
-def _touching(table, bounds, checked, R_all, p_all, work, depths):
+def _touching(table, bounds, checked, R_all, p_all, work, placed, depths):
     """depths[g, h] = the deepest overlap (m) of checked groups g and h (0 if none); returns the
     deepest. Only groups whose bounds overlap are looked at sphere by sphere. `work`: a (table rows +
-    groups) x 3 array."""
+    groups) x 3 array; `placed`: one flag per table row."""
     groups = bounds.shape[0]
     deepest = 0.0
     for g in range(groups):
@@ -94,7 +94,8 @@ def _touching(table, bounds, checked, R_all, p_all, work, depths):
     m = table.shape[0]
     for g in range(groups):
         _place(g, bounds[g, GB_X : GB_X + 3], R_all, p_all, work[m + g])
-    placed = np.zeros(m, dtype=np.bool_)
+    for s in range(m):
+        placed[s] = False
     for g in range(groups):
         for h in range(g + 1, groups):
             if not checked[g, h]:
@@ -134,12 +135,13 @@ def self_touches(table, bounds, checked, pre_R, pre_p, qs, limit, stop_at_first,
     R_all = np.empty((n, 3, 3))
     p_all = np.empty((n, 3))
     work = np.empty((table.shape[0] + groups, 3))
+    placed = np.empty(table.shape[0], dtype=np.bool_)
     depths = np.empty((groups, groups))
     first = -1
     for k in range(qs.shape[0]):
         found[k, 2] = 0.0
         chain_frames(pre_R, pre_p, qs[k], R_all, p_all)
-        if _touching(table, bounds, checked, R_all, p_all, work, depths) <= limit:
+        if _touching(table, bounds, checked, R_all, p_all, work, placed, depths) <= limit:
             continue
         best = 0.0
         for g in range(groups):
@@ -241,22 +243,21 @@ SCAN_PERIOD = 0.005
 @dataclass
 class SelfContactLog:
     """Turns a run's rows into notices: "link2 touched link6 at t = 1.234 s (8.0 mm deep)" once per
-    contact (a pair told again only after it came apart). Rows are looked at every SCAN_PERIOD."""
+    contact (a pair told again only after it came apart). The first row of each SCAN_PERIOD is looked
+    at."""
 
     check: SelfCollision
     q_columns: Sequence[int]
     _touching: set[tuple[int, int]] = field(default_factory=set)
-    _next: float = -math.inf
+    _last_slot: float = -math.inf
 
     def scan(self, rows: np.ndarray) -> list[str]:
-        if rows.shape[0] == 0:
+        slots = np.floor(rows[:, 0] / SCAN_PERIOD)
+        _values, first = np.unique(slots, return_index=True)
+        keep = first[slots[first] > self._last_slot]
+        if keep.size == 0:
             return []
-        t = rows[:, 0]
-        keep = []
-        for k in range(rows.shape[0]):  # rows of one chunk: a few hundred at most
-            if t[k] >= self._next:
-                keep.append(k)
-                self._next = t[k] + SCAN_PERIOD - 1e-9
+        self._last_slot = float(slots[keep[-1]])
         picked = rows[keep]
         found = self.check.touches(picked[:, list(self.q_columns)])
         out = []

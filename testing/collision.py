@@ -11,15 +11,15 @@ import numpy as np
 
 def link_hull_points(pkg: Any, q: Sequence[float] | np.ndarray, link: int) -> np.ndarray:
     """The corners of link `link`'s collision solids' hulls in the world at pose q (an imported arm)."""
-    from simecs.mesh.kinematics import rot_rpy
     from simecs.models.chain_dynamics import chain_frames
     from simecs.models.collision_spheres import solid_hull
+    from simecs.models.contact_geometry import link_axes
     from simecs.models.mechanics import chain_arrays
 
     arrays = chain_arrays(pkg.spec, pkg.describe().default_values())
     R_all, p_all = np.empty((pkg.n, 3, 3)), np.empty((pkg.n, 3))
     chain_frames(arrays.pre_R, arrays.pre_p, np.asarray(q, dtype=float), R_all, p_all)
-    R = R_all[link] @ rot_rpy(pkg.spec.links[link].rpy)  # a solid's pose is in the link's coordinates
+    R = R_all[link] @ link_axes(pkg.spec, link)
     solids = [s for s in pkg.spec.collisions if s.link == link]
     points = np.vstack([np.asarray(solid_hull(s.geometry, s.near).vertices) for s in solids])
     return points @ R.T + p_all[link]
