@@ -35,9 +35,10 @@ $(CHROMIUM):
 		exit 1; \
 	fi
 
-# Compile the drive kernels into numba's cache once, so no node or test pays it on its first run.
+# Compile the drive kernels into numba's cache once, and fit the URDF models' collision spheres
+# (measuring each model's cost builds it), so no node or test pays either on its first run.
 warm: $(STAMP)
-	$(BIN)/python -c "from simecs import models; print(f'drives compiled in {models.warmup(alongside=True):.1f} s')"
+	$(BIN)/python -c "from simecs import models; print(f'drives compiled in {models.warmup(alongside=True):.1f} s'); models.costs()"
 
 up: $(STAMP) warm
 	$(BIN)/simecs up

@@ -7,11 +7,16 @@ solid's thickness, MIN_BULGE..MAX_BULGE), and a greedy cover that keeps adding t
 the most still-uncovered points of the hull's surface (within REACH) until COVERED of them are reached
 or the solid has MAX_SPHERES. No sphere reaches more than MAX_BULGE past its solid; sharp edges and
 corners are rounded off (docs/MODELS.md gives the measured figures). trimesh reads the files, as for
-drawing (meshes.py); the fit is made once per solid and kept.
+drawing (meshes.py). A fit costs about 50 ms a solid, a model's a second and more, and every worker
+would pay it at start: each fit is kept on disk (beside numba's cache, keyed by the solid's file and
+this module's source) as well as in memory.
 """
 
 from __future__ import annotations
 
+import hashlib
+import os
+import tempfile
 import threading
 from pathlib import Path
 from typing import Any
@@ -57,10 +62,47 @@ def solid_spheres(geo: Geometry, near: Path | None) -> np.ndarray:
         if geo.kind == "sphere":
             known = np.array([[*geo.pose[:3, 3], max(geo.radius, MIN_RADIUS)]])
         else:
-            known = fit_spheres(solid_hull(geo, near))
+            known = _kept_fit(geo, near, repr(key))
         with _lock:
             _fitted[key] = known
     return known.copy()
+
+
+def _kept_fit(geo: Geometry, near: Path | None, key: str) -> np.ndarray:
+    """The solid's fit from the disk cache, or fitted now and stored there (any failure to store is
+    only a slower next start)."""
+    digest = hashlib.sha256(key.encode())
+    digest.update(Path(__file__).read_bytes())
+    if geo.kind == "mesh":
+        try:
+            digest.update(resolve_uri(geo.filename, near or Path(".")).read_bytes())
+        except (UrdfError, OSError):
+            return fit_spheres(solid_hull(geo, near))  # says what is wrong with the file
+    path = _cache_folder() / f"{digest.hexdigest()[:32]}.npy"
+    try:
+        known = np.load(path)
+        if known.ndim == 2 and known.shape[1] == 4:
+            return np.asarray(known, dtype=float)
+    except (OSError, ValueError, EOFError):  # none yet, or cut short
+        pass
+    known = fit_spheres(solid_hull(geo, near))
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with tempfile.NamedTemporaryFile(dir=path.parent, suffix=".tmp", delete=False) as out:
+            np.save(out, known)
+        os.replace(out.name, path)  # whole or not at all: processes fit side by side
+    except OSError:
+        pass
+    return known
+
+
+def _cache_folder() -> Path:
+    """Beside numba's cache of the drive kernels when the package's folder is writable, else the
+    user's cache folder."""
+    here = Path(__file__).parent / "__pycache__"
+    if os.access(here if here.exists() else here.parent, os.W_OK):
+        return here / "collision-spheres"
+    return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "simecs" / "collision-spheres"
 
 
 def fit_spheres(hull: Any) -> np.ndarray:
