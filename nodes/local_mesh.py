@@ -126,13 +126,15 @@ class LocalMesh:
             time.sleep(0.05)
         raise TimeoutError(f"node {role}/{node_id} not live within {timeout} s:\n{self.log(name or role)}")
 
-    def start_service(self, max_running: int = 4, simulator_args: tuple[str, ...] = ()) -> Path:
+    def start_service(
+        self, max_running: int = 4, simulator_args: tuple[str, ...] = (), proxy_args: tuple[str, ...] = ()
+    ) -> Path:
         """Proxy, simulator and hot-feedback; returns the data folder."""
         data = self.folder / "data"
         self.start_together(
             {
                 "simulator": ("--results-dir", str(data / "results"), *simulator_args),  # the slowest
-                "proxy": ("--data-dir", str(data), "--max-running", str(max_running)),
+                "proxy": ("--data-dir", str(data), "--max-running", str(max_running), *proxy_args),
                 "hotfeedback": (),
             }
         )

@@ -18,7 +18,9 @@ from dataclasses import dataclass, field
 from simecs.mesh import load
 from simecs.mesh import messages as m
 
-RESERVATION_S = 15.0  # a run on its way to a host that never lists it stops counting after this
+#: s: a run on its way to a host that never lists it stops counting against the host after this (the
+#: proxy's --reservation-s). A run that ended is released at once, listed or not.
+RESERVATION_S = 15.0
 
 
 @dataclass
@@ -45,9 +47,10 @@ class GoingRun:
 class Hosts:
     """Simulator hosts as the proxy sees them. Called with the proxy's lock held."""
 
-    def __init__(self) -> None:
+    def __init__(self, reservation_s: float = RESERVATION_S) -> None:
         self.views: dict[str, HostView] = {}
         self.live: set[str] = set()
+        self.reservation_s = reservation_s
 
     # -- what the mesh says ---------------------------------------------------------------------------
     def joined(self, node_id: str) -> None:
@@ -66,7 +69,7 @@ class Hosts:
         view.reserved = {
             run: (d, at)
             for run, (d, at) in view.reserved.items()
-            if run not in listed and now - at < RESERVATION_S
+            if run not in listed and now - at < self.reservation_s
         }
 
     def reserve(self, node_id: str, request: m.RunRequest) -> None:

@@ -29,6 +29,7 @@ from simecs.mesh.model import DocPage, ModelDescription, check_joints
 from simecs.mesh.runtime import Binary, Node, NotMine, Request, RequestError, main_for, mesh_from_args
 
 from .library import ModelLibrary
+from .placement import RESERVATION_S
 from .quotas import FLOAT_BYTES, QuotaCheck, Quotas
 from .runs import LAST_REPORT_GRACE_S, RunTracker, open_settings
 from .sessions import SessionRecord, SessionStore
@@ -63,6 +64,7 @@ class Proxy(Node):
         quotas: Quotas | None = None,
         session_idle_s: float = limits.limit("session_idle_s"),
         open_run_s: float = limits.limit("open_run_s"),
+        reservation_s: float = RESERVATION_S,
     ) -> None:
         super().__init__(mesh, node_id)
         data = Path(data_dir)
@@ -82,6 +84,7 @@ class Proxy(Node):
             self.store, lambda: self.z, lambda: self.seal, self.lock, max_running, max_queue
         )
         self.admission = self.runs.admission
+        self.admission.hosts.reservation_s = reservation_s
         self.quota = QuotaCheck(quotas or Quotas(), self.store, self._columns)
         self.user_library = UserLibrary(data, lambda: self.models, self.store, self.quota)
         # what a kill mid-write left in the folders only this node writes (not results: the workers')
@@ -138,6 +141,12 @@ class Proxy(Node):
             default=float(limits.limit("open_run_s")),
             help="the longest a run until stopped lasts, in s (at most 3600)",
         )
+        parser.add_argument(
+            "--reservation-s",
+            type=float,
+            default=RESERVATION_S,
+            help="how long a run handed to a simulator host counts against it before the host lists it",
+        )
 
     @classmethod
     def from_args(cls, args: argparse.Namespace) -> Proxy:
@@ -156,6 +165,7 @@ class Proxy(Node):
             quotas,
             args.session_idle_s,
             args.open_run_s,
+            args.reservation_s,
         )
 
     def status_detail(self) -> dict[str, Any]:

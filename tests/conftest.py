@@ -124,8 +124,13 @@ class Service:
         return self.mesh.client()
 
 
-def start_service(mesh: LocalMesh, max_running: int = 4, extra_simulator: tuple[str, ...] = ()) -> Service:
-    return Service(mesh, mesh.start_service(max_running, extra_simulator))
+def start_service(
+    mesh: LocalMesh,
+    max_running: int = 4,
+    extra_simulator: tuple[str, ...] = (),
+    extra_proxy: tuple[str, ...] = (),
+) -> Service:
+    return Service(mesh, mesh.start_service(max_running, extra_simulator, extra_proxy))
 
 
 def restart_every_node(mesh: LocalMesh) -> Service:

@@ -241,10 +241,13 @@ def test_a_realtime_run_sends_a_frame_every_25_ms_each_at_its_time(service: Serv
     assert 15.0 < float(np.median(gaps)) < 35.0, np.round(gaps, 1)
 
 
-def test_a_first_run_starts_at_once_and_the_session_keeps_its_last_ten_runs(service: Service) -> None:
+def test_a_first_run_starts_at_once_and_the_session_keeps_its_last_ten_runs(mesh: Mesh) -> None:
     """The simulator is ready only once a worker is warm: the first run of a new service finds one
     and does not wait for a worker to start (the simulator's log says which kind took it). A service
     of its own: on a shared one, the run before may have taken the warm worker."""
+    # The host takes one run at a time, and a run handed to it would count against it for ten minutes
+    # if nothing released it: only a run that frees its share as it ends lets the next one start.
+    service = start_service(mesh, extra_simulator=("--max-runs", "1"), extra_proxy=("--reservation-s", "600"))
     c = service.client
     s = c.create_session("ann", "spider")
     prepare(s, stop_time=1.0, pacing="realtime")
@@ -256,8 +259,8 @@ def test_a_first_run_starts_at_once_and_the_session_keeps_its_last_ten_runs(serv
     rec.close()
     prepare(s, stop_time=0.02, pacing="fast")
     for _ in range(11):
-        # A bound against a hang only: on its own service most of these runs start cold workers, which
-        # took 14 s each on a loaded 2-core clone.
+        # A bound against a hang only (a cold worker took 14 s on a loaded 2-core clone), far below
+        # the reservation a run that ended and was not released would hold.
         s.wait_for(["finished"], 120, s.run())
     kept = [r.run_id for r in s.runs()]
     assert kept == [f"r{i}" for i in range(3, 13)]
