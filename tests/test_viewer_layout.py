@@ -15,6 +15,7 @@ from typing import Any
 import pytest
 from simecs.mesh.client import MeshClient
 from simecs.testing import browser as chromium
+from simecs.viewer import browser as viewer_browser
 
 from .conftest import Mesh, free_port, start_service, wait_until
 from .test_viewer_browser import (
@@ -225,6 +226,10 @@ def restart_walk(mesh: Mesh, browser: Any) -> None:
 
     mesh.stop("viewer")
     banner.wait_for(state="visible", timeout=15_000)  # the page says the server is gone
+    # ... because its link went, not because the beats stopped: the last beat is younger than the
+    # silence that would have shown the banner
+    beat_age_ms = pages[0].evaluate("() => Date.now() - window.__simecsBeat")
+    assert beat_age_ms < viewer_browser.SILENT_S * 1000, beat_age_ms
     assert "reconnects by itself" in banner.inner_text()
     SHOTS.mkdir(parents=True, exist_ok=True)
     pages[0].screenshot(path=str(SHOTS / "server_gone.png"))

@@ -21,7 +21,7 @@ from simecs.mesh.model import ModelDescription
 from simecs.mesh.runtime import Node, main_for, mesh_from_args
 
 from .host import Claimant, Claims
-from .tab import Tab
+from .tab import TICKS_PER_S, Tab
 
 DEFAULT_HOST = "127.0.0.1"
 DEFAULT_PORT = 8080
@@ -33,7 +33,7 @@ class Viewer(Node):
 
     role = "viewer"
     live_path = True
-    tick_s = 0.1
+    tick_s = 1.0 / TICKS_PER_S  # every tab ticks with the node
 
     def __init__(
         self,

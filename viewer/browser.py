@@ -144,8 +144,13 @@ def install_doc_links(client: Any, prefix: str) -> None:
     )
 
 
-#: The banner a tab shows once the server has been silent this long (it beats every second).
-SILENT_S = 4.0
+#: s between the viewer's beats. Every message makes the page draw the 3D view for a quarter of a
+#: second (viser's on-demand rendering): a beat every second kept a browser without a GPU drawing
+#: 40 % of the time, and the goal ghost came 100 ms late behind those frames.
+BEAT_S = 5.0
+#: The banner a tab shows once the server has been silent this long: a viewer that still holds the
+#: page's link but no longer serves the tab. A lost link shows it at once.
+SILENT_S = 12.0
 LOST_TEXT = (
     "The simecs server is not answering. Your session is kept on the server; this page reconnects "
     "by itself when the server is back."
@@ -153,9 +158,10 @@ LOST_TEXT = (
 
 
 def install_watchdog(client: Any) -> None:
-    """Say, on the page itself, when the server is gone: the viewer beats every second (`beat`) and
-    the page shows a banner at its top edge after `SILENT_S` without a beat. viser only dims the
-    panels; the banner says what happened and that nothing is lost. It goes when beats come back
+    """Say, on the page itself, when the server is gone. viser only dims the panels (and swaps its
+    "connected" cloud icon in the panel's header for dots); the banner at the page's top edge says what
+    happened and that nothing is lost. It shows as soon as that icon goes (the link is lost), or after
+    `SILENT_S` without a beat from the viewer (`beat`, every `BEAT_S`), and goes when both are back
     (viser reconnects by itself, and the new tab reopens the session).
 
     viser's page retries a lost connection every second, but only while the page has the focus
@@ -177,9 +183,12 @@ def install_watchdog(client: Any) -> None:
     'max-width:560px;padding:8px 14px;background:#c92a2a;color:#fff;font:14px sans-serif;' +
     'border-radius:0 0 6px 6px;box-shadow:0 2px 8px rgba(0,0,0,.3);display:none';
   document.body.appendChild(banner);
+  let sawLink = false;  // the icon is only trusted once seen (a viser without it: the beats alone)
   setInterval(() => {{
+    const linked = document.querySelector('svg.tabler-icon-cloud-check') !== null;
+    sawLink = sawLink || linked;
     const silent = Date.now() - (window.__simecsBeat || 0) > {SILENT_S * 1000:.0f};
-    banner.style.display = silent ? 'block' : 'none';
+    banner.style.display = silent || (sawLink && !linked) ? 'block' : 'none';
   }}, 500);
 }})();""",
     )

@@ -34,7 +34,8 @@ from .send_order import install_send_order
 from .session import SessionController
 
 log = logging.getLogger("simecs.viewer")
-BEAT_EVERY = 10  # ticks (about a second) between the beats that tell the page the server is here
+TICKS_PER_S = 10  # the viewer node ticks every tab this often (app.py)
+BEAT_EVERY = round(browser.BEAT_S * TICKS_PER_S)  # ticks between beats: the viewer serves the page
 READOUT_EVERY = 2  # ticks between refreshes of the digital readout (5 a second)
 VIEW_KEPT_EVERY = 10  # ticks (about a second) between looks at what the tab shows, kept for a reload
 
@@ -162,6 +163,9 @@ class Tab:
             page = self.page
             if page is not None:
                 page.apply(event)
+        # An event is what a user waits for (a plan, a state, an answer): sent now, not at the end of
+        # viser's next 1/60 s window.
+        self.client.flush()
 
     def _build(self, event: ev.ModelLoaded) -> None:
         if self.page is not None:
