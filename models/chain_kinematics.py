@@ -199,3 +199,25 @@ def spd_inverse(A):
                 s -= L[k, i] * Ainv[k, c]
             Ainv[i, c] = s / L[i, i]
     return Ainv
+
+
+@njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
+def rotvec_exp(r, R0, R):
+    """R = exp([r]x) R0 (Rodrigues): the orientation a rotation vector r (world frame) away from R0."""
+    ang = math.sqrt(r[0] * r[0] + r[1] * r[1] + r[2] * r[2])
+    E = np.eye(3)
+    if ang > 1e-15:
+        x, y, z = r[0] / ang, r[1] / ang, r[2] / ang
+        s, c1 = math.sin(ang), 1.0 - math.cos(ang)
+        E[0, 0] = 1.0 - c1 * (y * y + z * z)
+        E[1, 1] = 1.0 - c1 * (x * x + z * z)
+        E[2, 2] = 1.0 - c1 * (x * x + y * y)
+        E[0, 1] = -s * z + c1 * x * y
+        E[1, 0] = s * z + c1 * x * y
+        E[0, 2] = s * y + c1 * x * z
+        E[2, 0] = -s * y + c1 * x * z
+        E[1, 2] = -s * x + c1 * y * z
+        E[2, 1] = s * x + c1 * y * z
+    for a in range(3):
+        for b in range(3):
+            R[a, b] = E[a, 0] * R0[0, b] + E[a, 1] * R0[1, b] + E[a, 2] * R0[2, b]

@@ -17,19 +17,17 @@ of the run.
 Everything that can be known before the run is checked here, so a command the arm cannot carry out
 is refused as a whole before anything runs, naming the field inside the command (CommandError).
 The proxy plans to check a command; the simulator plans again to run it (same code, same result).
+What a plan holds is plan.py; how a motion becomes rows, reference_rows.py; the checks of the planned
+path against obstacles, the arm itself and gravity, path_checks.py.
 """
 
 from __future__ import annotations
 
-import bisect
-import functools
 import math
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from numba import njit
 from simecs.mesh import messages as m
 from simecs.mesh import scene_state
 from simecs.mesh.codec import DecodeError
@@ -39,39 +37,21 @@ from simecs.mesh.limits import limit
 from simecs.mesh.model import check_joints
 from simecs.mesh.robot_commands import ACTION_ARGS, NAME_ARG
 
-from . import contact, contact_geometry, grasp, signals
+from . import contact_geometry, grasp, signals
 from . import drive as dr
-from .chain_dynamics import chain_frames, gravity_torques
+from .chain_dynamics import chain_frames
 from .description import ArmDescription
 from .errors import CommandError
-from .ik import (
-    LINE_JUMP,
-    LINE_KNOTS,
-    LINE_SINGULAR,
-    ArmKinematics,
-    IKResult,
-    LineWalk,
-    orientation_error,
-    turned,
-)
-from .jit import CACHE as _CACHE
-from .jit import FAST as _FAST
-from .mechanics import chain_arrays, drive_array, gravity_of, holding_capacity
-from .self_collision import SelfCollision
+from .ik import ArmKinematics, IKResult, orientation_error, turned
+from .line_walk import LINE_JUMP, LINE_KNOTS, LINE_SINGULAR, LineWalk
+from .mechanics import chain_arrays
+from .path_checks import PathChecks
+from .plan import Plan, PlanStep, World, floats
+from .reference_rows import LIN_TOLERANCE, PROFILE_LAG, line_rows, trapezoid_times
 from .trapezoid import trapezoid_samples
 
-#: s: the closest two rows of a sampled reference may be (where a move curves fast; slow or straight
-#: stretches take fewer rows, spaced by accuracy).
-REFERENCE_PERIOD = 1e-3
 #: Smallest singular value of the 6 x n tool Jacobian a `lin` move may pass through.
 SINGULAR_SIGMA = 1e-3
-#: Largest distance (m) and angle (rad) between the planned pose of a `lin` move and its line, at any
-#: row of the reference and between two rows (the linear interpolation of drive.ref_eval).
-LIN_TOLERANCE = 1e-6
-#: How far (m, or rad) along its path a sampled reference's linear interpolation may lag or lead its
-#: speed profile where that accelerates: a timing error, not a path error (it sets how many rows an
-#: acceleration takes; the drives follow the set points to a fraction of a millimetre at best).
-PROFILE_LAG = 1e-5
 #: Largest distance (m) and turn (rad) between two joint solutions of a `lin` move (closer where the
 #: accuracy needs it).
 LIN_KNOT_STEP = 0.05
@@ -81,411 +61,6 @@ LIN_KNOT_TURN = 0.1
 LIN_MAX_KNOTS = 4096
 #: Points of the planned tool path returned to clients.
 TOOL_PATH_POINTS = 1000
-#: s between the set points a path is checked at against the obstacles (before a run): at 1 m/s a
-#: sphere moves 2 mm between two, a fifth of the thinnest one.
-PATH_CHECK_PERIOD = 2e-3
-#: s between the poses whose gravity load the hold check weighs, and rad the joints may turn together
-#: between two of them (gravity changes slowly along a path)
-HOLD_CHECK_PERIOD = 0.02
-HOLD_CHECK_STEP = 0.02
-#: m: how far a point of the arm may move between two of those checks of a reference table (whose
-#: rows may be far apart in time on a slow move): the same 2 mm.
-PATH_CHECK_STEP = 2e-3
-
-
-@dataclass
-class PlanStep:
-    path: str  # where the step sits in the command: nodes[2], tasks[1].actions[0], action, signals
-    what: str  # joint, lin, ptp, a primitive, open_loop / closed_loop
-    start: float
-    end: float
-    task: str = ""
-    action: str = ""
-    q_end: list[float] = field(default_factory=list)  # the joint set points when it ends ([]: not known)
-    slowed: float = 1.0  # its duration over the one its Cartesian percentages asked (joint limits)
-
-
-@dataclass
-class World:
-    """What the arm can touch from time `t` on: the obstacles where they are (a released object where
-    the tool left it) and the object the tool holds."""
-
-    t: float
-    obstacles: list[Obstacle]
-    held: grasp.Held | None = None
-
-
-@dataclass
-class Plan:
-    """What a run follows: joint-path nodes, or a reference table with joint modes and events."""
-
-    kind: str
-    duration: float
-    steps: list[PlanStep]
-    final_q: np.ndarray
-    joint_nodes: list[tuple[np.ndarray, float, float]] | None = None
-    segments: np.ndarray | None = None  # joint paths: the trapezoid rows of drive.plan_segment
-    forces: np.ndarray = field(default_factory=lambda: np.zeros((0, 5)))  # opspace.FP_* rows
-    tab: np.ndarray | None = None
-    jmode: np.ndarray | None = None
-    events: list[tuple[float, dict[str, float]]] = field(default_factory=list)
-    grasps: list[tuple[float, str]] = field(default_factory=list)  # (t, object taken; '': a release)
-    worlds: list[World] = field(default_factory=list)  # from each grasp and release on (planned poses)
-    tool_path: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
-    start_pose: list[float] = field(default_factory=list)  # the tool: x, y, z, roll, pitch, yaw
-    end_pose: list[float] = field(default_factory=list)
-    signalled: list[tuple[str, int]] = field(default_factory=list)  # direct input: (joint, index)
-    signal_unit: m.SignalUnit = "A"
-    q0: np.ndarray | None = None  # the initial pose it was planned from (Planner.plan)
-
-    def apply(self, sim: Any) -> None:
-        """Hand the plan to a `Simulation` for its next run."""
-        if self.joint_nodes is not None:
-            sim.set_joint_path(self.joint_nodes)
-        else:
-            assert self.tab is not None and self.jmode is not None
-            sim.set_reference(self.tab, self.jmode, self.events, self.grasps)
-        sim.set_forces(self.forces)
-
-    def pushing(self, times: np.ndarray) -> np.ndarray:
-        """Whether the tool is meant to push (a force set point above 0) at each of `times`."""
-        out = np.zeros(times.shape[0], dtype=bool)
-        for row in self.forces:
-            out[times >= row[0] - 1e-12] = row[4] > 0.0
-        return out
-
-    def joint_samples(
-        self, q0: np.ndarray, dt: float, turn: float = math.inf
-    ) -> tuple[np.ndarray, np.ndarray] | None:
-        """(times, joint positions) of the set points every dt s from 0 to the plan's end (a joint
-        path), or the reference table's rows with points between them where the joints turn by more
-        than `turn` rad together (a slow move's rows may be seconds apart); None when a joint follows
-        a speed or a current (its position is not known before the run)."""
-        if self.segments is not None:
-            times = np.append(np.arange(0.0, self.duration, dt), self.duration)
-            qs = np.empty((times.shape[0], q0.shape[0]))
-            qd = np.empty(q0.shape[0])
-            for k, t in enumerate(times):
-                dr.traj_eval(self.segments, q0, float(t), qs[k], qd)
-            return times, qs
-        if self.tab is None or self.jmode is None:
-            return None
-        if np.any((self.jmode == dr.JM_SPEED) | (self.jmode == dr.JM_CURRENT)):
-            return None
-        n = q0.shape[0]
-        t, qs = self.tab[:, 0], self.tab[:, 1 : 1 + n]
-        if t.shape[0] < 2 or not math.isfinite(turn):
-            return t.copy(), qs.copy()
-        row, frac = _cut(np.ceil(np.abs(np.diff(qs, axis=0)).sum(axis=1) / turn))
-        times = np.append(t[row] + frac * (t[row + 1] - t[row]), t[-1])
-        return times, np.vstack([qs[row] + frac[:, None] * (qs[row + 1] - qs[row]), qs[-1:]])
-
-    def step_at(self, t: float) -> PlanStep | None:
-        """The step running at simulated time t (the last one once all are done). A run's worker asks
-        at every frame (40 a second), for commands of up to 1000 steps: a bisection over the starts,
-        which come in time order (a step begins where the one before it ends)."""
-        k = bisect.bisect_right(self._starts, t + 1e-12)
-        return self.steps[k - 1] if k else None
-
-    def field_at(self, t: float) -> str:
-        """The command field a refusal at simulated time t names: the step's (`command.nodes[2]`), or
-        `command` before the first step."""
-        step = self.step_at(t)
-        return f"command.{step.path}" if step is not None else "command"
-
-    @functools.cached_property
-    def _starts(self) -> list[float]:
-        return [step.start for step in self.steps]
-
-    def summary(self, stop_time: float) -> m.CommandPlan:
-        return m.CommandPlan(
-            start_pose=self.start_pose,
-            end_pose=self.end_pose,
-            kind=self.kind,
-            duration=self.duration,
-            steps=[
-                m.PlanStep(s.path, s.what, s.start, s.end, s.task, s.action, s.q_end, s.slowed)
-                for s in self.steps
-            ],
-            final_q=[float(x) for x in self.final_q],
-            tool_path=[[float(x) for x in p] for p in self.tool_path],
-            stop_time_cuts=self.duration > stop_time + 1e-9,
-            signals=self._preview(),
-            slowed=max([1.0, *(s.slowed for s in self.steps)]),
-            motion=self._motion(),
-        )
-
-    def _motion(self) -> m.PlannedMotion | None:
-        """The joint set points at MOTION_POINTS even times over the command (only a reply needs it)."""
-        if self.q0 is None or self.duration <= 0.0:
-            return None
-        sampled = self.joint_samples(self.q0, self.duration / (m.MOTION_POINTS - 1))
-        if sampled is None:
-            return None
-        times, qs = sampled
-        t = np.linspace(0.0, self.duration, m.MOTION_POINTS)
-        q = np.column_stack([np.interp(t, times, qs[:, j]) for j in range(qs.shape[1])])
-        return m.PlannedMotion(_floats(t), [_floats(row) for row in q])
-
-    def _preview(self) -> m.SignalPreview | None:
-        """A direct input's signals as expanded, sampled for a client (only a reply needs it: a run
-        does not pay for it)."""
-        if not self.signalled or self.tab is None or self.jmode is None:
-            return None
-        joints = [j for _name, j in self.signalled]
-        t, values = signals.preview(self.tab, self.jmode, joints, m.PREVIEW_POINTS)
-        return m.SignalPreview(
-            self.signal_unit,
-            _floats(t),
-            {name: _floats(values[:, k]) for k, (name, _j) in enumerate(self.signalled)},
-        )
-
-
-def _floats(q: np.ndarray) -> list[float]:
-    return [float(x) for x in q]
-
-
-def _trapezoid_times(T: float, ta: float, motion: float) -> np.ndarray:
-    """Sample times of a trapezoid: its corners where it is straight and, where it curves, as many as
-    keep the linear interpolation between them within PROFILE_LAG of it for a point `motion` m
-    away at the end (a slow acceleration takes few), at most one every REFERENCE_PERIOD."""
-    k_acc = math.ceil(ta / REFERENCE_PERIOD)
-    if 0.0 < ta < T:  # s'' = 1 / ((T - ta) ta); the chord of s'' t^2 / 2 over dt is off by s'' dt^2 / 8
-        k_acc = min(k_acc, math.ceil(ta * math.sqrt(motion / ((T - ta) * ta) / (8.0 * PROFILE_LAG))))
-    acc = np.linspace(0.0, ta, max(1, k_acc) + 1)
-    return np.unique(np.concatenate([acc, T - acc]))
-
-
-# ---- a line in time: a path-velocity profile along its joint curve -----------------------------------
-def _line_rows(
-    walk: LineWalk,
-    lower: np.ndarray,
-    upper: np.ndarray,
-    vmax: np.ndarray,
-    amax: np.ndarray,
-    vs: float,
-    as_: float,
-    along: float,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
-    """(times, joint positions, joint speeds, the duration the Cartesian maxima asked for) of the rows
-    of a walked line: the fastest profile of the line parameter s that starts and ends at rest, keeps
-    `vs` and `as_` (the Cartesian maxima times the node's percentages, per unit s) and every joint's
-    `vmax` and `amax`. Where no joint limit binds it is exactly the Cartesian trapezoid (its corners
-    are points of the grid); where one does the tool slows there, and only there.
-
-    The grid cuts each knot segment so that the joint-space chord of a piece stays within half
-    LIN_TOLERANCE of the curve (its error falls with the square of its length), the curve being within
-    the other half of the line: the rows drive.ref_eval interpolates linearly. `along` (line
-    parameter) bounds how far that interpolation may lag the profile where it accelerates."""
-    ta = min(vs / as_, math.sqrt(1.0 / as_))
-    asked = max(ta, 1.0 / vs, 1.0 / (as_ * ta)) + ta
-    tab, over = _line_table(
-        walk.s,
-        walk.q,
-        walk.dq,
-        walk.chord,
-        LIN_TOLERANCE / 2,
-        0.5 * as_ * ta * ta,
-        lower,
-        upper,
-        vmax,
-        amax,
-        vs,
-        as_,
-        along,
-        REFERENCE_PERIOD,
-    )
-    n = walk.q.shape[1]
-    t, qs, qds = tab[:, 0], tab[:, 1 : 1 + n], tab[:, 1 + n :]
-    if over > 1.0:  # the profile keeps the joint speeds at the grid's points; between them a hair more
-        t, qds = t * over, qds / over
-    return t, qs, qds, asked
-
-
-@njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
-def _line_table(S, Q, D, chord, tol, s_acc, lower, upper, vmax, amax, vs, as_, along, period):
-    """_line_grid, _path_profile and _profile_rows in one call (one array back to Python): the rows
-    [t, q, qd] and the largest joint speed over its vmax among them."""
-    grid = _line_grid(S, chord, tol, s_acc)
-    u = _path_profile(S, Q, D, grid, vmax, amax, vs, as_)
-    return _profile_rows(S, Q, D, grid, u, lower, upper, vmax, along, period)
-
-
-@njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
-def _line_grid(S, chord, tol, s_acc):
-    """The points of the line parameter the profile and the rows use: each knot segment cut into
-    ceil(sqrt(chord / tol)) equal pieces (a chord's error falls with the square of its length), the
-    trapezoid's corners s_acc and 1 - s_acc and the middle (so at least three points), sorted, none
-    within 1e-12 of another."""
-    K = S.shape[0]
-    pieces = np.empty(K - 1, dtype=np.int64)
-    total = 4
-    for k in range(K - 1):
-        pieces[k] = max(1, math.ceil(math.sqrt(max(chord[k, 0], chord[k, 1]) / tol)))
-        total += pieces[k]
-    g = np.empty(total)
-    i = 0
-    for k in range(K - 1):
-        for r in range(pieces[k]):
-            g[i] = S[k] + (S[k + 1] - S[k]) * r / pieces[k]
-            i += 1
-    g[i], g[i + 1], g[i + 2], g[i + 3] = 1.0, 0.5, s_acc, 1.0 - s_acc
-    g = np.sort(g)
-    keep = 1
-    for i in range(1, total):
-        if g[i] > g[keep - 1] + 1e-12:
-            g[keep] = g[i]
-            keep += 1
-    g[0] = 0.0
-    g[keep - 1] = 1.0
-    return g[:keep].copy()
-
-
-@njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
-def _hermite(S, Q, D, k, s, q, dq, ddq):
-    """The cubic Hermite curve through knots k and k + 1 (positions Q, slopes D) at s: q, dq/ds and
-    d2q/ds2."""
-    h = S[k + 1] - S[k]
-    t = (s - S[k]) / h
-    t2 = t * t
-    t3 = t2 * t
-    a0, a1, b0, b1 = 2.0 * t3 - 3.0 * t2 + 1.0, -2.0 * t3 + 3.0 * t2, t3 - 2.0 * t2 + t, t3 - t2
-    da0, db0, db1 = 6.0 * t2 - 6.0 * t, 3.0 * t2 - 4.0 * t + 1.0, 3.0 * t2 - 2.0 * t
-    dda0, ddb0, ddb1 = 12.0 * t - 6.0, 6.0 * t - 4.0, 6.0 * t - 2.0
-    for j in range(q.shape[0]):
-        x0, x1, m0, m1 = Q[k, j], Q[k + 1, j], D[k, j], D[k + 1, j]
-        q[j] = a0 * x0 + a1 * x1 + h * (b0 * m0 + b1 * m1)
-        dq[j] = da0 * (x0 - x1) / h + db0 * m0 + db1 * m1
-        ddq[j] = dda0 * (x0 - x1) / (h * h) + (ddb0 * m0 + ddb1 * m1) / h
-
-
-@njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
-def _path_profile(S, Q, D, grid, vmax, amax, vs, as_):
-    """u = (ds/dt)^2 at each grid point: the fastest profile from rest to rest with |s''| <= as_,
-    ds/dt <= vs, and per joint |q'| ds/dt <= vmax and |q'| |s''| + |q''| (ds/dt)^2 <= amax (q' = dq/ds
-    of the Hermite curve; its second term bounds the joint acceleration whatever the signs). s'' is
-    constant between two grid points, each bound checked at both: a forward pass accelerates as
-    hard as it allows, a backward pass brakes as hard as it allows."""
-    N = grid.shape[0]
-    n = Q.shape[1]
-    K = S.shape[0]
-    b = np.empty((N, n))
-    c = np.empty((N, n))
-    top = np.empty(N)
-    q = np.empty(n)
-    dq = np.empty(n)
-    ddq = np.empty(n)
-    k = 0
-    for i in range(N):
-        s = grid[i]
-        while k < K - 2 and s > S[k + 1]:
-            k += 1
-        _hermite(S, Q, D, k, s, q, dq, ddq)
-        for j in range(n):
-            b[i, j] = abs(dq[j])
-            c[i, j] = abs(ddq[j])
-        if k < K - 2 and s == S[k + 1]:  # an inner knot: the curvature on both sides
-            _hermite(S, Q, D, k + 1, s, q, dq, ddq)
-            for j in range(n):
-                c[i, j] = max(c[i, j], abs(ddq[j]))
-        x = vs * vs
-        for j in range(n):
-            if b[i, j] * b[i, j] * x > vmax[j] * vmax[j]:
-                x = (vmax[j] / b[i, j]) ** 2
-            if c[i, j] * x > amax[j]:
-                x = amax[j] / c[i, j]
-        top[i] = x
-    u = np.zeros(N)
-    for i in range(N - 1):
-        d2 = 2.0 * (grid[i + 1] - grid[i])
-        g = as_
-        for j in range(n):
-            if b[i, j] > 0.0:
-                g = min(g, (amax[j] - c[i, j] * u[i]) / b[i, j])
-        x = min(top[i + 1], u[i] + d2 * max(g, 0.0))
-        for j in range(n):
-            if b[i + 1, j] > 0.0:
-                x = min(x, (u[i] + d2 * amax[j] / b[i + 1, j]) / (1.0 + d2 * c[i + 1, j] / b[i + 1, j]))
-        u[i + 1] = x
-    u[N - 1] = 0.0
-    for i in range(N - 2, -1, -1):
-        d2 = 2.0 * (grid[i + 1] - grid[i])
-        g = as_
-        for j in range(n):
-            if b[i + 1, j] > 0.0:
-                g = min(g, (amax[j] - c[i + 1, j] * u[i + 1]) / b[i + 1, j])
-        x = min(u[i], u[i + 1] + d2 * max(g, 0.0))
-        for j in range(n):
-            if b[i, j] > 0.0:
-                x = min(x, (u[i + 1] + d2 * amax[j] / b[i, j]) / (1.0 + d2 * c[i, j] / b[i, j]))
-        u[i] = x
-    return u
-
-
-@njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
-def _profile_rows(S, Q, D, grid, u, lower, upper, vmax, along, period):
-    """The rows [t, q, qd] of the profile u on the grid: each grid point, and where s'' is not 0 as
-    many more as keep the linear interpolation of s(t) within `along` of it (at most one per
-    `period`); q on the Hermite curve, qd = q' ds/dt. Also the largest joint speed over its vmax, of
-    the rows and of the chords between them."""
-    N = grid.shape[0]
-    n = Q.shape[1]
-    K = S.shape[0]
-    dt = np.empty(N - 1)
-    pieces = np.empty(N - 1, dtype=np.int64)
-    total = 1
-    for i in range(N - 1):
-        d = grid[i + 1] - grid[i]
-        dt[i] = 2.0 * d / (math.sqrt(u[i]) + math.sqrt(u[i + 1]))
-        sdd = abs(u[i + 1] - u[i]) / (2.0 * d)
-        p = math.ceil(dt[i] * math.sqrt(sdd / (8.0 * along)))
-        pieces[i] = max(1, min(p, math.floor(dt[i] / period)))
-        total += pieces[i]
-    tab = np.empty((total, 1 + 2 * n))
-    t = tab[:, 0]
-    qs = tab[:, 1 : 1 + n]
-    qds = tab[:, 1 + n :]
-    q = np.empty(n)
-    dq = np.empty(n)
-    ddq = np.empty(n)
-    row = 0
-    k = 0
-    now = 0.0
-    for i in range(N - 1):
-        v0 = math.sqrt(u[i])
-        sdd = (u[i + 1] - u[i]) / (2.0 * (grid[i + 1] - grid[i]))
-        for r in range(pieces[i]):
-            tau = dt[i] * r / pieces[i]
-            s = min(max(grid[i] + v0 * tau + 0.5 * sdd * tau * tau, grid[i]), grid[i + 1])
-            while k < K - 2 and s > S[k + 1]:
-                k += 1
-            _hermite(S, Q, D, k, s, q, dq, ddq)
-            sd = v0 + sdd * tau
-            t[row] = now + tau
-            for j in range(n):
-                qs[row, j] = min(max(q[j], lower[j]), upper[j])
-                qds[row, j] = dq[j] * sd
-            row += 1
-        now += dt[i]
-    t[row] = now
-    for j in range(n):
-        qs[row, j] = Q[K - 1, j]
-        qds[row, j] = 0.0
-    over = 0.0
-    for r in range(total):
-        for j in range(n):
-            over = max(over, abs(qds[r, j]) / vmax[j])
-            if r > 0:
-                over = max(over, abs(qs[r, j] - qs[r - 1, j]) / (t[r] - t[r - 1]) / vmax[j])
-    return tab, over
-
-
-def _cut(pieces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Interval k cut into pieces[k] equal parts (at least 1): for each part, its interval and where
-    it starts in it (0 <= fraction < 1)."""
-    count = np.maximum(1, pieces).astype(np.int64)
-    k = np.repeat(np.arange(count.shape[0]), count)
-    return k, (np.arange(k.shape[0]) - np.repeat(np.cumsum(count) - count, count)) / count[k]
 
 
 def _where(path: str, sub: str) -> str:
@@ -532,7 +107,7 @@ class _Reference:
         T, ta = float(row[1]), float(row[2])
         if T <= 0.0:
             return
-        times = _trapezoid_times(T, ta, self.reach * float(np.sum(np.abs(dest - self.q))))
+        times = trapezoid_times(T, ta, self.reach * float(np.sum(np.abs(dest - self.q))))
         s, sd = trapezoid_samples(T, ta, times)
         dq = dest - self.q
         self.add(path, times, self.q + s[:, None] * dq, sd[:, None] * dq)
@@ -574,7 +149,15 @@ class Planner:
         self.vmax = np.array([self.values[f"{j}.traj.max_speed"] for j in self.names])
         self.amax = np.array([self.values[f"{j}.traj.max_acc"] for j in self.names])
         self._arrays = chain_arrays(model.spec, self.values)
-        self._spheres = contact_geometry.sphere_table(model.spec, self.values)
+        self.checks = PathChecks(
+            model,
+            self.values,
+            self.q0,
+            self.obstacles,
+            self.kin.reach,
+            self._arrays,
+            contact_geometry.sphere_table(model.spec, self.values),
+        )
 
     # ---- entry ----
     def plan(self, command: m.RobotCommand) -> Plan:
@@ -583,116 +166,6 @@ class Planner:
         plan.start_pose, plan.end_pose = self.pose(self.q0), self.pose(plan.final_q)
         plan.q0 = self.q0.copy()
         return plan
-
-    def collision(self, plan: Plan) -> tuple[str, str] | None:
-        """(field, why) when the planned path makes the arm (or what it carries) touch an obstacle: the
-        field is `initial` or the step's path under `command`. A path that follows speeds or currents
-        is not known before the run: None. While a node sets a force the tool may touch (it is meant
-        to push); the last link (the gripper's) passes through the objects the command grasps."""
-        sampled = plan.joint_samples(self.q0, PATH_CHECK_PERIOD, PATH_CHECK_STEP / self.kin.reach)
-        if sampled is None or not self.obstacles:
-            return None
-        times, qs = sampled
-        pushing = plan.pushing(times)  # where the tool pushes, only the rest of the arm must not touch
-        worlds = plan.worlds or [World(0.0, self.obstacles)]
-        taken = {name for _t, name in plan.grasps if name}
-        found = np.zeros(4)
-        for w, world in enumerate(worlds):
-            end = worlds[w + 1].t if w + 1 < len(worlds) else math.inf
-            rows = np.flatnonzero((times >= world.t - 1e-12) & (times < end - 1e-12))
-            if rows.size == 0:
-                continue
-            spheres, obs = grasp.world_tables(self._spheres, world.obstacles, taken, world.held, self.n - 1)
-            hit = contact.first_touch(
-                spheres,
-                obs,
-                self._arrays.pre_R,
-                self._arrays.pre_p,
-                np.ascontiguousarray(qs[rows]),
-                pushing[rows],
-                found,
-            )
-            if hit >= 0:
-                return self._touch(plan, int(rows[hit]), float(times[rows[hit]]), world.obstacles, found)
-        return None
-
-    @functools.cached_property
-    def self_check(self) -> SelfCollision:
-        """The arm's check against itself at these values (self_collision.py), made when first asked."""
-        spec = self.model.spec
-        return SelfCollision.of(spec, self._spheres, self._arrays.pre_R, self._arrays.pre_p, spec.home)
-
-    def self_touch(self, plan: Plan) -> tuple[str, str] | None:
-        """(field, why) when the planned path makes two links of the arm touch (`initial`, or the step's
-        path under `command`); a path that follows speeds or currents is not known: None."""
-        sampled = plan.joint_samples(self.q0, PATH_CHECK_PERIOD, PATH_CHECK_STEP / self.kin.reach)
-        if sampled is None:
-            return None
-        times, qs = sampled
-        hit = self.self_check.first_touch(qs)
-        if hit is None:
-            return None
-        k, a, b, depth = hit
-        what = f"{a} would touch {b} ({depth * 1000:.1f} mm deep)"
-        if k == 0:
-            return "initial", f"at the initial pose {what}: choose a pose where the arm is clear of itself"
-        t = float(times[k])
-        return (
-            plan.field_at(t),
-            f"{what} at t = {t:.3f} s of the planned path: change the path, or set settings.collisions to "
-            "simulate",
-        )
-
-    def holding_problem(self, plan: Plan | None) -> tuple[str, str] | None:
-        """(field, why) when a drive cannot hold the arm against gravity at the initial pose or at a
-        pose of the planned path (`plan` None: a run without a command, which holds the initial pose):
-        the joint's gravity torque there (payload included) exceeds what its drive gives at rest
-        (mechanics.holding_capacity). The motion's own torques are not counted: the drives' current
-        limit shapes them in the run."""
-        gravity = gravity_of(self.values)
-        if not np.any(gravity):
-            return None
-        P = drive_array(self.n, self.values)
-        capacity = holding_capacity(P)
-        sampled = None if plan is None else plan.joint_samples(self.q0, HOLD_CHECK_PERIOD, HOLD_CHECK_STEP)
-        times, qs = sampled if sampled is not None else (np.zeros(1), self.q0[None, :])
-        g = np.empty(self.n)
-        for k in range(qs.shape[0]):
-            gravity_torques(*self._arrays, gravity, np.ascontiguousarray(qs[k]), g)
-            over = np.flatnonzero(np.abs(g) > capacity)
-            if over.size:
-                j = int(over[np.argmax(np.abs(g[over]) / capacity[over])])
-                need = (
-                    f"joint{j + 1} cannot hold the arm against gravity: it needs {abs(g[j]):.3g} N m, its "
-                    f"drive gives at most {capacity[j]:.3g} N m at rest (motor.i_max {P[j, dr.P_IMAX]:g} A, "
-                    f"motor.kt {P[j, dr.P_KT]:g} N m/A, gear.ratio {P[j, dr.P_N]:g})"
-                )
-                if k == 0:
-                    return "initial", f"at the initial pose {need}: choose another pose or a lighter payload"
-                return (
-                    plan.field_at(float(times[k])) if plan is not None else "command",
-                    f"at t = {float(times[k]):.3f} s of the planned path {need}: change the path or lighten "
-                    "the payload",
-                )
-        return None
-
-    def _touch(
-        self, plan: Plan, k: int, t: float, obstacles: Sequence[Obstacle], found: np.ndarray
-    ) -> tuple[str, str]:
-        hit = obstacles[int(found[1])].name
-        world = next(w for w in reversed(plan.worlds or [World(0.0, [])]) if w.t <= t + 1e-12)
-        if found[3] == contact_geometry.CARRIED and world.held is not None:
-            what = f"the carried {world.obstacles[world.held.index].name} would touch obstacle {hit}"
-        else:
-            what = f"link{int(found[0]) + 1} would touch obstacle {hit}"
-        depth = f"{found[2] * 1000:.1f} mm deep"
-        if k == 0:
-            return "initial", f"at the initial pose {what} ({depth}): move the arm or the obstacle clear"
-        return (
-            plan.field_at(t),
-            f"{what} at t = {t:.3f} s of the planned path ({depth}): change the path, move the obstacle "
-            "(set_obstacles), or set settings.collisions to simulate",
-        )
 
     def pose(self, q: np.ndarray) -> list[float]:
         """The tool pose at q as x, y, z (m), roll, pitch, yaw (rad)."""
@@ -722,7 +195,7 @@ class Planner:
                     slowed = self._lin(ref, path, position, target, node.speed_pct, node.acc_pct)
                 else:
                     self._ptp(ref, path, position, target, node.speed_pct, node.acc_pct)
-                steps.append(PlanStep(path, node.move, t0, ref.t, q_end=_floats(ref.q), slowed=slowed))
+                steps.append(PlanStep(path, node.move, t0, ref.t, q_end=floats(ref.q), slowed=slowed))
         else:
             steps.extend(self._action(ref, act, path, task) for path, task, act in _actions_of(command))
         tab = ref.table()
@@ -761,7 +234,7 @@ class Planner:
             row = dr.plan_segment(
                 q, dest, self.vmax * node.speed_pct / 100, self.amax * node.acc_pct / 100, t
             )
-            steps.append(PlanStep(f"nodes[{i}]", "joint", t, t + float(row[1]), q_end=_floats(dest)))
+            steps.append(PlanStep(f"nodes[{i}]", "joint", t, t + float(row[1]), q_end=floats(dest)))
             rows.append(row)
             nodes.append((dest, node.speed_pct, node.acc_pct))
             samples.extend(q + s * (dest - q) for s in np.linspace(0.0, 1.0, 21)[1:])
@@ -795,7 +268,7 @@ class Planner:
         return Plan(
             kind="direct_input",
             duration=self.stop_time,
-            steps=[PlanStep("signals", what, 0.0, self.stop_time, q_end=_floats(final_q) if known else [])],
+            steps=[PlanStep("signals", what, 0.0, self.stop_time, q_end=floats(final_q) if known else [])],
             final_q=final_q,
             tab=tab,
             jmode=jmode,
@@ -881,7 +354,7 @@ class Planner:
             rates.append(v["cart.max_rot_speed"] * sp / 100 / angle)
             accs.append(v["cart.max_rot_acc"] * ac / 100 / angle)
         along = PROFILE_LAG / max(length, angle)  # in line parameter
-        times, qs, qds, asked = _line_rows(
+        times, qs, qds, asked = line_rows(
             walk, self.lower, self.upper, self.vmax, self.amax, min(rates), min(accs), along
         )
         ref.add(path, times, qs, qds)
@@ -992,7 +465,7 @@ class Planner:
             ref.t,
             task,
             act.name or act.primitive,
-            _floats(ref.q),
+            floats(ref.q),
             slowed,
         )
 

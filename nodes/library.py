@@ -124,7 +124,7 @@ class ModelLibrary:
         obstacles: Sequence[m.Obstacle] = (),
         collisions: bool = False,
     ) -> Any:
-        """The command expanded for this model, values and initial pose (models.planner.Plan) among
+        """The command expanded for this model, values and initial pose (models.plan.Plan) among
         `obstacles` (what grasps take), or a refusal naming the field inside `command` (a level the
         model does not accept: unsupported). A path whose drives cannot hold the arm against gravity is
         refused, and with `collisions` one that makes the arm touch an obstacle or itself (naming the
@@ -132,9 +132,9 @@ class ModelLibrary:
         planner = self._planner(model_id, command.kind, "command", values, initial, stop_time, obstacles)
         with _refused_as("command"):
             plan = planner.plan(command)
-        problem = planner.holding_problem(plan)
+        problem = planner.checks.holding_problem(plan)
         if problem is None and collisions:
-            problem = planner.collision(plan) or planner.self_touch(plan)
+            problem = planner.checks.collision(plan) or planner.checks.self_touch(plan)
         if problem is not None:
             raise RequestError("bad_request", problem[1], problem[0])
         return plan
@@ -142,7 +142,7 @@ class ModelLibrary:
     def check_hold(self, model_id: str, values: Mapping[str, float], initial: Sequence[float]) -> None:
         """Refuse a run without a command whose arm its drives cannot hold at the initial pose."""
         kind = self.describe(model_id).command_levels[0]  # any: the planner is only asked about q0
-        problem = self._planner(model_id, kind, "initial", values, initial).holding_problem(None)
+        problem = self._planner(model_id, kind, "initial", values, initial).checks.holding_problem(None)
         if problem is not None:
             raise RequestError("bad_request", problem[1], problem[0])
 

@@ -92,7 +92,7 @@ class SimulationSource:
         self.sim.set_obstacles(req.obstacles)
         self.contacts = ContactLog(self.columns, [ob.name for ob in req.obstacles], self.sim.n)
         q_columns = [self.columns.index(columns.joint_column(j, columns.JOINT_POSITION)) for j in self.joints]
-        self.self_contacts = SelfContactLog(planner.self_check, q_columns)
+        self.self_contacts = SelfContactLog(planner.checks.self_check, q_columns)
         self.sim.set_initial(req.initial)
         if self.plan is not None:
             self.plan.apply(self.sim)

@@ -40,15 +40,15 @@ def fold_target(pkg: Any, steps: int = 41, depth: float = 0.005) -> tuple[list[f
         for value in np.linspace(link.joint_min, link.joint_max, steps):
             q = home.copy()
             q[j] = value
-            hit = planner.self_check.first_touch(q[None, :])
+            hit = planner.checks.self_check.first_touch(q[None, :])
             if hit is None or hit[3] <= depth or (best is not None and abs(value - home[j]) >= best[0]):
                 continue
             plan = planner.plan(m.JointPath([m.PathNode(list(q))]))
-            refusal = planner.self_touch(plan)
+            refusal = planner.checks.self_touch(plan)
             if (
                 refusal is not None
-                and planner.collision(plan) is None
-                and planner.holding_problem(plan) is None
+                and planner.checks.collision(plan) is None
+                and planner.checks.holding_problem(plan) is None
             ):
                 best = (abs(value - home[j]), [float(x) for x in q], refusal[1])
     return None if best is None else (best[1], best[2])

@@ -50,7 +50,7 @@ def loaded_pose(sim: Any, seed: int = 1, tries: int = 400) -> tuple[np.ndarray, 
     for load, q in sorted(candidates, key=lambda c: -c[0]):
         # free of the model's obstacles (a floor, a table would carry part of the weight)
         planner = Planner(sim.package, sim.values, q, 1.0, obstacles=sim.obstacles)
-        if planner.collision(planner.plan(m.JointPath([m.PathNode(list(q), 100.0, 100.0)]))) is None:
+        if planner.checks.collision(planner.plan(m.JointPath([m.PathNode(list(q), 100.0, 100.0)]))) is None:
             return q, load
     raise ValueError("no pose of the tries is free of the obstacles")
 

@@ -19,17 +19,12 @@ from simecs.mesh import messages as m
 from simecs.mesh.kinematics import rpy_of
 from simecs.mesh.limits import limit
 from simecs.models import CommandError, get_model
-from simecs.models.ik import LINE_OK, ArmKinematics, orientation_error
-from simecs.models.planner import (
-    LIN_KNOT_STEP,
-    LIN_KNOT_TURN,
-    LIN_MAX_KNOTS,
-    LIN_TOLERANCE,
-    PATH_CHECK_STEP,
-    SINGULAR_SIGMA,
-    Plan,
-    Planner,
-)
+from simecs.models.ik import ArmKinematics, orientation_error
+from simecs.models.line_walk import LINE_OK
+from simecs.models.path_checks import PATH_CHECK_STEP
+from simecs.models.plan import Plan
+from simecs.models.planner import LIN_KNOT_STEP, LIN_KNOT_TURN, LIN_MAX_KNOTS, SINGULAR_SIGMA, Planner
+from simecs.models.reference_rows import LIN_TOLERANCE
 
 SPIDER_Q0 = [0.5, 0.2, -0.3, -0.5, -0.3, -0.2, 0.7]
 #: The Spider's default pose (a new session's) and a Teach there, then 150 mm along +y at 100 %: the
@@ -197,7 +192,7 @@ def test_the_obstacle_check_looks_between_rows_far_apart() -> None:
     assert plan.tab is not None
     t, q, _qd = rows(plan, p.n)
     assert np.max(np.abs(np.diff(q, axis=0)).sum(axis=1)) * p.kin.reach > 10 * PATH_CHECK_STEP  # far apart
-    touch = p.collision(plan)
+    touch = p.checks.collision(plan)
     assert touch is not None and touch[0] == "command.actions[0]" and "box1" in touch[1], touch
 
 

@@ -61,7 +61,7 @@ def test_an_obstacle_touches_a_link_where_its_collision_solid_is(model_id: str) 
     for into, touched in ((0.005, True), (-0.02, False)):
         ball = m.Obstacle("ball", "sphere", list(extreme + outward * (0.01 - into)), radius=0.01)
         planner = Planner(pkg, values, q, 1.0, obstacles=[ball])
-        problem = planner.collision(planner.plan(m.JointPath([m.PathNode(list(q))])))
+        problem = planner.checks.collision(planner.plan(m.JointPath([m.PathNode(list(q))])))
         if touched:
             assert problem is not None and f"link{pkg.n} would touch obstacle ball" in problem[1], problem
         else:
@@ -93,7 +93,7 @@ def test_a_box_pressed_into_the_pandas_hand_pushes_on_link7() -> None:
 def test_neighbours_and_pairs_touching_at_home_are_not_checked() -> None:
     pkg = models.get_model("spider")
     planner = Planner(pkg, pkg.describe().default_values(), pkg.spec.home, 1.0)
-    check = planner.self_check
+    check = planner.checks.self_check
     n = pkg.n
     for g in range(n):
         assert not check.checked[g, g + 1] and not check.checked[g + 1, g]
@@ -113,7 +113,7 @@ def test_an_initial_pose_inside_itself_is_refused_as_the_initial_pose() -> None:
     q = np.array(pkg.spec.home)
     q[PANDA_FOLD[0]] = PANDA_FOLD[1]
     planner = Planner(pkg, pkg.describe().default_values(), q, 1.0)
-    problem = planner.self_touch(planner.plan(m.JointPath([m.PathNode(list(q))])))
+    problem = planner.checks.self_touch(planner.plan(m.JointPath([m.PathNode(list(q))])))
     assert problem is not None and problem[0] == "initial", problem
     assert "link5 would touch link7" in problem[1], problem
 
@@ -155,4 +155,4 @@ def test_the_puma_cannot_fold_into_itself_within_its_ranges() -> None:
     planner = Planner(pkg, pkg.describe().default_values(), pkg.spec.home, 1.0)
     lo, hi = (np.array([getattr(lk, a) for lk in pkg.spec.links]) for a in ("joint_min", "joint_max"))
     poses = lo + (hi - lo) * np.random.default_rng(3).random((20000, pkg.n))
-    assert planner.self_check.first_touch(poses) is None
+    assert planner.checks.self_check.first_touch(poses) is None
