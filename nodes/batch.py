@@ -23,12 +23,10 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
-from simecs.mesh import batch, codec, keys
+from simecs.mesh import batch, codec, keys, table_csv
 from simecs.mesh import messages as m
 from simecs.mesh.client import MeshClient, NoReply, RemoteError
 from simecs.mesh.config import load_client
-
-from . import export
 
 EXIT_OK, EXIT_RUN_FAILED, EXIT_BAD_INPUT, EXIT_NO_SERVICE = 0, 1, 2, 3
 
@@ -172,7 +170,7 @@ def save_recording(client: MeshClient, user: str, session: str, run_id: str, pat
 def write_csv(path: Path, columns: list[str], rows: Any) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     with path.open("w", newline="") as fh:
-        export.write_table(fh, columns, rows)
+        table_csv.write_table(fh, columns, rows)
 
 
 class Progress:

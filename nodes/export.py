@@ -1,7 +1,7 @@
 """`simecs export FILE --csv [--vars ...]`: a recording's samples as CSV, for spreadsheets and scripts.
 
-Values are written with Python's shortest round-trip representation, so reading the CSV back gives
-the recorded float64 values exactly. `--vars` takes column names or shell patterns (`joint1.*`);
+The CSV is the one format of mesh/table_csv.py (the viewer's download is the same file): reading it
+back gives the recorded float64 values exactly. `--vars` takes column names or shell patterns (`joint1.*`);
 `time` is always the first column.
 """
 
@@ -14,7 +14,7 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-import numpy as np
+from simecs.mesh.table_csv import write_table
 
 from . import mcapread
 
@@ -55,23 +55,6 @@ def write_csv(
         rows = rows[rows[:, 0] <= t1]
     unit_row = [rec.layout.units[i] if i < len(rec.layout.units) else "" for i in idx] if units else None
     return write_table(out, [rec.columns[i] for i in idx], rows[:, idx], unit_row)
-
-
-def write_table(
-    out: io.TextIOBase, columns: Sequence[str], rows: np.ndarray, units: Sequence[str] | None = None
-) -> int:
-    """Columns as a CSV header (then their units if given), every value at full precision."""
-    out.write(",".join(_cell(c) for c in columns) + "\n")
-    if units is not None:
-        out.write(",".join(_cell(u) for u in units) + "\n")
-    line = ",".join(["%r"] * len(columns)) + "\n"
-    for row in np.asarray(rows).tolist():
-        out.write(line % tuple(row))
-    return len(rows)
-
-
-def _cell(text: str) -> str:
-    return '"' + text.replace('"', '""') + '"' if any(ch in text for ch in ',"\n') else text
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -19,7 +19,7 @@ import msgspec
 import numpy as np
 import pytest
 from simecs.benchmarks.viewer import viewer_latency
-from simecs.mesh import codec, columns, frames, keys, phases, shapes
+from simecs.mesh import codec, columns, frames, keys, phases, shapes, table_csv
 from simecs.mesh import messages as m
 from simecs.mesh.client import NoReply, RemoteError
 from simecs.mesh.codec import DecodeError
@@ -1115,11 +1115,11 @@ def test_doc_links_become_buttons_and_history_goes_back(server: Any) -> None:
 # -- results, run, library --------------------------------------------------------------------------
 def test_csv_has_units_and_full_precision() -> None:
     rows = np.array([[0.0, 1 / 3], [0.002, 2.0]])
-    data = export.to_csv(["time", "joint1.q"], ["s", "rad"], rows, {"run": "r1"}).decode()
+    data = table_csv.table_bytes(["time", "joint1.q"], rows, ["s", "rad"], {"run": "r1"}).decode()
     lines = data.splitlines()
-    assert lines[0] == "# run: r1" and lines[1] == "time [s],joint1.q [rad]"
-    assert float(lines[2].split(",")[1]) == 1 / 3
-    back = np.loadtxt(data.splitlines()[2:], delimiter=",")
+    assert lines[:3] == ["# run: r1", "time,joint1.q", "s,rad"]
+    assert float(lines[3].split(",")[1]) == 1 / 3
+    back = np.loadtxt(data.splitlines()[3:], delimiter=",")
     assert np.array_equal(back, rows)
     assert export.csv_name("spider", "abcdefghijkl", "r3") == "simecs_spider_abcdefgh_r3.csv"
 
@@ -1655,7 +1655,8 @@ def test_full_resolution_overlay_and_downloads() -> None:
     ctl.results.download_mcap("r1")
     ctl.drain()
     csv, mcap = got.of(events.Download)[-2:]
-    assert csv.filename.endswith("_r1.csv") and b"joint1.q [rad]" in csv.data and b"# run: r1" in csv.data
+    assert csv.filename.endswith("_r1.csv") and b"# run: r1" in csv.data
+    assert b"time,joint1.q\ns,rad\n" in csv.data
     assert mcap.filename == f"{keys.recording_name(sc.id, 'r1')}.mcap" and mcap.data.startswith(b"\x89MCAP")
 
 

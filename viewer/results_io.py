@@ -14,13 +14,13 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 from simecs.mesh import messages as m
-from simecs.mesh import phases
+from simecs.mesh import phases, table_csv
 from simecs.mesh.client import NoReply, RemoteError
 from simecs.mesh.limits import RUNS_KEPT
 
 from . import events as ev
 from .compare import recording_of_key, track_columns, track_every, track_of
-from .export import csv_name, to_csv, upload_name
+from .export import csv_name, upload_name
 from .identity import Identity
 from .series import Transient, every_for, transient
 from .tab_state import TabState
@@ -219,7 +219,8 @@ class ResultsIO:
             recording = self.c.replay_of(run_id)
             if recording:
                 meta["replay of"] = recording
-            self.t.emit(ev.Download(csv_name(model.id, sc.id, run_id), to_csv(cols, units, rows, meta)))
+            data = table_csv.table_bytes(cols, rows, units, meta)
+            self.t.emit(ev.Download(csv_name(model.id, sc.id, run_id), data))
             self.t.notify("CSV", f"{rows.shape[0]} samples × {len(cols)} columns of {run_id}.", "ok")
 
         self.t.submit("CSV download", job, "io")
