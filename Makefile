@@ -53,7 +53,7 @@ lint: $(TEST_STAMP)
 	@mkdir -p $(TYPES) && for p in $(PACKAGES); do ln -sfn ../../../$$p $(TYPES)/$$p; done
 	$(BIN)/mypy
 	PYTHONPATH=.simecs/types $(BIN)/lint-imports --no-cache
-	$(BIN)/python -m simecs.mesh.schema --check
+	$(BIN)/python -m simecs.mesh.protocol_doc --check
 
 format: $(TEST_STAMP)
 	$(BIN)/ruff check --fix $(CODE)
@@ -61,7 +61,7 @@ format: $(TEST_STAMP)
 
 # Rewrite docs/protocol.schema.json and the generated tables of docs/PROTOCOL.md from mesh/.
 schema: $(STAMP)
-	$(BIN)/python -m simecs.mesh.schema
+	$(BIN)/python -m simecs.mesh.protocol_doc
 
 # Lint and the drives' compile run side by side (one core each): on a fresh clone that saves half a minute.
 test: $(TEST_STAMP) $(CHROMIUM)

@@ -28,7 +28,7 @@ from typing import Any
 import numpy as np
 import zenoh
 import zenoh.ext
-from simecs.mesh import codec, columns, frames, keys
+from simecs.mesh import codec, frames, keys
 from simecs.mesh import messages as m
 from simecs.mesh.client import MeshClient
 from simecs.mesh.config import MeshConfig, open_session
@@ -49,7 +49,7 @@ def absorb(mesh: LocalMesh, rec_dir: Path) -> dict[str, Any]:
     from simecs import models
 
     desc = models.get_model("spider").describe()
-    cols, units = columns.run_columns(desc)
+    cols, units = desc.run_columns()
     sid = keys.new_session_id()
     user = "bench"
     z = mesh.new_client().z

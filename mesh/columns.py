@@ -10,12 +10,8 @@ transforms and joint states: all through this module.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import TYPE_CHECKING
 
 import numpy as np
-
-if TYPE_CHECKING:
-    from .model import ModelDescription
 
 TIME = "time"
 #: Position in m, then the orientation quaternion w first.
@@ -25,7 +21,8 @@ TOOL_FRAME = "tool"
 #: The object the tool holds (or the last one it released, where it left it; the world origin before
 #: any grasp): `grasp.object` says which obstacle it is, `grasp.held` whether the tool holds it.
 GRASPED_FRAME = "grasped"
-#: Frames every run has besides its links: a link cannot take these names.
+#: Frames every run has besides its links, in this order after them (ModelDescription.pose_frames): a
+#: link cannot take these names.
 RESERVED_FRAMES = (TOOL_FRAME, GRASPED_FRAME)
 #: The per-joint quantities Foxglove JointStates shows: position, velocity, and the first effort found.
 JOINT_POSITION, JOINT_VELOCITY = "q", "qd"
@@ -55,22 +52,6 @@ def pose_column(frame: str, field: str) -> str:
     return f"{POSE_PREFIX}{frame}.{field}"
 
 
-def pose_frames(model: ModelDescription) -> list[str]:
-    """The frames whose pose a run streams: every link, then the tool, then the grasped object."""
-    return [link.name for link in model.links] + [TOOL_FRAME, GRASPED_FRAME]
-
-
-def pose_column_names(model: ModelDescription) -> list[str]:
-    return [pose_column(frame, f) for frame in pose_frames(model) for f in POSE_FIELDS]
-
-
-def run_columns(model: ModelDescription) -> tuple[list[str], list[str]]:
-    """Every column of a run of `model` and its unit, in frame order."""
-    names = [TIME] + [v.name for v in model.variables] + pose_column_names(model)
-    units = ["s"] + [v.unit for v in model.variables] + list(POSE_UNITS) * len(pose_frames(model))
-    return names, units
-
-
 def is_pose(column: str) -> bool:
     return column.startswith("pose.")
 
@@ -96,12 +77,6 @@ def live_columns(columns: Sequence[str], live_vars: Sequence[str]) -> list[str]:
 
 def joint_column(joint: str, quantity: str) -> str:
     return f"{joint}.{quantity}"
-
-
-def joint_position_columns(model: ModelDescription) -> list[str]:
-    """Each joint's position column (always streamed: it tells the pose after a run)."""
-    names = {v.name for v in model.variables}
-    return [c for c in (joint_column(link.joint, JOINT_POSITION) for link in model.links) if c in names]
 
 
 def pose_indices(columns: Sequence[str], frames: Sequence[str]) -> np.ndarray | None:

@@ -17,6 +17,7 @@ from typing import Annotated, Literal, get_args
 import msgspec
 from msgspec import Meta
 
+from . import columns
 from .codec import DecodeError
 from .columns import RESERVED_FRAMES
 from .environment import ObstacleList, check_obstacles
@@ -215,6 +216,26 @@ class ModelDescription(Message, tag="model"):
 
     def default_values(self) -> dict[str, float]:
         return {p.name: p.value for p in self.parameters}
+
+    # -- the columns of its runs (the rules are columns.py's) --
+    def pose_frames(self) -> list[str]:
+        """The frames whose pose a run streams: every link, then the tool, then the grasped object."""
+        return [link.name for link in self.links] + list(RESERVED_FRAMES)
+
+    def pose_column_names(self) -> list[str]:
+        return [columns.pose_column(frame, f) for frame in self.pose_frames() for f in columns.POSE_FIELDS]
+
+    def run_columns(self) -> tuple[list[str], list[str]]:
+        """Every column of a run of this model and its unit, in frame order."""
+        names = [columns.TIME] + [v.name for v in self.variables] + self.pose_column_names()
+        units = ["s"] + [v.unit for v in self.variables] + list(columns.POSE_UNITS) * len(self.pose_frames())
+        return names, units
+
+    def joint_position_columns(self) -> list[str]:
+        """Each joint's position column (always streamed: it tells the pose after a run)."""
+        names = {v.name for v in self.variables}
+        found = (columns.joint_column(link.joint, columns.JOINT_POSITION) for link in self.links)
+        return [c for c in found if c in names]
 
 
 def check_values(

@@ -3,16 +3,22 @@
 PROTOCOL.md explains; its tables of keys, commands, phases, message fields and frame header are
 generated here between `<!-- generated:NAME -->` and `<!-- end generated:NAME -->` markers, so the
 document and the nodes cannot drift apart (tests check the document is up to date).
+
+    python -m simecs.mesh.protocol_doc          # rewrite docs/protocol.schema.json and PROTOCOL.md's tables
+    python -m simecs.mesh.protocol_doc --check  # exit 1 if either is out of date (`make lint` does)
 """
 
 from __future__ import annotations
 
+import argparse
 import re
+import sys
+from pathlib import Path
 from typing import Any
 
 from . import keys, limits, phases
 from .primitives import NAME_PATTERN, SESSION_ID_PATTERN
-from .schema import protocol_schema
+from .schema import protocol_schema, schema_text
 
 #: Message tables, in the order the document explains them. Every $defs entry is in exactly one group.
 GROUPS: list[tuple[str, list[str]]] = [
@@ -268,3 +274,32 @@ def update_document(text: str) -> str:
     if missing:
         raise KeyError(f"PROTOCOL.md lacks the generated sections {missing}")
     return text
+
+
+def _repo() -> Path:
+    return Path(__file__).resolve().parent.parent
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m simecs.mesh.protocol_doc", description=__doc__)
+    parser.add_argument("--check", action="store_true", help="only check that the files are up to date")
+    parser.add_argument("--root", default=str(_repo()), help="the repository (default: this checkout)")
+    args = parser.parse_args(argv)
+    docs = Path(args.root) / "docs"
+    targets = {
+        docs / "protocol.schema.json": schema_text(),
+        docs / "PROTOCOL.md": update_document((docs / "PROTOCOL.md").read_text()),
+    }
+    stale = [path for path, text in targets.items() if not path.exists() or path.read_text() != text]
+    if args.check:
+        for path in stale:
+            print(f"{path} is out of date: run python -m simecs.mesh.protocol_doc", file=sys.stderr)
+        return 1 if stale else 0
+    for path in stale:
+        path.write_text(targets[path])
+        print(f"wrote {path}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

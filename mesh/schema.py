@@ -2,8 +2,8 @@
 messages.py and model.py, the key table of keys.py, the phase table of phases.py and the frame header
 of frames.py, so it can never say something the nodes do not do.
 
-    python -m simecs.mesh.schema          # rewrite docs/protocol.schema.json and PROTOCOL.md's tables
-    python -m simecs.mesh.schema --check  # exit 1 if either is out of date (the tests do the same)
+    python -m simecs.mesh.protocol_doc          # rewrite docs/protocol.schema.json and PROTOCOL.md's tables
+    python -m simecs.mesh.protocol_doc --check  # exit 1 if either is out of date (the tests do the same)
 
 A client validates a message it sends or receives against `$defs/<Type>`; the key table says which
 type travels on which key (`x-simecs-keys`), and `x-simecs-commands` gives each command's reply.
@@ -11,10 +11,7 @@ type travels on which key (`x-simecs-keys`), and `x-simecs-commands` gives each 
 
 from __future__ import annotations
 
-import argparse
 import json
-import sys
-from pathlib import Path
 from typing import Any
 
 import msgspec
@@ -167,7 +164,7 @@ def protocol_schema() -> dict[str, Any]:
             "primitives' arguments (x-simecs-actions), the binary "
             "frame header (x-simecs-frame) and the controller-in-the-loop rows (x-simecs-hil). "
             "Refusals are Zenoh error replies carrying $defs/Error. "
-            "Generated from mesh/ by `python -m simecs.mesh.schema`; docs/PROTOCOL.md explains it."
+            "Generated from mesh/ by `python -m simecs.mesh.protocol_doc`; docs/PROTOCOL.md explains it."
         ),
         "x-simecs-version": m.VERSION,
         "x-simecs-keys": key_table,
@@ -225,34 +222,3 @@ def protocol_schema() -> dict[str, Any]:
 
 def schema_text() -> str:
     return json.dumps(protocol_schema(), indent=1, ensure_ascii=False) + "\n"
-
-
-def _repo() -> Path:
-    return Path(__file__).resolve().parent.parent
-
-
-def main(argv: list[str] | None = None) -> int:
-    from .protocol_doc import update_document
-
-    parser = argparse.ArgumentParser(prog="python -m simecs.mesh.schema", description=__doc__)
-    parser.add_argument("--check", action="store_true", help="only check that the files are up to date")
-    parser.add_argument("--root", default=str(_repo()), help="the repository (default: this checkout)")
-    args = parser.parse_args(argv)
-    docs = Path(args.root) / "docs"
-    targets = {
-        docs / "protocol.schema.json": schema_text(),
-        docs / "PROTOCOL.md": update_document((docs / "PROTOCOL.md").read_text()),
-    }
-    stale = [path for path, text in targets.items() if not path.exists() or path.read_text() != text]
-    if args.check:
-        for path in stale:
-            print(f"{path} is out of date: run python -m simecs.mesh.schema", file=sys.stderr)
-        return 1 if stale else 0
-    for path in stale:
-        path.write_text(targets[path])
-        print(f"wrote {path}")
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -14,7 +14,7 @@ from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
 import numpy as np
-from simecs.mesh import columns, scene_state
+from simecs.mesh import scene_state
 from simecs.mesh.environment import Obstacle, check_obstacles
 from simecs.mesh.kinematics import rot_rpy
 from simecs.mesh.model import CONTROL_SYSTEMS
@@ -48,7 +48,7 @@ class Simulation:
         self.n = package.n
         self.values = dict(values)
         self._desc = package.describe()
-        self.columns, self.units = columns.run_columns(self._desc)
+        self.columns, self.units = self._desc.run_columns()
         self.P = drive_array(self.n, self.values)
         self._mech = chain_arrays(package.spec, self.values)
         self._gravity = gravity_of(self.values)  # changed in place: the step's argument tuples hold it

@@ -20,7 +20,7 @@ from typing import Any
 
 import msgspec
 import zenoh
-from simecs.mesh import columns, files, keys, limits, phases
+from simecs.mesh import files, keys, limits, phases
 from simecs.mesh import messages as m
 from simecs.mesh.client import MeshClient, NoReply, RemoteError
 from simecs.mesh.config import lossless_put
@@ -273,7 +273,7 @@ class Proxy(Node):
         return self.models.describe(rec.model_id)
 
     def _columns(self, model_id: str) -> int:
-        return len(columns.run_columns(self.models.describe(model_id))[0])
+        return len(self.models.describe(model_id).run_columns()[0])
 
     # -- library -----------------------------------------------------------------------------------
     def _on_model(self, req: Request) -> ModelDescription:

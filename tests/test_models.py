@@ -7,7 +7,7 @@ import re
 
 import numpy as np
 import pytest
-from simecs.mesh.columns import GRASPED_FRAME, POSE_FIELDS, pose_column, pose_column_names
+from simecs.mesh.columns import GRASPED_FRAME, POSE_FIELDS, pose_column
 from simecs.mesh.kinematics import link_poses
 from simecs.models import ParameterError, SimulationError, chain_dynamics, get_model, list_models
 from simecs.models import drive as dr
@@ -42,7 +42,7 @@ def test_library_and_columns(spider):
     sim = spider.build({})
     assert sim.columns[0] == "time"
     assert sim.columns[1 : 1 + len(d.variables)] == [v.name for v in d.variables]
-    assert sim.columns[1 + len(d.variables) :] == pose_column_names(d)
+    assert sim.columns[1 + len(d.variables) :] == d.pose_column_names()
     assert len(sim.units) == len(sim.columns)
     assert 10 <= len(d.variables) / len(d.links) <= 25  # per joint, the tool's, the contacts', the grasp's
     assert sim.columns[-7:] == [pose_column(GRASPED_FRAME, f) for f in POSE_FIELDS]
@@ -280,7 +280,7 @@ def test_poses_agree_with_description_and_follow_link_length(spider):
     sim = spider.build({})
     q = np.array(Q0)
     sim.set_initial(q)
-    npos = len(pose_column_names(d)) - len(POSE_FIELDS)  # the links' and the tool's poses
+    npos = len(d.pose_column_names()) - len(POSE_FIELDS)  # the links' and the tool's poses
     sim.start(0.01, 0.01)
     row = sim.advance(0.0)[0]
     ref = link_poses(d, sim.values, q).reshape(-1)
@@ -389,7 +389,7 @@ def test_every_model_runs_the_same_drive_family(model_id):
     data = run(sim, sim.path_duration() + 0.7, out=0.01)
     q = np.stack([col(sim, data, f"joint{j}.q") for j in range(1, len(d.links) + 1)], axis=1)
     assert np.max(np.abs(q[-1] - target)) < 2e-3
-    npos = len(pose_column_names(d)) - len(POSE_FIELDS)  # the links' and the tool's poses
+    npos = len(d.pose_column_names()) - len(POSE_FIELDS)  # the links' and the tool's poses
     ref = link_poses(d, sim.values, q[-1]).reshape(-1)
     assert np.max(np.abs(data[-1, -npos - 7 : -7] - ref)) < 1e-9
     sim.close()
@@ -429,7 +429,7 @@ def test_pose_kernel_matches_exudyn_sensors(model):
     d = pkg.describe()
     n = len(d.links)
     sim = pkg.build({"drives.enabled": 0})
-    npos = len(pose_column_names(d)) - len(POSE_FIELDS)  # the links' and the tool's poses
+    npos = len(d.pose_column_names()) - len(POSE_FIELDS)  # the links' and the tool's poses
     rng = np.random.default_rng(1)
     for vals in (
         {},

@@ -20,7 +20,7 @@ CODE = ("mesh", "models", "nodes", "viewer", "testing", "benchmarks")
 
 
 def test_schema_and_document_are_generated_from_mesh_and_current() -> None:
-    assert schema.main(["--check", "--root", str(ROOT)]) == 0, "run: python -m simecs.mesh.schema"
+    assert protocol_doc.main(["--check", "--root", str(ROOT)]) == 0, "run: python -m simecs.mesh.protocol_doc"
     assert json.loads(schema.schema_text()) == SCHEMA
 
 

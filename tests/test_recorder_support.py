@@ -21,7 +21,7 @@ from mcap.data_stream import ReadDataStream
 from mcap.reader import SeekingReader
 from mcap.records import Chunk, MessageIndex
 from mcap.stream_reader import StreamReader, get_chunk_data_stream
-from simecs.mesh import codec, columns, frames, keys, kinematics
+from simecs.mesh import codec, frames, keys, kinematics
 from simecs.mesh import messages as m
 from simecs.mesh.model import Link, ModelDescription, Parameter, Shape, Variable
 from simecs.mesh.seal import Seal, SealedPublisher
@@ -72,7 +72,7 @@ def arm_model() -> ModelDescription:
 
 
 def columns_of(model: ModelDescription) -> tuple[list[str], list[str]]:
-    return columns.run_columns(model)
+    return model.run_columns()
 
 
 def context_of(model: ModelDescription) -> m.RunContext:

@@ -439,7 +439,7 @@ def state(sc: FakeSession, phase: str, run_id: str = "r1", seq: int = 10, **kw: 
 def layout(
     sc: FakeSession, model: ModelDescription, run_id: str = "r1", recording: str = "", **values: float
 ) -> m.RunLayout:
-    names, units = columns.run_columns(model)
+    names, units = model.run_columns()
     context = m.RunContext("tester", {**model.default_values(), **values}, [0.0] * 3, None, m.RunSettings())
     context.recording = recording
     return m.RunLayout(
@@ -463,10 +463,10 @@ def live_frame(lay: m.RunLayout, model: ModelDescription, q: list[float], t: flo
     row = np.zeros(len(lay.live_columns))
     where = {c: i for i, c in enumerate(lay.live_columns)}
     row[where[columns.TIME]] = t
-    for name, qi in zip(columns.joint_position_columns(model), q, strict=True):
+    for name, qi in zip(model.joint_position_columns(), q, strict=True):
         row[where[name]] = qi
     poses = link_poses(model, lay.context.values, q)
-    for frame, pose in zip(columns.pose_frames(model)[: len(poses)], poses, strict=True):
+    for frame, pose in zip(model.pose_frames()[: len(poses)], poses, strict=True):
         for field, value in zip(columns.POSE_FIELDS, pose, strict=True):
             row[where[columns.pose_column(frame, field)]] = value
     return frames.Frame(lay.run_index, 0, time.time_ns(), row[None, :], frames.FLAG_LIVE)
@@ -612,9 +612,9 @@ def test_real_spider_description_builds_trees_and_shapes() -> None:
     drawn = list(shapes.solids(desc, desc.default_values()))
     assert len(drawn) == len(desc.shapes) + len(desc.environment)
     assert all(np.all(np.isfinite(s.geometry.position)) for s in drawn)
-    names, _units = columns.run_columns(desc)
-    assert columns.pose_indices(names, columns.pose_frames(desc)) is not None
-    assert len(columns.joint_position_columns(desc)) == len(desc.links)
+    names, _units = desc.run_columns()
+    assert columns.pose_indices(names, desc.pose_frames()) is not None
+    assert len(desc.joint_position_columns()) == len(desc.links)
 
 
 # -- scene: geometry from mesh.shapes, drawn by ArmScene ------------------------------------------------
@@ -687,11 +687,11 @@ def test_pipe_mesh_is_closed_and_outward() -> None:
 
 def test_pose_indices_map_the_pose_columns() -> None:
     model = arm()
-    names, _units = columns.run_columns(model)
-    idx = columns.pose_indices(names, columns.pose_frames(model))
+    names, _units = model.run_columns()
+    idx = columns.pose_indices(names, model.pose_frames())
     # three links, the tool and the grasped object
     assert idx is not None and idx.shape == (5, 7) and names[idx[1, 0]] == "pose.link2.x"
-    assert columns.pose_indices([columns.TIME, "joint1.q"], columns.pose_frames(model)) is None
+    assert columns.pose_indices([columns.TIME, "joint1.q"], model.pose_frames()) is None
 
 
 def test_arm_scene_builds_poses_and_reshapes(server: Any) -> None:
@@ -2215,7 +2215,7 @@ def grasp_layout(sc: FakeSession, model: ModelDescription) -> m.RunLayout:
     ]
     lay.columns = [*lay.columns, *extra]
     lay.units = [*lay.units, *[""] * len(extra)]
-    lay.live_columns = columns.live_columns(lay.columns, columns.joint_position_columns(model))
+    lay.live_columns = columns.live_columns(lay.columns, model.joint_position_columns())
     return lay
 
 

@@ -85,9 +85,9 @@ def recording_of_key(key: str) -> str:
 def track_columns(model: ModelDescription) -> list[str]:
     """The columns a track is made of: every link frame's pose, in the scene's order, then the joint
     positions."""
-    frames = columns.pose_frames(model)[: len(model.links)]
+    frames = model.pose_frames()[: len(model.links)]
     poses = [columns.pose_column(f, field) for f in frames for field in columns.POSE_FIELDS]
-    return poses + columns.joint_position_columns(model)
+    return poses + model.joint_position_columns()
 
 
 def track_of(

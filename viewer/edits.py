@@ -19,7 +19,7 @@ from functools import partial
 from typing import Any
 
 import msgspec
-from simecs.mesh import codec, columns
+from simecs.mesh import codec
 from simecs.mesh import messages as m
 from simecs.mesh.client import NoReply, RemoteError
 from simecs.mesh.shapes import appearance_parameters
@@ -246,7 +246,7 @@ class Edits:
         c = self.c
         if c.model is None:
             return
-        required = set(columns.joint_position_columns(c.model))
+        required = set(c.model.joint_position_columns())
         c.streamed = set(wanted) | required | (set(plotted) if not wanted else set())
         self.t.emit(ev.StreamedChanged(set(c.streamed)))
         self.later("settings")

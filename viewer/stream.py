@@ -55,8 +55,8 @@ class RunStream:
         self._tool: np.ndarray | None = None  # the live columns of the tool's x, y, z
         self._q: list[int] | None = None
         # The scene draws the link frames: the poses of pose_frames() up to the tool.
-        self._frames = columns.pose_frames(model)[: len(model.links)]
-        self._joints = columns.joint_position_columns(model)
+        self._frames = model.pose_frames()[: len(model.links)]
+        self._joints = model.joint_position_columns()
         self._world = WorldColumns([])
         self.moved: dict[int, np.ndarray] = {}  # where the run's grasps left its obstacles so far
         #: Live frames of the shown run that never reached this tab (gaps in their numbers): the hub
