@@ -113,8 +113,16 @@ def slider_input(page: Any, label: str) -> Any:
 
 
 def set_field(page: Any, locator: Any, value: str) -> None:
-    """Type a value into a viser input and commit it as a user would (Enter)."""
-    locator.fill(value)
+    """Type a value into a viser input as a user does: select what it holds, type the new text key by
+    key, Enter. Playwright's `fill` puts the whole text in at once, and viser's number boxes
+    (react-number-format) miss such a change once the server has set their value since they were
+    last typed in: the box shows the server's value again and nothing is sent."""
+    locator.focus()
+    locator.press("Control+a")
+    if value:
+        locator.press_sequentially(value)  # the first key replaces the selected text
+    else:
+        locator.press("Backspace")
     locator.press("Enter")
 
 

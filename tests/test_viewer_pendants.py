@@ -39,7 +39,7 @@ def typed_position(page: Any) -> list[float]:
 
 def set_position(page: Any, mm: list[float]) -> None:
     for k, v in enumerate(mm):
-        chromium.set_field(page, chromium.vector_input(page, "Position [mm]", k), f"{v:.1f}")
+        chromium.set_field(page, chromium.vector_input(page, "Position [mm]", k), f"{v:g}")  # whole mm
     page.get_by_role("button", name="Set pose").click()
 
 
