@@ -147,6 +147,21 @@ def rotation_vector(R_now, R_t, e):
 
 
 @njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
+def gram_of_free(J, free, G):
+    """G = J_f J_f^T (6 x 6), J_f the columns of J that `free` marks: the normal matrix of a step that
+    leaves the other joints where they are (at their limits)."""
+    n = J.shape[1]
+    for a in range(6):
+        for b in range(a + 1):
+            s = 0.0
+            for j in range(n):
+                if free[j]:
+                    s += J[a, j] * J[b, j]
+            G[a, b] = s
+            G[b, a] = s
+
+
+@njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
 def cholesky(A, lam, L):
     """Cholesky factor L of A + lam I; A (m, m) symmetric positive semi-definite (definite with lam = 0)."""
     m = A.shape[0]

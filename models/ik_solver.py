@@ -29,7 +29,14 @@ import math
 import numpy as np
 from numba import njit
 
-from .chain_kinematics import cholesky, cholesky_solve, rotation_vector, tool_frames, tool_jacobian
+from .chain_kinematics import (
+    cholesky,
+    cholesky_solve,
+    gram_of_free,
+    rotation_vector,
+    tool_frames,
+    tool_jacobian,
+)
 from .jit import CACHE as _CACHE
 from .jit import FAST as _FAST
 
@@ -192,14 +199,8 @@ def solve_kernel(
         nz_norm = 0.0
         g_new = gain
         for _ in range(n + 1):
+            gram_of_free(Je, free, A)
             for a in range(6):
-                for b in range(a + 1):
-                    s = 0.0
-                    for j in range(n):
-                        if free[j]:
-                            s += Je[a, j] * Je[b, j]
-                    A[a, b] = s
-                    A[b, a] = s
                 s = 0.0
                 if null_on:
                     for j in range(n):

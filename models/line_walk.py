@@ -19,6 +19,7 @@ from numba import njit
 from .chain_kinematics import (
     cholesky,
     cholesky_solve,
+    gram_of_free,
     rotation_vector,
     rotvec_exp,
     tool_frames,
@@ -121,14 +122,7 @@ def _line_rates(R_all, p_all, p, lower, upper, q, twist, J, G, L, y, free, rate)
     for j in range(n):
         free[j] = True
     for _ in range(n + 1):
-        for a in range(6):
-            for b in range(a + 1):
-                s = 0.0
-                for j in range(n):
-                    if free[j]:
-                        s += J[a, j] * J[b, j]
-                G[a, b] = s
-                G[b, a] = s
+        gram_of_free(J, free, G)
         cholesky(G, RATE_DAMPING, L)
         cholesky_solve(L, twist, y)
         changed = False
