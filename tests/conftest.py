@@ -52,6 +52,9 @@ def pytest_runtest_makereport(item: pytest.Item, call: pytest.CallInfo[None]) ->
             where = f"mesh folder not kept: {e}"
         logs = [f"--- {name}.log (last 4000 characters)\n{mesh.log(name)}" for name in mesh.procs]
         report.sections.append((f"node logs ({report.when})", "\n".join([where, *logs])))
+        browser = funcargs.get("browser")
+        if isinstance(browser, ConsoleKeepingBrowser):
+            browser.keep_pages(kept)
 
 
 def free_port() -> int:
@@ -264,6 +267,19 @@ class ConsoleKeepingBrowser:
     def __init__(self, browser: Any) -> None:
         self._browser = browser
         self.lines: list[str] = []
+        self.pages: list[Any] = []
+
+    def keep_pages(self, folder: Path) -> None:
+        """A screenshot and the visible text of every page still open, beside the mesh folder of a
+        failed test: what the page showed when the test gave up."""
+        for k, page in enumerate(self.pages):
+            try:
+                if page.is_closed():
+                    continue
+                page.screenshot(path=str(folder / f"page{k + 1}.png"), timeout=10_000)
+                (folder / f"page{k + 1}.txt").write_text(page.inner_text("body", timeout=10_000))
+            except Exception as exc:  # the page or the browser may be gone: keep what can be kept
+                self.lines.append(f"page {k + 1} not kept: {exc}")
 
     def __getattr__(self, name: str) -> Any:
         return getattr(self._browser, name)
@@ -273,6 +289,7 @@ class ConsoleKeepingBrowser:
             if msg.type in ("error", "warning"):
                 self.lines.append(f"{time.strftime('%H:%M:%S')} console {msg.type}: {msg.text}")
 
+        self.pages.append(page)
         page.on("console", said)
         page.on("pageerror", lambda exc: self.lines.append(f"{time.strftime('%H:%M:%S')} page error: {exc}"))
         return page
