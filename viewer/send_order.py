@@ -84,7 +84,8 @@ SEND_ORDER_JS = """(() => {
       return;
     }
     const el = t && t.closest('button, [role=option]');
-    if (el) gate(e, el, {}, 'click', () => el.click());
+    // A notification's close button sends viser nothing: counted, it would hold the next real click.
+    if (el && !el.closest('.mantine-Notification-root')) gate(e, el, {}, 'click', () => el.click());
   }, true);
   window.addEventListener('input', (e) => {
     const el = e.target;
