@@ -161,7 +161,10 @@ def test_a_lost_host_costs_no_run_and_a_joining_host_takes_the_queue(lan: netns.
         a = session_of(mesh, "ann")
         st_a = a.wait_for(["running"], 60)
         a_run = st_a.run_id
-        clients.append(run_on_client_host(lan, "cli2", mesh, "bob", 20.0, 0.01, str(mesh.folder / "bob.csv")))
+        # B lasts far longer than the test (it is aborted at the end): on a loaded machine a 20 s run
+        # ended before its abort, and its `simecs run` had closed the session already.
+        bob_csv = str(mesh.folder / "bob.csv")
+        clients.append(run_on_client_host(lan, "cli2", mesh, "bob", 120.0, 0.01, bob_csv))
         b = session_of(mesh, "bob")
         st_b = b.wait_for(["running"], 60)
         assert {st_a.host, st_b.host} == {"sim1-t", "sim2-t"}, "two idle hosts: one run each"
