@@ -49,6 +49,17 @@ def _open_run_s(text: str) -> float:
     return value
 
 
+def _reservation_s(text: str) -> float:
+    """--reservation-s: a time in (0, 3600] s (at 0 or below, runs on their way would not count)."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a time in s") from None
+    if not 0.0 < value <= 3600.0:
+        raise argparse.ArgumentTypeError(f"{text} s is outside (0, 3600] s")
+    return value
+
+
 class Proxy(Node):
     """Sessions, validation, parameter sets, model library and documentation, admission."""
 
@@ -143,7 +154,7 @@ class Proxy(Node):
         )
         parser.add_argument(
             "--reservation-s",
-            type=float,
+            type=_reservation_s,
             default=RESERVATION_S,
             help="how long a run handed to a simulator host counts against it before the host lists it",
         )
