@@ -39,7 +39,7 @@ def typed_position(page: Any) -> list[float]:
 
 def set_position(page: Any, mm: list[float]) -> None:
     for k, v in enumerate(mm):
-        chromium.set_field(page, chromium.vector_input(page, "Position [mm]", k), f"{v:g}")  # whole mm
+        chromium.set_field(page, chromium.vector_input(page, "Position [mm]", k), f"{v:.1f}")
     page.get_by_role("button", name="Set pose").click()
 
 
@@ -85,7 +85,8 @@ def cartesian_walk(mesh: Mesh, browser: Any, size: tuple[int, int]) -> None:
     # a reachable pose: planned (the refusal goes), stored, and the goal ghost drawn at the node (the
     # arm itself stays where the run starts)
     before = len(chromium.ghost_batches(page))
-    goal = [taught[0] - 100.0, taught[1], taught[2] - 100.0]  # the Spider reaches it by LIN at 100 %
+    # the Spider reaches it by LIN at 100 %; a tenth of a millimetre typed is a tenth stored
+    goal = [taught[0] - 100.5, taught[1], taught[2] - 100.0]
     set_position(page, goal)
     page.get_by_text("The server refused").wait_for(state="hidden")
     wait_until(

@@ -73,9 +73,11 @@ class CartesianPendant:
         self.node.on_update(self._picked)
         gui.add_markdown("Drag the gizmo in 3D, or type a pose and press **Set pose**:")
         self.refusal = gui.add_markdown("")  # right above the pose the server names, in sight
-        self.position = gui.add_vector3("Position [mm]", (0.0, 0.0, 0.0), step=1.0, hint="world frame")
+        # Steps as fine as the values shown (0.1 mm, 0.01 deg): viser's boxes take no more decimals than
+        # their step has, and a coarser one turned a typed "4250.5" into 42505.
+        self.position = gui.add_vector3("Position [mm]", (0.0, 0.0, 0.0), step=0.1, hint="world frame")
         self.rpy = gui.add_vector3(
-            "Roll, pitch, yaw [deg]", (0.0, 0.0, 0.0), step=1.0, hint="about the fixed world x, y, z axes"
+            "Roll, pitch, yaw [deg]", (0.0, 0.0, 0.0), step=0.01, hint="about the fixed world x, y, z axes"
         )
         self.set_pose = gui.add_button("Set pose", hint="send the typed pose as the selected node's")
         self.set_pose.on_click(self._typed)
