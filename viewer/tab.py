@@ -223,6 +223,7 @@ class Tab:
             page.look(name)
 
     def _on_window(self, name: str) -> None:
+        log.info("tab %s: window %s asked", self.raw_client.client_id, name)  # a click that arrived
         if name == "Models":
             self.controller.opening.open_library(can_dismiss=True)
             return
