@@ -14,14 +14,16 @@ this module's source) as well as in memory.
 
 from __future__ import annotations
 
+import functools
 import hashlib
+import io
 import os
-import tempfile
 import threading
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+from simecs.mesh import files
 
 from .urdf import Geometry, UrdfError, resolve_uri
 
@@ -72,7 +74,7 @@ def _kept_fit(geo: Geometry, near: Path | None, key: str) -> np.ndarray:
     """The solid's fit from the disk cache, or fitted now and stored there (any failure to store is
     only a slower next start)."""
     digest = hashlib.sha256(key.encode())
-    digest.update(Path(__file__).read_bytes())
+    digest.update(_source())
     if geo.kind == "mesh":
         try:
             digest.update(resolve_uri(geo.filename, near or Path(".")).read_bytes())
@@ -86,14 +88,19 @@ def _kept_fit(geo: Geometry, near: Path | None, key: str) -> np.ndarray:
     except (OSError, ValueError, EOFError):  # none yet, or cut short
         pass
     known = fit_spheres(solid_hull(geo, near))
+    out = io.BytesIO()
+    np.save(out, known)
     try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        with tempfile.NamedTemporaryFile(dir=path.parent, suffix=".tmp", delete=False) as out:
-            np.save(out, known)
-        os.replace(out.name, path)  # whole or not at all: processes fit side by side
+        files.atomic_write(path, out.getvalue())  # whole or not at all: processes fit side by side
     except OSError:
         pass
     return known
+
+
+@functools.cache
+def _source() -> bytes:
+    """This module's source: a changed fit makes new keys."""
+    return Path(__file__).read_bytes()
 
 
 def _cache_folder() -> Path:
