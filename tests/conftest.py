@@ -256,7 +256,7 @@ def browser() -> Iterator[Any]:
             yield kept
         finally:
             if kept.lines:  # shown by pytest when the test failed
-                print("----- browser console (errors, warnings) -----", *kept.lines[-100:], sep="\n")
+                print("----- browser console (errors, warnings, ours) -----", *kept.lines[-100:], sep="\n")
             b.close()
 
 
@@ -286,7 +286,7 @@ class ConsoleKeepingBrowser:
 
     def _watch(self, page: Any) -> Any:
         def said(msg: Any) -> None:
-            if msg.type in ("error", "warning"):
+            if msg.type in ("error", "warning") or msg.text.startswith("simecs "):
                 self.lines.append(f"{time.strftime('%H:%M:%S')} console {msg.type}: {msg.text}")
 
         self.pages.append(page)

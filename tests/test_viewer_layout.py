@@ -164,9 +164,10 @@ def layout_walk(browser: Any, url: str, size: tuple[int, int]) -> None:
     run_controls_in_sight(page)  # with the documentation, the initial pose and a plot open
     page.screenshot(path=str(SHOTS / f"layout_{tag}.png"))
 
-    # a reload gets back the session, its plot and the component shown (kept about once a second)
+    # a reload gets back the session, its plot and the component shown (once the tab has kept them)
     page.get_by_role("tab", name="Parameters").click()
-    page.wait_for_timeout(2500)
+    view_kept = f"(sessionStorage.getItem('{viewer_browser.VIEW_KEY}') || '').match(/joint1[.]q.*link2/)"
+    page.wait_for_function(view_kept, timeout=10_000)
     page.reload()
     model_shown(page)
     if width < 1400:  # the plots are a tab beside the trees: the tab shown before the reload stays

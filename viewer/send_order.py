@@ -49,6 +49,7 @@ SEND_ORDER_JS = """(() => {
   const release = () => {  // in the order made; a relayed event (no message of its own) in its turn
     while (held.length && (held[0].kind === 'relay' || admit(held[0].key, held[0].kind))) {
       const h = held.shift();
+      console.debug(`simecs send order: replays a ${h.kind} (${describe(h.el)})`);
       replaying = true;
       try { h.kind === 'input' ? retype(h) : h.replay(); } finally { replaying = false; }
     }
@@ -64,13 +65,24 @@ SEND_ORDER_JS = """(() => {
       return;
     }
     held.push({el, key, kind, replay, text: el.value});
+    console.debug(`simecs send order: holds a ${kind} (${describe(el)}) behind a waiting message`);
   };
+  // For the page's console (a failed browser test keeps it): which element a hold or replay was.
+  const describe = (el) => `${el.tagName.toLowerCase()} "${(el.textContent || el.value || '').slice(0, 30)}"`;
   // A held edit's text is kept: the widget may be drawn again meanwhile (a vector's other box heard
   // first), which writes back into the field the value viser knows.
   const retype = (h) => {  // the prototype's setter: React's own on the element would hide the change
     const setText = Object.getOwnPropertyDescriptor(Object.getPrototypeOf(h.el), 'value').set;
     if (h.el.value !== h.text) setText.call(h.el, h.text);
     h.el.dispatchEvent(new Event('input', {bubbles: true}));
+  };
+  // A held click's element may be drawn anew before its replay (its panel re-rendered): the replay
+  // then clicks the element now in its place, the same kind with the same label at the same rank.
+  const findAgain = (el) => {
+    const selector = el.matches('button') ? 'button' : '[role=option]';
+    const label = el.textContent;
+    const rank = [...document.querySelectorAll(selector)].filter((b) => b.textContent === label).indexOf(el);
+    return () => [...document.querySelectorAll(selector)].filter((b) => b.textContent === label)[rank];
   };
   const typedField = (el) =>
     (el instanceof HTMLInputElement && !['checkbox', 'radio', 'file'].includes(el.type)) ||
@@ -85,7 +97,10 @@ SEND_ORDER_JS = """(() => {
     }
     const el = t && t.closest('button, [role=option]');
     // A notification's close button sends viser nothing: counted, it would hold the next real click.
-    if (el && !el.closest('.mantine-Notification-root')) gate(e, el, {}, 'click', () => el.click());
+    if (el && !el.closest('.mantine-Notification-root')) {
+      const again = findAgain(el);
+      gate(e, el, {}, 'click', () => (el.isConnected ? el : again() || el).click());
+    }
   }, true);
   window.addEventListener('input', (e) => {
     const el = e.target;
