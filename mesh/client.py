@@ -121,18 +121,24 @@ class MeshClient:
         raise NoReply(f"no node answered {key}{extra}")
 
     def request_binary(self, key: str, attachment: Any, timeout: float | None = None) -> tuple[bytes, Any]:
-        """A get answered with bytes; returns them and the reply's attachment decoded as `attachment`."""
+        """A get answered with bytes; returns them and the reply's description (the JSON after its
+        seal, PROTOCOL.md §4) decoded as `attachment` (None when it has none)."""
         answers = self._replies(key, None, timeout)
+        forged = 0
         for answer in answers:
             if answer.ok is not None:
-                att = answer.ok.attachment
-                return answer.ok.payload.to_bytes(), (
-                    codec.loads(attachment, att.to_bytes()) if att is not None else None
-                )
+                body = answer.ok.payload.to_bytes()
+                att = answer.ok.attachment.to_bytes() if answer.ok.attachment is not None else None
+                if self.seal is not None and not self.seal.binary_valid(str(answer.ok.key_expr), body, att):
+                    forged += 1  # not a service node's answer: another peer's, ignored
+                    continue
+                described = seals.binary_description(att)
+                return body, (codec.loads(attachment, described) if described else None)
         for answer in answers:
             if answer.err is not None:
                 raise RemoteError(_decode_error(answer.err.payload.to_bytes()))
-        raise NoReply(f"no node answered {key}")
+        extra = f" ({forged} answer(s) without the service's seal ignored)" if forged else ""
+        raise NoReply(f"no node answered {key}{extra}")
 
     # -- library --------------------------------------------------------------------------------
     def list_models(self) -> list[ModelSummary]:

@@ -308,8 +308,9 @@ class Node:
                 params = dict(list(query.selector.parameters)) if query.selector.parameters else {}  # type: ignore[call-overload]
                 sealed = query.attachment is not None and self.seal.sample_valid(query)
                 result = handle(Request(key_str, payload, params, sealed))
-                if isinstance(result, Binary):
-                    att = None if result.attachment is None else codec.dumps(result.attachment)
+                if isinstance(result, Binary):  # sealed with its description (PROTOCOL.md §4)
+                    described = b"" if result.attachment is None else codec.dumps(result.attachment)
+                    att = self.seal.binary_attachment(key_str, result.payload, described)
                     query.reply(query.key_expr, result.payload, attachment=att)
                 else:
                     if not isinstance(result, Ok):

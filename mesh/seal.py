@@ -40,15 +40,28 @@ class Seal:
             raise SealError(f"a service secret has at least 16 bytes, not {len(secret)}")
         self._secret = bytes(secret[:64])
 
-    def mac(self, key: str, payload: bytes) -> bytes:
+    def mac(self, key: str, payload: bytes, description: bytes = b"") -> bytes:
+        """The seal of `payload` on `key` (and of a binary answer's `description`, which follows it)."""
         h = hashlib.blake2b(key=self._secret, digest_size=MAC_BYTES, person=_PERSON)
         h.update(key.encode())
         h.update(b"\0")
         h.update(payload)
+        h.update(description)
         return h.digest()
 
     def valid(self, key: str, payload: bytes, attachment: bytes | None) -> bool:
         return attachment is not None and hmac.compare_digest(self.mac(key, payload), attachment)
+
+    def binary_attachment(self, key: str, payload: bytes, description: bytes) -> bytes:
+        """A binary answer's attachment: the seal of its payload and description, then the description
+        (JSON, or nothing): one attachment carries both, and the seal covers what describes the bytes."""
+        return self.mac(key, payload, description) + description
+
+    def binary_valid(self, key: str, payload: bytes, attachment: bytes | None) -> bool:
+        if attachment is None or len(attachment) < MAC_BYTES:
+            return False
+        expected = self.mac(key, payload, binary_description(attachment))
+        return hmac.compare_digest(expected, attachment[:MAC_BYTES])
 
     def sample_valid(self, sample: Any, payload: bytes | None = None) -> bool:
         """A zenoh sample (or query) with a valid seal for its key and payload (`payload`: the
@@ -80,6 +93,12 @@ class SealedPublisher:
 
     def __getattr__(self, name: str) -> Any:  # matching_status and the like
         return getattr(self._pub, name)
+
+
+def binary_description(attachment: bytes | None) -> bytes:
+    """The JSON description of a binary answer (b"" when it has none), whatever its seal: a client
+    without the secret reads it so, and cannot tell a service node's answer from another peer's."""
+    return attachment[MAC_BYTES:] if attachment is not None else b""
 
 
 def key_file(configured: str = "", env: dict[str, str] | None = None) -> Path:

@@ -262,7 +262,7 @@ class Proxy(Node):
     def _fetch_model(self, host: str, model_id: str) -> None:
         """Bring a model a host offers into the library (its bundle, unpacked and checked)."""
         try:
-            data, _ = MeshClient(self.z, timeout=60.0).request_binary(
+            data, _ = MeshClient(self.z, timeout=60.0, seal=self.seal).request_binary(
                 keys.simulator_model(host, model_id), None
             )
             with self.lock:
@@ -484,7 +484,7 @@ class Proxy(Node):
 
     def _recording(self, user: str, name: str) -> m.RecordingInfo:
         try:
-            return MeshClient(self.z, timeout=5.0).recording_info(user, name)
+            return MeshClient(self.z, timeout=5.0, seal=self.seal).recording_info(user, name)
         except RemoteError as exc:
             raise RequestError(exc.code, exc.error.message, "recording") from None
         except NoReply:

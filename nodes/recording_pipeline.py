@@ -248,7 +248,7 @@ class RecordingPipeline:
     # -- the lookup thread: model descriptions of new runs, samples of the gaps of ended runs -------------
     def _lookup_loop(self) -> None:
         assert self.z is not None
-        client = MeshClient(self.z, timeout=3.0)
+        client = MeshClient(self.z, timeout=3.0, seal=self.seal)
         while not self._stop.is_set():
             with self._lookup_cv:
                 if not self._lookups:

@@ -260,7 +260,9 @@ class RunTracker:
         before its token goes), or None when no host holds them. Asks the mesh: call without the lock."""
         selector = keys.results(user, sid, run_id) + "?t0=-1;t1=-1"  # no rows: the description only
         try:
-            _, att = MeshClient(self.z(), timeout=3.0).request_binary(selector, m.ResultsAttachment)
+            _, att = MeshClient(self.z(), timeout=3.0, seal=self.seal()).request_binary(
+                selector, m.ResultsAttachment
+            )
             info: m.RunInfo = att.run
         except (RemoteError, NoReply, codec.DecodeError, zenoh.ZError, AttributeError):
             return None

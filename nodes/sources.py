@@ -12,6 +12,7 @@ import numpy as np
 from simecs.mesh import columns
 from simecs.mesh import messages as m
 from simecs.mesh.client import MeshClient, NoReply, RemoteError
+from simecs.mesh.seal import Seal
 
 from . import mcapread
 
@@ -257,8 +258,8 @@ class RecordingSource:
         pass
 
 
-def open_source(req: m.RunRequest, z: Any) -> RunSource:
-    """The source a run request asks for."""
+def open_source(req: m.RunRequest, z: Any, seal: Seal) -> RunSource:
+    """The source a run request asks for (a recording read from the recorder's sealed answers)."""
     if req.recording:
-        return RecordingSource(req, MeshClient(z, timeout=10.0))
+        return RecordingSource(req, MeshClient(z, timeout=10.0, seal=seal))
     return SimulationSource(req)

@@ -158,7 +158,7 @@ class Run:
     def __init__(
         self, z: zenoh.Session, req: m.RunRequest, store: ResultsStore, seal: Seal, host: str = ""
     ) -> None:
-        self.z, self.req, self.store, self.host = z, req, store, host
+        self.z, self.req, self.store, self.host, self.seal = z, req, store, host, seal
         self.control = Control(req.run_id, req.paused, seal, req.attempt)
         self.samples = 0
         self.chunks: list[np.ndarray] = []
@@ -232,7 +232,7 @@ class Run:
     def execute(self) -> tuple[str, str]:
         """Run the request to its end; (phase, reason) of how it ended."""
         req = self.req
-        self.source = source = open_source(req, self.z)
+        self.source = source = open_source(req, self.z, self.seal)
         if isinstance(source, RecordingSource):  # its rows were jogged as the recording says
             self.jogged_s = source.rec.jogged_s
         try:

@@ -107,3 +107,40 @@ class FakeSimulator:
     def close(self) -> None:
         for entity in self._entities:
             entity.undeclare()
+
+
+class FakeAnswers:
+    """A peer that answers, in place of the simulator and the recorder, queries for a run (`run_id`)
+    and a recording (`recording`) that do not exist: well-formed answers with no seal (a results
+    frame of 7.0s described as `described` says, a recording's bytes and its RecordingInfo)."""
+
+    def __init__(
+        self, z: zenoh.Session, user: str, session: str, run_id: str, recording: str, described: Any
+    ) -> None:
+        self.asked = 0
+        width = len(described.columns)
+        rows = np.full((5, width), 7.0)
+        rows[:, 0] = np.arange(5) * 1e-3
+        frame = frames.encode(frames.Frame(1, 0, time.time_ns(), rows, frames.FLAG_FINAL))
+        fake_seal = bytes(16)  # the seal's place, filled with what a peer without the secret can make
+        info = m.RecordingInfo(recording, session, run_id, "spider", 11)
+
+        def answer(payload: bytes, attachment: bytes | None) -> Any:
+            def reply(query: zenoh.Query) -> None:
+                self.asked += 1
+                query.reply(query.key_expr, payload, attachment=attachment)
+
+            return reply
+
+        results = answer(frame, fake_seal + codec.dumps(described))
+        mcap = answer(b"not an mcap", fake_seal + codec.dumps(info))
+        info_reply = answer(codec.dumps(m.Ok(data=info)), None)
+        self._entities: list[Any] = [
+            z.declare_queryable(keys.results(user, session, run_id), results),
+            z.declare_queryable(keys.recording(user, recording), mcap),
+            z.declare_queryable(keys.recording_info(user, recording), info_reply),
+        ]
+
+    def close(self) -> None:
+        for entity in self._entities:
+            entity.undeclare()

@@ -7,9 +7,10 @@ from __future__ import annotations
 import time
 
 import numpy as np
+import pytest
 from simecs.mesh import codec, keys
 from simecs.mesh import messages as m
-from simecs.mesh.client import MeshClient
+from simecs.mesh.client import MeshClient, RemoteError
 from simecs.mesh.config import MeshConfig
 from simecs.testing import forgery
 
@@ -78,3 +79,38 @@ def test_a_peers_run_token_does_not_fail_another_users_run(mesh: Mesh) -> None:
         attacker.z.liveliness().declare_token(keys.run_token("ann", s.id, run)).undeclare()
         end = s.wait_for(["finished", "failed", "aborted"], 60, run)
     assert end.phase == "finished", end
+
+
+def test_answers_from_the_wrong_peer_are_not_taken(mesh: Mesh) -> None:
+    """A peer without the service key answers queries in place of the simulator and the recorder (for a
+    run and a recording that do not exist, so that only the service's refusal competes with it): a
+    client holding the seal, the proxy (a replay's recording) and the simulator take none of it."""
+    start_service(mesh)
+    mesh.start("recorder", "--dir", str(mesh.folder / "rec"))
+    client = mesh.client()
+    s = prepared(client, "ann", 0.2, "fast")
+    run = s.run()
+    assert s.wait_for(["finished", "failed", "aborted"], 60, run).phase == "finished"
+    real = keys.recording_name(s.id, run)
+    wait_until(lambda: real in [r.name for r in client.recordings("ann")], timeout=30, what="the recording")
+    with MeshClient.open(MeshConfig(connect=[mesh.endpoint])) as plain:  # no service key: takes any answer
+        _, described = plain.request_binary(keys.results("ann", s.id, run), m.ResultsAttachment)
+        fake = forgery.FakeAnswers(plain.z, "ann", s.id, "r9", "ghost", described)
+        try:
+            # the forger is heard: a client without the seal cannot tell its answers from the service's
+            wait_until(lambda: plain.session("ann", s.id).results("r9")[1][0, 1] == 7.0, what="forger heard")
+            assert plain.download_recording("ann", "ghost") == b"not an mcap"
+            for ask in (lambda: s.results("r9"), lambda: client.download_recording("ann", "ghost")):
+                with pytest.raises(RemoteError) as refused:
+                    ask()
+                assert refused.value.code == "not_found"
+            with pytest.raises(RemoteError) as refused:  # the proxy asks the recorder, sealed, for it
+                s.replay("ghost")
+            assert refused.value.code == "not_found", refused.value
+            for _ in range(5):  # the real answers still come, sealed, whoever else answers
+                assert s.results(run)[1][0, 1] != 7.0
+                assert client.download_recording("ann", real)[:8] == b"\x89MCAP0\r\n"
+            assert fake.asked >= 2 + 2 + 1
+        finally:
+            fake.close()
+    assert [r.run_id for r in s.runs()] == [run]  # the replay of a forged recording started nothing

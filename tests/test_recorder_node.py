@@ -39,7 +39,7 @@ def test_published_run_is_recorded_listed_downloaded_uploaded(mesh: Mesh) -> Non
     rec_dir = mesh.folder / "rec"
     mesh.start("recorder", "--dir", str(rec_dir))
     client = mesh.new_client()
-    proxy = FakeProxy(client.z, [SID])
+    proxy = FakeProxy(client.z, mesh.seal)
     run = FakeRun(client.z, mesh.seal, SID)
     try:
         run.announce()

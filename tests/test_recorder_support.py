@@ -177,14 +177,16 @@ class FakeRun:
 
 
 class FakeProxy:
-    """Answers the model description query, as the proxy's library does."""
+    """Answers the model description query, as the proxy's library does (sealed: the recorder takes
+    only a service node's answers)."""
 
-    def __init__(self, z: zenoh.Session, sessions: list[str] | None = None) -> None:
+    def __init__(self, z: zenoh.Session, seal: Seal) -> None:
         model = arm_model()
         self.model = model
 
         def on_model(q: zenoh.Query) -> None:
-            q.reply(q.key_expr, codec.dumps(m.Ok(data=codec.to_obj(model))))
+            body = codec.dumps(m.Ok(data=codec.to_obj(model)))
+            q.reply(q.key_expr, body, attachment=seal.mac(str(q.key_expr), body))
 
         self.entities = [z.declare_queryable(keys.model(MODEL_ID), on_model)]
 

@@ -27,6 +27,7 @@ from joining import join
 
 USER = "integrator"
 SCHEMA = json.loads((Path(__file__).resolve().parent.parent / "protocol.schema.json").read_text())
+SEAL_BYTES = 16  # a binary reply's attachment: its seal, then its JSON description (PROTOCOL.md §4)
 HEADER = struct.Struct(
     "<"
     + "".join(
@@ -65,7 +66,7 @@ def last_row(z: zenoh.Session, key: str) -> dict[str, float]:
     for reply in z.get(key, timeout=10):
         if reply.ok is None:
             raise RuntimeError(reply.err.payload.to_bytes().decode())
-        columns = json.loads(reply.ok.attachment.to_bytes())["columns"]
+        columns = json.loads(reply.ok.attachment.to_bytes()[SEAL_BYTES:])["columns"]
         payload = reply.ok.payload.to_bytes()
         *_, n_rows, n_cols = HEADER.unpack_from(payload)
         values = struct.unpack_from(f"<{n_cols}d", payload, HEADER.size + 8 * n_cols * (n_rows - 1))

@@ -26,6 +26,7 @@ from joining import join
 
 USER = "stranger"  # on an open hub; the user name is part of every key of the user's sessions
 SCHEMA = json.loads((Path(__file__).resolve().parent.parent / "protocol.schema.json").read_text())
+SEAL_BYTES = 16  # a binary reply's attachment: its seal, then its JSON description (PROTOCOL.md §4)
 #: The frame header as the schema describes it (x-simecs-frame, PROTOCOL.md §6.1): "<4sHHIIQQII".
 HEADER = struct.Struct(
     "<"
@@ -133,7 +134,7 @@ def main(endpoint: str | None) -> int:
         for reply in z.get(f"{space}/results/{run_id}?vars=joint1.q,joint2.q", timeout=10):
             if reply.ok is None:
                 raise RuntimeError(message("Error", json.loads(reply.err.payload.to_bytes())))
-            att = message("ResultsAttachment", json.loads(reply.ok.attachment.to_bytes()))
+            att = message("ResultsAttachment", json.loads(reply.ok.attachment.to_bytes()[SEAL_BYTES:]))
             _flags, rows = decode_frame(reply.ok.payload.to_bytes())
             print(f"{len(rows)} samples of {att['columns']}; last: {rows[-1]}")
 
