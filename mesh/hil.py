@@ -41,26 +41,33 @@ ACTUATOR_JOINT_FIELDS = (
 RESEND_S = 0.05
 
 
-def sensor_frame(run_index: int, seq: int, wall_ns: int, row: np.ndarray) -> bytes:
-    return frames.encode(frames.Frame(run_index, seq, wall_ns, row.reshape(1, -1)))
+def sensor_frame(run_index: int, seq: int, wall_ns: int, row: np.ndarray, attempt: int) -> bytes:
+    return frames.encode(frames.Frame(run_index, seq, wall_ns, row.reshape(1, -1), attempt=attempt))
 
 
-def actuator_frame(run_index: int, seq: int, wall_ns: int, i_ref: Sequence[float] | np.ndarray) -> bytes:
-    return frames.encode(frames.Frame(run_index, seq, wall_ns, np.asarray(i_ref, dtype=float).reshape(1, -1)))
+def actuator_frame(
+    run_index: int, seq: int, wall_ns: int, i_ref: Sequence[float] | np.ndarray, attempt: int = 0
+) -> bytes:
+    """An answer to the sensor frame (`run_index`, `seq`, `attempt`): echo its attempt (0: not said)."""
+    row = np.asarray(i_ref, dtype=float).reshape(1, -1)
+    return frames.encode(frames.Frame(run_index, seq, wall_ns, row, attempt=attempt))
 
 
 class ActuatorProblem(ValueError):
     """An actuator frame the worker cannot use; the text names what is wrong."""
 
 
-def read_actuators(payload: bytes, run_index: int, n_joints: int) -> tuple[int, np.ndarray] | None:
-    """(seq, i_ref per joint) of an actuator frame for run `run_index`; None for a frame of another
-    run (a controller still answering the previous one); ActuatorProblem naming what is wrong."""
+def read_actuators(
+    payload: bytes, run_index: int, n_joints: int, attempt: int = 0
+) -> tuple[int, np.ndarray] | None:
+    """(seq, i_ref per joint) of an actuator frame for run `run_index`'s `attempt`; None for a frame of
+    another run (a controller still answering the previous one) or of another attempt of this one (a
+    host taken for lost that goes on, frames.belongs); ActuatorProblem naming what is wrong."""
     try:
         frame = frames.decode(payload)
     except frames.FrameError as exc:
         raise ActuatorProblem(f"not a frame: {exc}") from None
-    if frame.run_index != run_index:
+    if not frames.belongs(frame.run_index, frame.attempt, run_index, attempt):
         return None
     if frame.rows.shape != (1, n_joints * len(ACTUATOR_JOINT_FIELDS)):
         rows, cols = frame.rows.shape

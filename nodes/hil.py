@@ -21,6 +21,7 @@ import numpy as np
 import zenoh
 from simecs.mesh import hil, keys
 from simecs.mesh import messages as m
+from simecs.mesh.seal import Seal, SealedPublisher
 
 from .pacing import Pacer
 
@@ -59,11 +60,12 @@ class Lockstep:
         pacer: Pacer,
         tell: Callable[[str], None],
         stopped: Callable[[], bool],
+        seal: Seal,
     ) -> None:
         st = req.settings
         self.sim, self.pacer, self.tell, self.stopped = sim, pacer, tell, stopped
         self.n = len(joints)
-        self.run_index = req.run_index
+        self.run_index, self.attempt = req.run_index, req.attempt
         self.period = st.control_period
         self.timeout = st.hil_timeout
         ratio = self.period / sim.h
@@ -85,14 +87,15 @@ class Lockstep:
         self._last_problem = ""
         self._last_miss_notice = -math.inf
         u, s = req.user, req.session
-        self.pub = z.declare_publisher(keys.hil_sensors(u, s), express=True)
+        sensors = keys.hil_sensors(u, s)  # sealed, as every key a worker writes
+        self.pub = SealedPublisher(z.declare_publisher(sensors, express=True), sensors, seal)
         self.sub = z.declare_subscriber(keys.hil_actuators(u, s), self._on_actuators)
 
     def _on_actuators(self, sample: zenoh.Sample) -> None:
         """A zenoh callback: returns at once. Frames of other runs and repeats are dropped silently."""
         arrived = time.perf_counter()
         try:
-            got = hil.read_actuators(sample.payload.to_bytes(), self.run_index, self.n)
+            got = hil.read_actuators(sample.payload.to_bytes(), self.run_index, self.n, self.attempt)
         except hil.ActuatorProblem as exc:
             with self._lock:
                 self._last_problem = str(exc)
@@ -134,7 +137,7 @@ class Lockstep:
         with self._lock:
             self._expect, self._answer = self.seq, None
         self._event.clear()
-        frame = hil.sensor_frame(self.run_index, self.seq, time.time_ns(), self.row)
+        frame = hil.sensor_frame(self.run_index, self.seq, time.time_ns(), self.row, self.attempt)
         sent = time.perf_counter()
         self.pub.put(frame)
         give_up = sent + self.timeout

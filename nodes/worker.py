@@ -264,6 +264,7 @@ class Run:
                     self.pacer,
                     self.notifier.tell,
                     self.control.aborted.is_set,
+                    self.seal,
                 )
             self._loop(source)
             if self.control.aborted.is_set():

@@ -113,6 +113,9 @@ class Answerer:
     def __init__(self, s: SessionClient, reply: object) -> None:
         self.reply = reply
         self.rows: list[np.ndarray] = []
+        self.attempts: set[int] = set()  # of the sensor frames
+        self.sealed: set[bool] = set()  # whether each carried the service's seal
+        self.seal = s.client.seal
         z = s.client.z
         self.pub = z.declare_publisher(keys.hil_actuators(s.user, s.id))
         self.sub = z.declare_subscriber(keys.hil_sensors(s.user, s.id), self.on_sensors)
@@ -120,6 +123,8 @@ class Answerer:
     def on_sensors(self, sample: object) -> None:
         frame = frames.decode(sample.payload.to_bytes())  # type: ignore[attr-defined]
         self.rows.append(frame.rows[0].copy())
+        self.attempts.add(frame.attempt)
+        self.sealed.add(self.seal is not None and self.seal.sample_valid(sample))
         self.pub.put(self.reply(frame))  # type: ignore[operator]
 
     def close(self) -> None:
@@ -145,7 +150,10 @@ def test_bad_actuator_frames_are_refused_by_name_and_only_the_external_joints_ob
             return hil.actuator_frame(frame.run_index, 3, 0, [float("nan")] * 7)
         stale = hil.actuator_frame(frame.run_index + 1, frame.seq, 0, [9.0] * 7)  # another run's: dropped
         s.client.z.put(keys.hil_actuators(s.user, s.id), stale)
-        return hil.actuator_frame(frame.run_index, frame.seq, 0, [5.0] * 6 + [0.25])
+        # another attempt's (a host taken for lost that goes on): dropped too
+        other = hil.actuator_frame(frame.run_index, frame.seq, 0, [9.0] * 7, attempt=frame.attempt + 1)
+        s.client.z.put(keys.hil_actuators(s.user, s.id), other)
+        return hil.actuator_frame(frame.run_index, frame.seq, 0, [5.0] * 6 + [0.25], attempt=frame.attempt)
 
     answerer = Answerer(s, reply)
     try:
@@ -161,6 +169,7 @@ def test_bad_actuator_frames_are_refused_by_name_and_only_the_external_joints_ob
     assert np.all(rows[1:, 7] == 0.25)  # joint7 follows the controller
     assert np.all(np.abs(rows[:, 1:7]) < 4.0)  # the others keep the built-in cascade, not 5 A
     sensors = np.array(answerer.rows)
+    assert answerer.attempts == {1} and answerer.sealed == {True}  # the run's attempt, from the worker
     assert sensors.shape[1] == 1 + len(hil.SENSOR_JOINT_FIELDS) * 7
     assert np.allclose(sensors[0, 1::9], START, atol=1e-9)  # q of every joint at t = 0
 

@@ -47,8 +47,8 @@ PATH = [{"q": [0.8, 0.1, 0.6, 1.0, -0.7, 0.6, 0.5]}, {"q": POSTURE}]
 TOLERANCE_MRAD = 0.5  # why this much: docs/PROTOCOL.md §6.3
 
 
-def frame(run_index: int, seq: int, row: np.ndarray) -> bytes:
-    head = HEADER.pack(b"SMF1", 1, 0, run_index, 0, seq, time.time_ns(), 1, row.size)
+def frame(run_index: int, attempt: int, seq: int, row: np.ndarray) -> bytes:
+    head = HEADER.pack(b"SMF1", 1, 0, run_index, attempt, seq, time.time_ns(), 1, row.size)
     return head + row.astype("<f8").tobytes()
 
 
@@ -62,6 +62,7 @@ class Cascade:
             return np.array([values[f"{j}.{name}"] for j in joints])
 
         self.run_index, self.run_id = layout["run_index"], layout["run_id"]
+        self.attempt = layout["context"].get("attempt", 1)  # a run started again elsewhere: a new layout
         self.kp_pos, self.ff = gain("ctrl.kp_pos"), gain("ctrl.ff_vel")
         self.kp_vel, self.ki_vel = gain("ctrl.kp_vel"), gain("ctrl.ki_vel")
         self.ratio, self.i_max, self.poles = gain("gear.ratio"), gain("motor.i_max"), gain("motor.pole_pairs")
@@ -88,7 +89,7 @@ class Cascade:
             i_ref = np.where(current, np.minimum(np.maximum(q_ref, -self.i_max), self.i_max), i_ref)
             step = np.where(current, 0.0, step)
         self.x_v = self.x_v + self.period * step
-        out = frame(self.run_index, seq, i_ref)
+        out = frame(self.run_index, self.attempt, seq, i_ref)
         self.last = (seq, out)
         return out
 
@@ -127,11 +128,11 @@ class Controller:
 
     def on_sensors(self, sample: zenoh.Sample) -> None:
         payload = sample.payload.to_bytes()
-        magic, _v, _flags, run_index, _r, seq, _wall, n_rows, n_cols = HEADER.unpack_from(payload)
+        magic, _v, _flags, run_index, attempt, seq, _wall, n_rows, n_cols = HEADER.unpack_from(payload)
         with self.lock:
             cascade = self.runs.get(run_index)
-        if magic != b"SMF1" or cascade is None or n_rows != 1:
-            return  # a run this controller has no layout for yet: the worker repeats the frame
+        if magic != b"SMF1" or cascade is None or n_rows != 1 or attempt != cascade.attempt:
+            return  # a run (or attempt) this controller has no layout for yet: the worker repeats the frame
         row = np.frombuffer(payload, dtype="<f8", offset=HEADER.size, count=n_cols)
         answer = cascade.answer(seq, row)
         if self.delay_s:
