@@ -151,6 +151,15 @@ _TABLE = (
         "every chunk of an uploaded recording, decompressed",
     ),
     Limit(
+        "upload_records",
+        3_000_000,
+        "count",
+        "recorder",
+        "bad_request",
+        "MCAP records of one uploaded recording, every kind counted (a run of samples_per_run samples "
+        "holds about as many, one /vars message each): reading each costs time and memory",
+    ),
+    Limit(
         "recordings_bytes_per_user",
         2 * GiB,
         "bytes",

@@ -97,6 +97,7 @@ class Scan:
     problem: str = ""  # why reading stopped before the footer ("" when it did not)
     size: int = 0
     unpacked: int = 0  # bytes of chunks decompressed so far (bounded: mesh/limits.py)
+    records: int = 0  # records read so far, those inside chunks too (bounded: mesh/limits.py)
 
 
 class _KnownRecordsReader(StreamReader):
@@ -172,6 +173,13 @@ def scan(source: str | os.PathLike[str] | bytes, strict: bool = False, keep_mess
                 for rec in inner:
                     _take(out, rec, keep_messages)
             else:
+                try:
+                    _count(out, 1)
+                except BoundExceeded as exc:  # a flood of small records: read no further
+                    if strict:
+                        raise RecordingError(f"{name}: {exc}") from None
+                    out.problem = str(exc)
+                    break
                 _take(out, record, keep_messages)
     finally:
         stream.close()
@@ -224,8 +232,28 @@ def _chunk_records(chunk: Chunk, out: Scan) -> list[Any]:
             f"a chunk declares {chunk.uncompressed_size} bytes decompressed and holds {len(data)}"
         )
     out.unpacked += len(data)
+    _count(out, _records_in(data, limits.limit("upload_records") - out.records))
     plain = dataclasses.replace(chunk, compression="", data=data)
     return breakup_chunk(plain, validate_crc=True)
+
+
+def _records_in(data: bytes, most: int) -> int:
+    """How many records a chunk's data holds (its records' headers walked, none decoded), counting
+    no further than one past `most`: a 64 MiB chunk of empty messages holds two million."""
+    count, pos, end = 0, 0, len(data)
+    while pos + 9 <= end and count <= most:
+        pos += 9 + int.from_bytes(data[pos + 1 : pos + 9], "little")
+        count += 1
+    return count
+
+
+def _count(out: Scan, records: int) -> None:
+    """Add `records` to those read; more than upload_records is a recording no run makes."""
+    out.records += records
+    bound = limits.LIMITS["upload_records"]
+    if out.records > bound.value:
+        most = limits.human(bound.value, bound.unit)
+        raise BoundExceeded(f"more than upload_records = {most} MCAP records")
 
 
 def _take(out: Scan, rec: Any, keep_messages: bool) -> None:

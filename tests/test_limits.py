@@ -4,11 +4,12 @@ results along; uploads are read in full, bombs and trailing bytes included, befo
 
 from __future__ import annotations
 
+import dataclasses
 import io
 
 import pytest
 from mcap.writer import CompressionType, Writer
-from simecs.mesh import keys
+from simecs.mesh import keys, limits
 from simecs.mesh.client import RemoteError
 from simecs.nodes import mcapread
 
@@ -142,6 +143,28 @@ def test_uploads_are_read_in_full_within_bounds_and_count_against_the_quota(mesh
     with pytest.raises(RemoteError) as err:
         client.delete_recording("ann", "big")
     assert err.value.code == "not_found"
+
+
+def test_a_flood_of_small_records_is_refused_before_it_is_decoded(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Each record read costs microseconds and a few hundred bytes, however small: 256 MiB of empty
+    messages would hold the recorder for minutes and take gigabytes. The bound is lowered here to
+    make the flood small; the count is the same code at any size."""
+    bound = limits.LIMITS["upload_records"]
+    monkeypatch.setitem(limits.LIMITS, "upload_records", dataclasses.replace(bound, value=1000))
+    for compression in (CompressionType.ZSTD, CompressionType.NONE):
+        buf = io.BytesIO()
+        w = Writer(buf, compression=compression, chunk_size=1 << 20)
+        w.start()
+        cid = w.register_channel("/x", "json", w.register_schema("x", "jsonschema", b"{}"))
+        for k in range(1000):
+            w.add_message(cid, k, b"", k)
+        w.finish()
+        with pytest.raises(
+            mcapread.RecordingError, match="more than upload_records = 1,000 MCAP records"
+        ) as err:
+            mcapread.validate(buf.getvalue())
+        assert "damaged" not in str(err.value)
+    assert mcapread.validate(mcap_bytes(b"{}")).messages == 1  # a few records: read
 
 
 def test_a_closed_sessions_run_keeps_its_slot_until_its_worker_ends(mesh: Mesh) -> None:
