@@ -52,6 +52,7 @@ class Admission:
         outcome: Outcome,
         max_running: int | None = None,
         max_queue: int = 16,
+        hosts: Hosts | None = None,
     ) -> None:
         self.store = store
         self._z = zenoh_session
@@ -60,7 +61,7 @@ class Admission:
         self.outcome = outcome
         self.max_running = max_running or 0  # 0: no ceiling beyond what the hosts can carry
         self.max_queue = max_queue
-        self.hosts = Hosts()
+        self.hosts = hosts or Hosts()
         self.queue: collections.deque[str] = collections.deque()
         self.pending: dict[str, m.RunRequest] = {}  # session -> the request of its queued run
         self.hub: HubLink | None = None  # set once the proxy's session is open

@@ -47,10 +47,10 @@ class GoingRun:
 class Hosts:
     """Simulator hosts as the proxy sees them. Called with the proxy's lock held."""
 
-    def __init__(self) -> None:
+    def __init__(self, reservation_s: float = RESERVATION_S) -> None:
         self.views: dict[str, HostView] = {}
         self.live: set[str] = set()
-        self.reservation_s = RESERVATION_S  # the proxy's --reservation-s
+        self.reservation_s = reservation_s  # the proxy's --reservation-s
 
     # -- what the mesh says ---------------------------------------------------------------------------
     def joined(self, node_id: str) -> None:

@@ -29,7 +29,7 @@ from simecs.mesh.model import DocPage, ModelDescription, check_joints
 from simecs.mesh.runtime import Binary, Node, NotMine, Request, RequestError, main_for, mesh_from_args
 
 from .library import ModelLibrary
-from .placement import RESERVATION_S
+from .placement import RESERVATION_S, Hosts
 from .quotas import FLOAT_BYTES, QuotaCheck, Quotas
 from .runs import LAST_REPORT_GRACE_S, RunTracker, open_settings
 from .sessions import SessionRecord, SessionStore
@@ -92,10 +92,15 @@ class Proxy(Node):
             self._release,
         )
         self.runs = RunTracker(
-            self.store, lambda: self.z, lambda: self.seal, self.lock, max_running, max_queue
+            self.store,
+            lambda: self.z,
+            lambda: self.seal,
+            self.lock,
+            max_running,
+            max_queue,
+            Hosts(reservation_s),
         )
         self.admission = self.runs.admission
-        self.admission.hosts.reservation_s = reservation_s
         self.quota = QuotaCheck(quotas or Quotas(), self.store, self._columns)
         self.user_library = UserLibrary(data, lambda: self.models, self.store, self.quota)
         # what a kill mid-write left in the folders only this node writes (not results: the workers')

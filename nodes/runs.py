@@ -21,6 +21,7 @@ from simecs.mesh.runtime import RequestError
 from simecs.mesh.seal import Seal
 
 from .admission import Admission
+from .placement import Hosts
 from .sessions import SessionRecord, SessionStore
 
 MAX_WARNINGS = 20
@@ -56,9 +57,12 @@ class RunTracker:
         lock: threading.RLock,
         max_running: int | None = None,
         max_queue: int = 16,
+        hosts: Hosts | None = None,
     ) -> None:
         self.store = store
-        self.admission = Admission(store, zenoh_session, seal, lock, self.handed_over, max_running, max_queue)
+        self.admission = Admission(
+            store, zenoh_session, seal, lock, self.handed_over, max_running, max_queue, hosts
+        )
         self.z = zenoh_session
         self.seal = seal
         self.lock = lock
