@@ -137,6 +137,19 @@ def chart_spans(page: Any) -> list[float]:
 })""") or [0.0]
 
 
+#: The plotting area of the chart in sight that draws at least 1000 samples (None: none yet).
+FULL_CHART_JS = """() => {
+  for (const tp of Object.values((window.__viserTestpoints || {}).uplots || {})) {
+    const u = tp.chart;
+    if (u.root.getClientRects().length > 0 && u.data && u.data[0] && u.data[0].length >= 1000) {
+      const r = u.over.getBoundingClientRect();
+      return {x: r.x, y: r.y, width: r.width, height: r.height};
+    }
+  }
+  return null;
+}"""
+
+
 def model_shown(page: Any, timeout: float = 30.0) -> None:
     """The model's page is up: its header names the session (the models window's buttons carry the
     model's name too, so a name alone does not say the page changed)."""
@@ -279,13 +292,10 @@ def use_case(mesh: Mesh, browser: Any) -> None:
     page.get_by_role("tab", name="Results").click()
     page.get_by_role("button", name="Full resolution").first.click()
     text_appears(page, "r1 full res")
-    wait_until(
-        lambda: max(n for _t, n in chromium.plot_points(page)) >= 1000, timeout=20, what="full-res data"
-    )
+    # The chart in sight once the browser drew the full-resolution data (the message comes first; the
+    # chart drawn anew for its new scales after): where to drag on it.
+    box = wait_until(lambda: page.evaluate(FULL_CHART_JS), timeout=20, what="the full-resolution chart drawn")
     # a drag across the chart zooms in the browser; Reset zoom shows the whole transient again
-    over = page.locator(".uplot-container .u-over").locator("visible=true").first  # not a tab's behind
-    box = over.bounding_box()
-    assert box is not None
     y = box["y"] + box["height"] / 2
     page.mouse.move(box["x"] + 0.3 * box["width"], y)
     page.mouse.down()
