@@ -279,6 +279,10 @@ class SessionClient:
         (at most open_run_s), holding the initial pose without a command: to jog an idle arm."""
         return self.command(m.Run(until_stopped=until_stopped)).run_id
 
+    def continue_run(self, run_id: str) -> str:
+        """Start a run that goes on from where the failed run `run_id` ended (`Continue`); its run id."""
+        return self.command(m.Continue(run_id)).run_id
+
     def replay(self, recording: str, speed: float = 1.0, paused: bool = False) -> str:
         """Start a run that replays `recording` (of this session's model); returns its run id."""
         return self.command(m.Replay(recording, speed, paused)).run_id

@@ -218,6 +218,14 @@ class Replay(Command, tag="replay"):
             raise FieldProblem("speed", f"{self.speed:g} is outside [0.01, 1000] (0 = as fast as possible)")
 
 
+class Continue(Command, tag="continue"):
+    """Run again a run that failed part way (its simulator process crashed or was killed) and go on
+    from where its kept results end: the same inputs as that run (not the session's now), simulated as
+    fast as possible up to there and then at its pacing. A new run, whose results are the whole run."""
+
+    run_id: Annotated[Name, Meta(description="the failed run, one of the session's kept runs")]
+
+
 class Pause(Command, tag="pause"):
     pass
 
@@ -405,6 +413,7 @@ SessionCommand = (
     | SetObstacles
     | Run
     | Replay
+    | Continue
     | Pause
     | Resume
     | Abort
@@ -558,7 +567,7 @@ class SessionEntry(Record):
 
 
 class RunStarted(Record):
-    """Reply data of `run` and `replay`."""
+    """Reply data of `run`, `replay` and `continue`."""
 
     run_id: Name
     phase: Phase
@@ -593,6 +602,14 @@ class RunRequest(Message, tag="run_request"):
     until_stopped: Annotated[
         bool, Meta(description="a run until stopped (Run.until_stopped): settings.stop_time is its bound")
     ] = False
+    fast_until: Annotated[
+        float,
+        Meta(
+            ge=0.0,
+            description="s of simulated time run as fast as possible before the settings' pacing takes "
+            "over: a run continued after a crash (`continue`) catches up to where it had come",
+        ),
+    ] = 0.0
 
 
 class Accepted(Record):
@@ -821,6 +838,7 @@ REPLIES: dict[type, Any] = {
     SetObstacles: ObstacleList,
     Run: RunStarted,
     Replay: RunStarted,
+    Continue: RunStarted,
     Pause: str,
     Resume: str,
     Abort: str,

@@ -55,6 +55,7 @@ ALLOWED: dict[str, tuple[tuple[str, ...], str]] = {
     "set_obstacles": (EDITABLE, _EDIT.replace("{what}", "the obstacles")),
     "run": (EDITABLE, "a run is already {phase} in this session"),
     "replay": (EDITABLE, "a run is already {phase} in this session"),
+    "continue": (EDITABLE, "a run is already {phase} in this session"),
     "pause": (("running",), "nothing to pause: the session is {phase}"),
     "resume": (("paused",), "nothing to resume: the session is {phase}"),
     "stop": (GOING, "nothing to stop: the session is {phase}"),

@@ -31,7 +31,7 @@ GROUPS: list[tuple[str, list[str]]] = [
     (
         "commands",
         ["SetParams", "ResetParams", "SetInitial", "SetCommand", "SetSettings", "SetObstacles", "Run"]
-        + ["Replay", "Pause"]
+        + ["Replay", "Continue", "Pause"]
         + ["Resume", "Abort", "Stop", "Seek", "SaveParamSet", "LoadParamSet", "DeleteParamSet"]
         + ["ListParamSets"]
         + ["SaveProgram", "LoadProgram", "DeleteProgram", "ListPrograms", "ProgramEntry"]

@@ -45,10 +45,12 @@ def frame_parts(rows: np.ndarray, t0: float, frame: float, t_end: float) -> list
 
 
 class Pacer:
-    """When each simulated time is due in wall time, at the run's speed (math.inf: never waits)."""
+    """When each simulated time is due in wall time, at the run's speed (math.inf: never waits).
+    Up to `fast_until` nothing is due (a continued run catching up), and pacing starts there, then."""
 
-    def __init__(self, speed: float) -> None:
+    def __init__(self, speed: float, fast_until: float = 0.0) -> None:
         self.speed = speed
+        self.fast_until = fast_until
         self.reset(0.0)
 
     def reset(self, t: float) -> None:
@@ -61,8 +63,10 @@ class Pacer:
 
     def ahead(self, t: float) -> float:
         """Wall seconds until simulated time t is due (negative: late); 0 for an unpaced run."""
-        if not self.paced:
+        if not self.paced or t <= self.fast_until:
             return 0.0
+        if self.t0 < self.fast_until:  # caught up: paced from where the catching up ended, now
+            self.reset(self.fast_until)
         return (t - self.t0) / self.speed - (time.monotonic() - self.wall0)
 
 

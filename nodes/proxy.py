@@ -323,8 +323,10 @@ class Proxy(Node):
         cmd = req.json(m.SessionCommand)
         # Asking the recorder what a recording holds may take a while: not under the lock.
         recording = self._recording(user, cmd.recording) if isinstance(cmd, m.Replay) else None
-        # Expanding a command (inverse kinematics every millisecond of a line) may take a while too.
+        # Expanding a command (inverse kinematics every millisecond of a line) may take a while too,
+        # and so may asking a simulator host what a failed run left.
         plan = self._plan(req.key, cmd) if isinstance(cmd, m.SetCommand | m.Run) else None
+        kept = self._kept(req.key, cmd.run_id) if isinstance(cmd, m.Continue) else None
         with self.lock:
             rec = self.store.get(req.key)
             rec.active_at = time.time()
@@ -335,6 +337,8 @@ class Proxy(Node):
                 return self._replay(rec, cmd, recording)
             if isinstance(cmd, m.SetCommand):
                 return self._set_command(rec, cmd, plan)
+            if isinstance(cmd, m.Continue):
+                return self._continue(rec, cmd, kept)
             return self.commands[type(cmd)](rec, cmd)
 
     def _plan(self, key: str, cmd: m.SetCommand | m.Run) -> Any:
@@ -477,6 +481,68 @@ class Proxy(Node):
         self.quota.new_run(rec, settings, settings.stop_time)
         request = self.runs.request(rec, f"r{rec.run_counter + 1}", settings, until_stopped=cmd.until_stopped)
         return self.runs.begin(rec, request, settings.stop_time)
+
+    def _kept(self, key: str, run_id: str) -> m.ResultsAttachment:
+        """What a run's kept results say of it (its RunInfo and RunContext), from the host that holds
+        them; RequestError naming the run when there are none. Asks the mesh: call without the lock."""
+        user, sid = keys.owner_of(key)
+        selector = keys.results(user, sid, run_id) + "?t0=-1;t1=-1"  # no rows: the description only
+        try:
+            _, att = MeshClient(self.z, timeout=5.0, seal=self.seal).request_binary(
+                selector, m.ResultsAttachment
+            )
+        except RemoteError as exc:
+            raise RequestError(exc.code, exc.error.message, "run_id") from None
+        except (NoReply, zenoh.ZError):
+            raise RequestError(
+                "not_found", f"no simulator host holds results of run {run_id}", "run_id"
+            ) from None
+        if att is None:
+            raise RequestError("not_found", f"run {run_id}: its results say nothing of it", "run_id")
+        return att
+
+    def _continue(
+        self, rec: SessionRecord, cmd: m.Continue, kept: m.ResultsAttachment | None
+    ) -> m.RunStarted:
+        """A new run of the failed run `cmd.run_id`'s inputs, fast up to where its results end."""
+        assert kept is not None
+        info, ctx, name = kept.run, kept.context, cmd.run_id
+
+        def refuse(why: str) -> RequestError:
+            return RequestError("conflict", f"run {name} cannot be continued: {why}", "run_id")
+
+        if info.phase != "failed":
+            raise refuse(f"it {info.phase}; only a run that failed part way goes on (run starts a new one)")
+        if ctx is None:
+            raise refuse("its results do not say what produced it")
+        if ctx.recording:
+            raise refuse(f"it replayed recording {ctx.recording}: replay it again")
+        if ctx.until_stopped:
+            raise refuse("it ran until stopped: start a new one (run until_stopped)")
+        if ctx.settings.controller == "external":
+            raise refuse("a controller in the loop cannot be run ahead of its own time")
+        if info.jogged_s > 0:
+            raise refuse(f"it was jogged for {info.jogged_s:.2f} s, and jogs are not run again")
+        if info.sim_time <= 0:
+            raise refuse("it left no samples: run starts it again")
+        self.quota.new_run(rec, ctx.settings, ctx.settings.stop_time)
+        request = m.RunRequest(
+            session=rec.id,
+            run_id=f"r{rec.run_counter + 1}",
+            run_index=rec.run_counter + 1,
+            user=rec.user,
+            model_id=rec.model_id,
+            values=dict(ctx.values),
+            initial=list(ctx.initial),
+            command=ctx.command,
+            settings=ctx.settings,
+            obstacles=list(ctx.obstacles),
+            fast_until=info.sim_time,
+        )
+        self.log.info(
+            "session %s: run %s continues run %s from t = %.3f s", rec.id, request.run_id, name, info.sim_time
+        )
+        return self.runs.begin(rec, request, ctx.settings.stop_time)
 
     def _open_settings(self, rec: SessionRecord) -> m.RunSettings:
         """The settings of a run until stopped of `rec`: real time, and as long as open_run_s allows

@@ -191,7 +191,7 @@ class Run:
         self.control_sub = z.declare_subscriber(keys.control(u, s), self.control.on_sample)
         self.notifier = Notifier(z, req, seal)
         self.jogging = Jogging(z, req, self.notifier)
-        self.pacer = Pacer(req.settings.speed)
+        self.pacer = Pacer(req.settings.speed, req.fast_until)
         self.pace_watch = PaceWatch(req.settings.speed)
         self.hil: Lockstep | None = None
         self.token = z.liveliness().declare_token(keys.run_token(u, s, req.run_id))

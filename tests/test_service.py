@@ -406,6 +406,20 @@ def test_killed_simulation_fails_its_session_within_a_second(service: Service) -
     # the partial files are gone: one turned into a's results, the other replaced by b's stored results
     assert not list((service.data_dir / "results").rglob(".*.partial*"))
 
+    # the failed run goes on from where its results end: the same inputs, fast up to there, then in real
+    # time; its results are the whole run, the first part the same samples (issue 33, 1)
+    a.set_settings(stop_time=0.5)  # what the session says now is not what the run was made of
+    with pytest.raises(RemoteError) as refused:
+        b.continue_run(rb)
+    assert refused.value.code == "conflict" and "it finished" in str(refused.value)
+    rc = a.continue_run(ra)
+    end = a.wait_for(["finished", "failed", "aborted"], 60, rc)
+    assert end.phase == "finished" and end.sim_time == pytest.approx(5.0), end.reason
+    _columns, whole = a.results(rc)
+    assert whole[-1, 0] == pytest.approx(5.0) and np.all(np.diff(whole[:, 0]) > 0)
+    assert np.array_equal(whole[: rows.shape[0]], rows)  # deterministic: where the crash left it
+    assert "continues run r1" in service.mesh.log("proxy")
+
 
 def test_a_simulator_that_does_not_answer_holds_up_no_other_session(service: Service) -> None:
     """The proxy hands a run to a simulator without holding its lock: a stopped simulator (it

@@ -191,7 +191,7 @@ class FakeSession:
         if isinstance(cmd, m.SetSettings):
             snap.settings = cmd.settings
             return cmd.settings
-        if isinstance(cmd, (m.Run, m.Replay)):
+        if isinstance(cmd, (m.Run, m.Replay, m.Continue)):
             self.counter += 1
             return m.RunStarted(f"r{self.counter}", "queued", 0)
         if isinstance(cmd, m.ListParamSets):
@@ -1591,6 +1591,28 @@ def test_a_replay_is_a_run_of_the_session_shaped_by_the_recorded_values() -> Non
     # the user's own configuration again: the session's values shape the arm
     ctl.preview([0.0, 0.0, 0.0])
     assert ctl.replaying is None and got.of(events.ShapesChanged)[-1].values["link2.length"] == 0.5
+
+
+def test_a_run_that_failed_part_way_is_offered_to_continue_and_the_server_says_why_not() -> None:
+    model = arm()
+    ctl, sc, got = attached(model)
+    sc.watched["on_state"](state(sc, "running", "r1", seq=11))
+    crashed = "the simulator process of run r1 disappeared (crashed or killed)"
+    sc.watched["on_state"](state(sc, "failed", "r1", seq=12, sim_time=0.4, reason=crashed))
+    ctl.drain()
+    said = got.of(events.Notice)[-1]
+    assert said.title == "Run r1 failed" and crashed in said.body and "**Continue** (Results)" in said.body
+    sc.counter = 1  # r1 is the server's last run
+    ctl.control.continue_run("r1")
+    ctl.drain()
+    assert sc.of(m.Continue)[-1].run_id == "r1"
+    assert "Run **r2** goes on from where **r1** ended" in got.of(events.Notice)[-1].body
+    why = "run r1 cannot be continued: it was jogged for 0.20 s, and jogs are not run again"
+    sc.refuse[m.Continue] = RemoteError(m.Error("conflict", why, "run_id"))
+    ctl.control.continue_run("r1")
+    ctl.drain()
+    refused = got.of(events.Notice)[-1]
+    assert refused.title == "Continue refused" and why in refused.body
 
 
 def test_a_replay_already_over_when_the_tab_attaches_does_not_reshape_the_arm() -> None:

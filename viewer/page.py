@@ -328,6 +328,8 @@ class ModelPage:
             c.results.download_mcap(run_id)
         elif action == "Replay":
             c.control.replay_run(run_id)
+        elif action == "Continue":
+            c.control.continue_run(run_id)
 
     def _show_doc(self, event: ev.DocFetched) -> None:
         if self.docs is not None:

@@ -12,7 +12,7 @@ from simecs.mesh import messages as m
 
 from .compare import run_summary
 
-ACTIONS = ("Full resolution", "CSV", "MCAP", "Replay")
+ACTIONS = ("Full resolution", "CSV", "MCAP", "Replay", "Continue")
 
 
 def run_label(info: m.RunInfo, context: m.RunContext | None = None) -> str:
@@ -36,7 +36,8 @@ class ResultsPanel:
         gui.add_markdown(
             "After a run: load the **full-resolution** transients into the open plots, save the chosen "
             "variables as **CSV**, download the run's **MCAP** recording (opens in Foxglove), or **replay** "
-            "it as a new run of this session."
+            "it as a new run of this session. A run that failed part way (its simulator crashed) "
+            "**continues** from where its results end, as a new run."
         )
         self.runs = gui.add_dropdown("Run", ("—",), hint="runs of this session (replays too), newest first")
         self.info = gui.add_markdown("_No run yet._")

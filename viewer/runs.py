@@ -158,6 +158,28 @@ class RunControl:
         if self.c.session is not None:
             self.replay(self.c.recording_of(run_id))
 
+    def continue_run(self, run_id: str) -> None:
+        """Go on with `run_id`, a run that failed part way, as a new run (the server says whether it can)."""
+        c, t = self.c, self.t
+        if c.session is None:
+            t.notify("Continue", "Load a model first (Models).", "warning")
+            return
+        why = c.refusal("continue")
+        if why:
+            t.notify("Continue", why, "warning")
+            return
+        t.submit("Continue refused", partial(self.continue_now, run_id))
+
+    def continue_now(self, run_id: str) -> None:
+        """Start the continued run (on a worker: it waits for the server)."""
+        started: m.RunStarted = self.edits.command(m.Continue(run_id))
+        self.t.notify(
+            "Continue",
+            f"Run **{started.run_id}** goes on from where **{run_id}** ended: the same inputs, as fast as "
+            "possible up to there, then at its pacing.",
+        )
+        self.t.submit("Results", self.refresh_runs, "io")
+
     def ended(self, st: m.SessionState) -> None:
         """Say how a run ended; a run whose stop time came before its command was done says so."""
         t = self.t
@@ -174,4 +196,5 @@ class RunControl:
         elif st.phase == "aborted":
             t.notify(f"{what} aborted", st.reason or "aborted", "warning")
         else:
-            t.notify(f"{what} failed", st.reason or "the run failed", "error")
+            offer = "" if recording else " **Continue** (Results) goes on from where its kept results end."
+            t.notify(f"{what} failed", (st.reason or "the run failed") + offer, "error")
