@@ -9,13 +9,16 @@ page no longer shows. Even a message left waiting alone can be lost: the throttl
 panel is drawn anew, or the link is down, when the window ends (a click that so never arrived was
 seen once in 20 runs of the use case's browser test).
 
-The page here keeps a copy of the throttles' state (as one: a panel's window open counts for all) and
-holds back any edit or click that would have to wait, then replays it once the window has ended, when
-it goes at once (a field's held edits replay as one, with the text the field then holds, and its keys
-and its leaving after them; a held box shows its tick at once). So viser's throttle never keeps a
-message of ours waiting. Nothing is held outside a window, so a lone click or a typed field goes as
-before; a quick second action waits at most a window. Not covered: a hold button's repeats and a
-slider's drag (they stream; the next one carries the state) and a dropdown picked with the keyboard.
+The page here keeps a copy of the throttles' state (as one: a panel's window open counts for all).
+A field's text may wait for the window's end and replace its own waiting text (the latest wins, and
+holding the keys of a field being typed in would let the page draw its old text back under the next
+key); anything else that would have to wait, or replace another field's text, is held back and
+replayed once the window has ended, when it goes at once (a field's held edits replay as one, with
+the text the field then holds, and its keys and its leaving after them; a held box shows its tick at
+once). So a click is never left waiting. Nothing is held outside a window, so a lone click or a
+typed field goes as before; a quick second action waits at most a window. Not covered: a hold
+button's repeats and a slider's drag (they stream; the next one carries the state) and a dropdown
+picked with the keyboard.
 """
 
 from __future__ import annotations
@@ -31,30 +34,37 @@ SEND_ORDER_JS = """(() => {
   if (window.__simecsSendOrder) return;
   window.__simecsSendOrder = true;
   const WINDOW_MS = __WINDOW_MS__;
-  // The throttle: `open` while a window runs (a message went at its start). Our copy of its timer is
-  // set once the task that set viser's has ended (a 0 ms timer first), with the same delay: it fires
-  // after viser's, however late timers run and however long viser took to handle the event, so a
-  // message replayed then goes at once.
-  let open = false, replaying = false;
+  // The throttle: `open` while a window runs (a message went at its start), `waiting` the field whose
+  // text it keeps for the window's end (null: none). Our copy of its timer is set once the task that
+  // set viser's has ended (a 0 ms timer first), with the same delay: it fires after viser's, however
+  // late timers run and however long viser took to handle the event, so a message replayed then goes
+  // at once.
+  let open = false, waiting = null, replaying = false;
   const held = [];
-  const windowEnds = () => setTimeout(() => setTimeout(() => { open = false; release(); }, WINDOW_MS), 0);
-  const admit = () => {  // true: viser's throttle sends it at once
-    if (open) return false;
-    open = true;
-    windowEnds();
-    return true;
+  const windowEnds = () => setTimeout(() => setTimeout(() => {
+    if (waiting !== null) { waiting = null; windowEnds(); }  // it sent the waiting one: a new window
+    else open = false;
+    release();
+  }, WINDOW_MS), 0);
+  // Only a field's text may wait, and replace its own waiting text (the latest wins): held instead, the
+  // field would be drawn back to the text the page knows under the user's next key. A click or a box
+  // in a window is held, never left waiting.
+  const admit = (key, kind) => {  // true: viser's throttle takes it without dropping another
+    if (!open) { open = true; windowEnds(); return true; }
+    if (kind === 'input' && (waiting === null || waiting === key)) { waiting = key; return true; }
+    return false;
   };
   const release = () => {  // in the order made; a relayed event (no message of its own) in its turn
-    while (held.length && (held[0].kind === 'relay' || admit())) {
+    while (held.length && (held[0].kind === 'relay' || admit(held[0].key, held[0].kind))) {
       const h = held.shift();
       console.debug(`simecs send order: replays a ${h.kind} (${describe(h.el)})`);
       replaying = true;
       try { h.kind === 'input' ? retype(h) : h.replay(); } finally { replaying = false; }
     }
   };
-  const gate = (e, el, kind, replay) => {
+  const gate = (e, el, key, kind, replay) => {
     if (replaying) return;
-    if (!held.length && admit()) return;
+    if (!held.length && admit(key, kind)) return;
     e.stopImmediatePropagation();  // the page's own handlers (viser's) see it when it is replayed
     if (kind === 'click') e.preventDefault();
     const same = kind !== 'click' && held.find((h) => h.el === el && h.kind === kind);
@@ -62,7 +72,7 @@ SEND_ORDER_JS = """(() => {
       same.text = el.value;
       return;
     }
-    held.push({el, kind, replay, text: el.value});
+    held.push({el, key, kind, replay, text: el.value});
     console.debug(`simecs send order: holds a ${kind} (${describe(el)}) to the window's end`);
   };
   // For the page's console (a failed browser test keeps it): which element a hold or replay was.
@@ -90,19 +100,20 @@ SEND_ORDER_JS = """(() => {
     if (t instanceof HTMLInputElement && t.type === 'checkbox') {
       // The box ticks at once (the browser's own toggle is let be); viser hears of it on replay: the
       // box is set back and clicked, so it ends as the user left it.
-      gate(e, t, 'box', () => { const want = t.checked; t.checked = !want; t.click(); });
+      gate(e, t, t, 'box', () => { const want = t.checked; t.checked = !want; t.click(); });
       return;
     }
     const el = t && t.closest('button, [role=option]');
     // A notification's close button sends viser nothing: counted, it would hold the next real click.
     if (el && !el.closest('.mantine-Notification-root')) {
       const again = findAgain(el);
-      gate(e, el, 'click', () => (el.isConnected ? el : again() || el).click());
+      gate(e, el, null, 'click', () => (el.isConnected ? el : again() || el).click());
     }
   }, true);
   window.addEventListener('input', (e) => {
     const el = e.target;
-    if (typedField(el)) gate(e, el, 'input', null);
+    // A field's key is its viser widget (a vector's boxes are one widget, one message of all its values).
+    if (typedField(el)) gate(e, el, el.closest('.mantine-Flex-root') || el, 'input', null);
   }, true);
   // While a field's edit is held, its keys, its change and its leaving wait behind it: a number
   // field would otherwise write back, on Enter or on leaving, the value it has not heard of yet.
@@ -116,7 +127,7 @@ SEND_ORDER_JS = """(() => {
         ? new FocusEvent('focusout', {bubbles: true, relatedTarget: e.relatedTarget})
         : new KeyboardEvent(type, {key: e.key, code: e.code, bubbles: true, cancelable: true,
             shiftKey: e.shiftKey, ctrlKey: e.ctrlKey, altKey: e.altKey, metaKey: e.metaKey});
-      held.push({el, kind: 'relay', replay: () => el.dispatchEvent(again)});
+      held.push({el, key: null, kind: 'relay', replay: () => el.dispatchEvent(again)});
     }, true);
   }
 })();""".replace("__WINDOW_MS__", str(THROTTLE_MS))
