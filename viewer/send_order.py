@@ -34,23 +34,40 @@ SEND_ORDER_JS = """(() => {
   if (window.__simecsSendOrder) return;
   window.__simecsSendOrder = true;
   const WINDOW_MS = __WINDOW_MS__;
-  // The throttle: `open` while a window runs (a message went at its start), `waiting` the field whose
-  // text it keeps for the window's end (null: none). Our copy of its timer is set once the task that
-  // set viser's has ended (a 0 ms timer first), with the same delay: it fires after viser's, however
-  // late timers run and however long viser took to handle the event, so a message replayed then goes
-  // at once.
-  let open = false, waiting = null, replaying = false;
+  // The throttle: `open` while a window runs, `waiting` the field whose text it keeps for the window's
+  // end (null: none). Every message the page sends leaves through the worker that holds its websocket:
+  // each one seen there opens a window (ours, and those viser sends of itself, which no event here
+  // shows: a number box echoing the value the server set it to), and nothing waits right after it (it
+  // was sent at once, or it was the waiting one). Our copy of the window's timer is set once the task
+  // that set viser's has ended (a 0 ms timer first), with the same delay: it fires after viser's,
+  // however late timers run and however long viser took, so a message replayed then goes at once.
+  let open = false, waiting = null, replaying = false, windows = 0;
   const held = [];
-  const windowEnds = () => setTimeout(() => setTimeout(() => {
-    if (waiting !== null) { waiting = null; windowEnds(); }  // it sent the waiting one: a new window
-    else open = false;
-    release();
-  }, WINDOW_MS), 0);
+  const windowEnds = () => {
+    const mine = ++windows;
+    setTimeout(() => setTimeout(() => {
+      if (mine !== windows) return;  // a later message opened a later window
+      open = false;
+      waiting = null;
+      release();
+    }, WINDOW_MS), 0);
+  };
+  // The panels' messages only (Gui…): the camera's go through a throttle of their own.
+  const post = Worker.prototype.postMessage;
+  Worker.prototype.postMessage = function (data, ...rest) {
+    const type = data && data.type === 'send' && data.message ? String(data.message.type) : '';
+    if (type.startsWith('Gui')) {
+      open = true;
+      waiting = null;
+      windowEnds();
+    }
+    return post.call(this, data, ...rest);
+  };
   // Only a field's text may wait, and replace its own waiting text (the latest wins): held instead, the
   // field would be drawn back to the text the page knows under the user's next key. A click or a box
   // in a window is held, never left waiting.
   const admit = (key, kind) => {  // true: viser's throttle takes it without dropping another
-    if (!open) { open = true; windowEnds(); return true; }
+    if (!open) return true;  // it goes at once (and its message, seen leaving, opens the window)
     if (kind === 'input' && (waiting === null || waiting === key)) { waiting = key; return true; }
     return false;
   };
