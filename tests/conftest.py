@@ -7,6 +7,7 @@ is bounded; every process is stopped (SIGTERM, then SIGKILL) when the test ends.
 
 from __future__ import annotations
 
+import json
 import os
 import shutil
 import socket
@@ -278,6 +279,8 @@ class ConsoleKeepingBrowser:
                     continue
                 page.screenshot(path=str(folder / f"page{k + 1}.png"), timeout=10_000)
                 (folder / f"page{k + 1}.txt").write_text(page.inner_text("body", timeout=10_000))
+                sent = page.evaluate("() => [performance.now(), window.__simecsSent || []]")
+                (folder / f"page{k + 1}.sent.json").write_text(json.dumps(sent))  # viewer/send_order.py
             except Exception as exc:  # the page or the browser may be gone: keep what can be kept
                 self.lines.append(f"page {k + 1} not kept: {exc}")
 

@@ -42,7 +42,7 @@ SEND_ORDER_JS = """(() => {
   // that set viser's has ended (a 0 ms timer first), with the same delay: it fires after viser's,
   // however late timers run and however long viser took, so a message replayed then goes at once.
   let open = false, waiting = null, replaying = false, windows = 0;
-  const held = [];
+  const held = [], sent = window.__simecsSent = [];
   const windowEnds = () => {
     const mine = ++windows;
     setTimeout(() => setTimeout(() => {
@@ -57,6 +57,10 @@ SEND_ORDER_JS = """(() => {
   Worker.prototype.postMessage = function (data, ...rest) {
     const type = data && data.type === 'send' && data.message ? String(data.message.type) : '';
     if (type.startsWith('Gui')) {
+      // the last panel messages sent, for a failed browser test to keep (what left the page, when)
+      const updates = JSON.stringify(data.message.updates || '').slice(0, 60);
+      sent.push([Math.round(performance.now()), type, String(data.message.uuid || ''), updates]);
+      if (sent.length > 40) sent.shift();
       open = true;
       waiting = null;
       windowEnds();
