@@ -526,19 +526,7 @@ class Proxy(Node):
         if info.sim_time <= 0:
             raise refuse("it left no samples: run starts it again")
         self.quota.new_run(rec, ctx.settings, ctx.settings.stop_time)
-        request = m.RunRequest(
-            session=rec.id,
-            run_id=f"r{rec.run_counter + 1}",
-            run_index=rec.run_counter + 1,
-            user=rec.user,
-            model_id=rec.model_id,
-            values=dict(ctx.values),
-            initial=list(ctx.initial),
-            command=ctx.command,
-            settings=ctx.settings,
-            obstacles=list(ctx.obstacles),
-            fast_until=info.sim_time,
-        )
+        request = self.runs.continuing(rec, f"r{rec.run_counter + 1}", ctx, info.sim_time)
         self.log.info(
             "session %s: run %s continues run %s from t = %.3f s", rec.id, request.run_id, name, info.sim_time
         )

@@ -107,6 +107,20 @@ class RunTracker:
             until_stopped=until_stopped,
         )
 
+    def continuing(
+        self, rec: SessionRecord, run_id: str, ctx: m.RunContext, fast_until: float
+    ) -> m.RunRequest:
+        """The request of run `run_id` of `rec` that continues a failed run: that run's inputs (`ctx`),
+        run as fast as possible up to `fast_until`."""
+        return msgspec.structs.replace(
+            self.request(rec, run_id, ctx.settings),
+            values=dict(ctx.values),
+            initial=list(ctx.initial),
+            command=ctx.command,
+            obstacles=list(ctx.obstacles),
+            fast_until=fast_until,
+        )
+
     def again(self, rec: SessionRecord) -> m.RunRequest:
         """The request of `rec`'s current run made again from the session (the proxy restarted since it
         was sent): its settings cannot have changed while it was under way, and its list entry says

@@ -127,17 +127,21 @@ class RunControl:
                 (time.monotonic() - self._clicked_at) * 1000,
             )
 
-    def replay(self, recording: str) -> None:
-        """Replay `recording` (of this session's model) as a run of this session."""
+    def _start(self, title: str, op: str, job: Callable[[], None]) -> None:
+        """Hand `job`, a command that starts a run, to a worker, unless the page can say at once why not."""
         c, t = self.c, self.t
         if c.session is None:
-            t.notify("Replay", "Load a model first (Models).", "warning")
+            t.notify(title, "Load a model first (Models).", "warning")
             return
-        why = c.refusal("replay")
+        why = c.refusal(op)
         if why:
-            t.notify("Replay", why, "warning")
+            t.notify(title, why, "warning")
             return
-        t.submit("Replay refused", partial(self.replay_now, recording))
+        t.submit(f"{title} refused", job)
+
+    def replay(self, recording: str) -> None:
+        """Replay `recording` (of this session's model) as a run of this session."""
+        self._start("Replay", "replay", partial(self.replay_now, recording))
 
     def replay_now(self, recording: str) -> None:
         """Start the replay (on a worker: it waits for the server)."""
@@ -160,15 +164,7 @@ class RunControl:
 
     def continue_run(self, run_id: str) -> None:
         """Go on with `run_id`, a run that failed part way, as a new run (the server says whether it can)."""
-        c, t = self.c, self.t
-        if c.session is None:
-            t.notify("Continue", "Load a model first (Models).", "warning")
-            return
-        why = c.refusal("continue")
-        if why:
-            t.notify("Continue", why, "warning")
-            return
-        t.submit("Continue refused", partial(self.continue_now, run_id))
+        self._start("Continue", "continue", partial(self.continue_now, run_id))
 
     def continue_now(self, run_id: str) -> None:
         """Start the continued run (on a worker: it waits for the server)."""
