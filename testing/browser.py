@@ -84,6 +84,18 @@ PROBE_JS = """
     const b = e.target && e.target.closest ? e.target.closest('button') : null;
     if (b) rec.clicks.push([performance.now(), b.textContent.trim()]);
   }, true);
+  // Where each press and release landed (the last 40): a click the page never saw shows here whether
+  // the press and the release met different elements (something moved between them).
+  rec.pointer = [];
+  for (const type of ['pointerdown', 'pointerup']) {
+    document.addEventListener(type, (e) => {
+      const t = e.target instanceof Element ? e.target : null;
+      const what = t ? t.tagName.toLowerCase() + ' "' + (t.textContent || '').trim().slice(0, 24) + '"' : '?';
+      const at = [Math.round(e.clientX), Math.round(e.clientY)];
+      rec.pointer.push([Math.round(performance.now()), type, ...at, what]);
+      if (rec.pointer.length > 40) rec.pointer.shift();
+    }, true);
+  }
 })();
 """
 

@@ -279,7 +279,10 @@ class ConsoleKeepingBrowser:
                     continue
                 page.screenshot(path=str(folder / f"page{k + 1}.png"), timeout=10_000)
                 (folder / f"page{k + 1}.txt").write_text(page.inner_text("body", timeout=10_000))
-                sent = page.evaluate("() => [performance.now(), window.__simecsSent || []]")
+                sent = page.evaluate(
+                    "() => [performance.now(), window.__simecsSent || [],"
+                    " (window.__simecs || {}).pointer || [], (window.__simecs || {}).clicks || []]"
+                )
                 (folder / f"page{k + 1}.sent.json").write_text(json.dumps(sent))  # viewer/send_order.py
             except Exception as exc:  # the page or the browser may be gone: keep what can be kept
                 self.lines.append(f"page {k + 1} not kept: {exc}")
