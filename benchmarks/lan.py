@@ -631,9 +631,16 @@ def simulator_crash_trial(mesh: LanMesh) -> dict[str, Any]:
     runs = {s.user: s.run() for s in sessions}
     for s in sessions:
         wait_until(sim_time_above(s, SIM_CRASH_AT), 30, what="runs under way")
+    joined = mesh.log("proxy").count("simulator host simulator-t joined")
     os.kill(mesh.procs["simulator"].pid, signal.SIGKILL)
     mesh.start("simulator", "--results-dir", str(mesh.folder / "data" / "results"), "--warm", "2")
     ends = {s.user: s.wait_for(ENDED, 60, runs[s.user]) for s in sessions}
+
+    # the next trial's runs need the host back: the proxy says when it has it again
+    def back() -> bool:
+        return mesh.log("proxy").count("simulator host simulator-t joined") > joined
+
+    wait_until(back, 60, what="the restarted simulator taken by the proxy")
     whole = 0
     for s in sessions:
         _cols, rows = s.results(runs[s.user])
