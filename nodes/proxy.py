@@ -486,11 +486,8 @@ class Proxy(Node):
         """What a run's kept results say of it (its RunInfo and RunContext), from the host that holds
         them; RequestError naming the run when there are none. Asks the mesh: call without the lock."""
         user, sid = keys.owner_of(key)
-        selector = keys.results(user, sid, run_id) + "?t0=-1;t1=-1"  # no rows: the description only
         try:
-            _, att = MeshClient(self.z, timeout=5.0, seal=self.seal).request_binary(
-                selector, m.ResultsAttachment
-            )
+            att = self.runs.described(user, sid, run_id, timeout=5.0)
         except RemoteError as exc:
             raise RequestError(exc.code, exc.error.message, "run_id") from None
         except (NoReply, zenoh.ZError):

@@ -273,18 +273,24 @@ class RunTracker:
                     self.store.publish_params(rec, [])
             self.admission.update()
 
+    def described(self, user: str, sid: str, run_id: str, timeout: float = 3.0) -> m.ResultsAttachment | None:
+        """What a run's stored results say of it (a ResultsAttachment: its RunInfo and RunContext),
+        sealed, from the host that holds them; RemoteError or NoReply when none does. Asks the mesh:
+        call without the lock."""
+        selector = keys.results(user, sid, run_id) + "?t0=-1;t1=-1"  # no rows: the description only
+        client = MeshClient(self.z(), timeout=timeout, seal=self.seal())
+        return client.request_binary(selector, m.ResultsAttachment)[1]
+
     def _stored_end(self, user: str, sid: str, run_id: str) -> m.RunInfo | None:
         """How a run ended as its stored results say (a worker stores them before its last report and
         before its token goes), or None when no host holds them. Asks the mesh: call without the lock."""
-        selector = keys.results(user, sid, run_id) + "?t0=-1;t1=-1"  # no rows: the description only
         try:
-            _, att = MeshClient(self.z(), timeout=3.0, seal=self.seal()).request_binary(
-                selector, m.ResultsAttachment
-            )
-            info: m.RunInfo = att.run
-        except (RemoteError, NoReply, codec.DecodeError, zenoh.ZError, AttributeError):
+            described = self.described(user, sid, run_id)
+        except (RemoteError, NoReply, codec.DecodeError, zenoh.ZError):
             return None
-        return info if info.phase in phases.ENDED else None
+        if described is None:
+            return None
+        return described.run if described.run.phase in phases.ENDED else None
 
     def _settle_ended_run(
         self, rec: SessionRecord, lost: str = "the run was lost while the proxy was down"
