@@ -336,6 +336,12 @@ and the drives stay the same, only what computes each joint's current set point 
   so the tool slides along a surface pressing on it with f (its measured normal force is the
   variable `contact.tool_fn`). The force integral runs only while the tool touches.
 
+Both operational-space laws act on the link side, where the motor ringing on its elastic gear is not
+seen (the link held, as in contact); each joint's current set point is damped against it from the
+gear's twist rate its two resolvers read, with k the gear's stiffness:
+
+    i_ref <- i_ref - d (w_m' - n qd') / kt,   d = 2 ctrl.twist_damping sqrt(k / n^2 (J_rotor + J_gear))
+
 All three report the tool against its reference: `tool.x_ref`, `tool.y_ref`, `tool.z_ref`, `tool.e_pos`
 (m) and `tool.e_rot` (rad), so runs of one command under two systems compare directly.
 

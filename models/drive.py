@@ -67,6 +67,7 @@ DRIVE_PARAMS = (
     "ctrl.ki_vel",
     "ctrl.ff_vel",
     "ctrl.ff_gravity",
+    "ctrl.twist_damping",
     "traj.max_speed",
     "traj.max_acc",
 )
@@ -109,6 +110,7 @@ NP = len(DRIVE_PARAMS)
     P_KIV,
     P_FF,
     P_FFG,
+    P_TWD,
     P_VMAX,
     P_AMAX,
 ) = range(NP)

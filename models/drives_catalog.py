@@ -114,6 +114,14 @@ META = {
         1.0,
         False,
     ),
+    "ctrl.twist_damping": (
+        "-",
+        "operational-space laws: damping ratio they give the motor's mode on its elastic gear, from the "
+        "gear's twist rate the joint's two resolvers read (0: none)",
+        0.0,
+        2.0,
+        False,
+    ),
     "traj.max_speed": ("rad/s", "maximum joint speed (100 % of a path node's speed)", 1e-3, 10.0, False),
     "traj.max_acc": (
         "rad/s^2",
@@ -166,6 +174,7 @@ def size_class(
     offset_a: float = 0.0,
     offset_b: float = 0.0,
     current_frame: str = "rotor",
+    twist_damping: float = 0.3,
 ) -> dict[str, ParamInfo]:
     """A drive from a few design quantities; controller gains follow documented tuning rules.
 
@@ -214,6 +223,7 @@ def size_class(
         ctrl_ki_vel=10.0 * kp_vel,
         ctrl_ff_vel=1.0,
         ctrl_ff_gravity=1.0,
+        ctrl_twist_damping=twist_damping,
         traj_max_speed=max_speed,
         traj_max_acc=max_acc,
     )

@@ -76,6 +76,9 @@ class DriveClass(Record, kw_only=True):
     offset_b: float = 0.0
     #: where the current PIs act: "rotor" (field-oriented) or "stationary" (one per phase, the paper's)
     current_frame: Literal["rotor", "stationary"] = "rotor"
+    #: damping ratio the operational-space laws give the motor's mode on its elastic gear
+    #: (ctrl.twist_damping)
+    twist_damping: Annotated[float, Meta(ge=0.0, le=2.0)] = 0.3
 
 
 class LinkRow(Record, kw_only=True):

@@ -72,6 +72,7 @@ def chain_step(
             tab,
             jmode,
             live,
+            X,
             pre_R,
             pre_p,
             masses,

@@ -198,3 +198,47 @@ def test_opspace_hybrid_slides_on_a_plane_holding_the_commanded_force(service: S
     assert abs(tip[-1, 0] - end[0]) < 1e-3, "it slid to the end of its line"
     # The force pushes the tool up into the plane, which pushes back down on it.
     assert rows[-1, cols.index("contact.tool_fz")] < -0.9 * HYBRID_FORCE_N
+
+
+def _hybrid_slide(stiffness: float, twist_damping: float) -> tuple[np.ndarray, np.ndarray, float]:
+    """The hybrid case above in process, on a plane of `stiffness` N/m: (t, contact.tool_fn, the
+    plan's duration), with each joint's ctrl.twist_damping set."""
+    pkg = models.get_model("spider")
+    values = pkg.check_values({f"joint{j}.ctrl.twist_damping": twist_damping for j in range(1, 8)})
+    q0 = np.zeros(7)
+    planner = Planner(pkg, values, q0, 5.0)
+    p0, R0 = planner.kin.tool_pose(q0)
+    lid = m.Obstacle("lid", "plane", [*p0[:2], p0[2] + TOOL_RADIUS], [np.pi, 0, 0], stiffness=stiffness)
+    end = p0 + np.array([0.1, 0.0, 0.0])
+    node = m.CartesianNode(list(end), list(rpy_of(R0)), "lin", 20.0, 20.0, HYBRID_FORCE_N, [0.0, 0.0, 1.0])
+    plan = planner.plan(m.CartesianPath([node]))
+    sim = pkg.build(values)
+    try:
+        sim.set_obstacles([lid])
+        sim.set_initial(q0)
+        plan.apply(sim)
+        sim.set_control("opspace_hybrid", 0.001)
+        sim.start(plan.duration + 1.0, 0.002)
+        rows = [sim.advance(0.0)]
+        while not sim.finished:
+            rows.append(sim.advance(sim.time + 0.1))
+        cols = list(sim.columns)
+    finally:
+        sim.close()
+    data = np.vstack(rows)
+    return data[:, 0], data[:, cols.index("contact.tool_fn")], plan.duration
+
+
+def test_the_twist_damping_keeps_the_force_loop_from_ringing_on_soft_and_stiff_surfaces() -> None:
+    """The field-oriented drives leave the motors' mode on their elastic gears undamped (31 Hz on the
+    large drives with the link held); the operational-space laws damp it from the gear's twist rate.
+    Without it the tool bounces off a 1e6 N/m plane; with it the slide holds its 20 N there and on a
+    soft 1e4 N/m one."""
+    for stiffness in (1e4, 1e6):
+        t, fn, duration = _hybrid_slide(stiffness, 0.3)
+        sliding = (t >= 0.5) & (t <= duration)
+        rms = float(np.sqrt(np.mean((fn[sliding] - HYBRID_FORCE_N) ** 2)))
+        assert rms < 1.5 and fn[sliding].min() > 15.0, (stiffness, rms, fn[sliding].min())
+    t, fn, duration = _hybrid_slide(1e6, 0.0)
+    sliding = (t >= 0.5) & (t <= duration)
+    assert fn[sliding].min() == 0.0, "without the twist damping the tool lifts off the stiff plane"
