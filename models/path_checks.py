@@ -18,7 +18,7 @@ from . import contact, contact_geometry, grasp
 from . import drive as dr
 from .chain_dynamics import gravity_torques
 from .description import ArmDescription
-from .mechanics import ChainArrays, drive_array, gravity_of, holding_capacity
+from .mechanics import ChainArrays, chain_arrays, drive_array, gravity_of, holding_capacity
 from .plan import Plan, World
 from .self_collision import SelfCollision
 
@@ -120,9 +120,9 @@ class PathChecks:
     def holding_problem(self, plan: Plan | None) -> tuple[str, str] | None:
         """(field, why) when a drive cannot hold the arm against gravity at the initial pose or at a
         pose of the planned path (`plan` None: a run without a command, which holds the initial pose):
-        the joint's gravity torque there (payload included) exceeds what its drive gives at rest
-        (mechanics.holding_capacity). The motion's own torques are not counted: the drives' current
-        limit shapes them in the run."""
+        the joint's gravity torque there (payload and a grasped object included) exceeds what its
+        drive gives at rest (mechanics.holding_capacity). The motion's own torques are not counted:
+        the drives' current limit shapes them in the run."""
         gravity = gravity_of(self.values)
         if not np.any(gravity):
             return None
@@ -130,25 +130,49 @@ class PathChecks:
         capacity = holding_capacity(P)
         sampled = None if plan is None else plan.joint_samples(self.q0, HOLD_CHECK_PERIOD, HOLD_CHECK_STEP)
         times, qs = sampled if sampled is not None else (np.zeros(1), self.q0[None, :])
+        worlds = (plan.worlds if plan is not None else None) or [World(0.0, self.obstacles)]
         g = np.empty(self.n)
-        for k in range(qs.shape[0]):
-            gravity_torques(*self._arrays, gravity, np.ascontiguousarray(qs[k]), g)
-            over = np.flatnonzero(np.abs(g) > capacity)
-            if over.size:
-                j = int(over[np.argmax(np.abs(g[over]) / capacity[over])])
-                need = (
-                    f"joint{j + 1} cannot hold the arm against gravity: it needs {abs(g[j]):.3g} N m, its "
-                    f"drive gives at most {capacity[j]:.3g} N m at rest (motor.i_max {P[j, dr.P_IMAX]:g} A, "
-                    f"motor.kt {P[j, dr.P_KT]:g} N m/A, gear.ratio {P[j, dr.P_N]:g})"
-                )
-                if k == 0:
-                    return "initial", f"at the initial pose {need}: choose another pose or a lighter payload"
-                return (
-                    plan.field_at(float(times[k])) if plan is not None else "command",
-                    f"at t = {float(times[k]):.3f} s of the planned path {need}: change the path or lighten "
-                    "the payload",
-                )
+        for w, world in enumerate(worlds):
+            end = worlds[w + 1].t if w + 1 < len(worlds) else math.inf
+            carried = None
+            arrays = self._arrays
+            if world.held is not None:  # the grasped object joins the last link
+                carried = world.obstacles[world.held.index]
+                body = grasp.held_body(carried, world.held)
+                arrays = chain_arrays(self.model.spec, self.values, body)
+            for k in np.flatnonzero((times >= world.t - 1e-12) & (times < end - 1e-12)):
+                gravity_torques(*arrays, gravity, np.ascontiguousarray(qs[k]), g)
+                over = np.flatnonzero(np.abs(g) > capacity)
+                if over.size:
+                    return self._unholdable(plan, float(times[k]), k == 0, g, capacity, P, over, carried)
         return None
+
+    @staticmethod
+    def _unholdable(
+        plan: Plan | None,
+        t: float,
+        initial: bool,
+        g: np.ndarray,
+        capacity: np.ndarray,
+        P: np.ndarray,
+        over: np.ndarray,
+        carried: Obstacle | None,
+    ) -> tuple[str, str]:
+        """The refusal of a pose whose gravity torque on joints `over` exceeds their drives'."""
+        j = int(over[np.argmax(np.abs(g[over]) / capacity[over])])
+        load = f" carrying {carried.name} ({carried.mass:g} kg)" if carried is not None else ""
+        need = (
+            f"joint{j + 1} cannot hold the arm{load} against gravity: it needs {abs(g[j]):.3g} N m, its "
+            f"drive gives at most {capacity[j]:.3g} N m at rest (motor.i_max {P[j, dr.P_IMAX]:g} A, "
+            f"motor.kt {P[j, dr.P_KT]:g} N m/A, gear.ratio {P[j, dr.P_N]:g})"
+        )
+        if initial:
+            return "initial", f"at the initial pose {need}: choose another pose or a lighter payload"
+        lighter = "carry a lighter object" if carried is not None else "lighten the payload"
+        return (
+            plan.field_at(t) if plan is not None else "command",
+            f"at t = {t:.3f} s of the planned path {need}: change the path or {lighter}",
+        )
 
     def _touch(
         self, plan: Plan, k: int, t: float, obstacles: Sequence[Obstacle], found: np.ndarray

@@ -10,7 +10,8 @@ import pytest
 from simecs.mesh import messages as m
 from simecs.models import drive as dr
 from simecs.models import get_model
-from simecs.models.mechanics import holding_capacity
+from simecs.models.mechanics import drive_array, holding_capacity
+from simecs.models.planner import Planner
 from simecs.testing.holding import hold_case, loaded_pose
 
 from .conftest import Service
@@ -171,3 +172,34 @@ def test_a_pose_the_drives_cannot_hold_is_refused_naming_the_joint(service: Serv
     assert error.field == "initial", error
     assert error.message.startswith("at the initial pose joint2 cannot hold"), error
     assert idle.snapshot().state.phase == "configured" and not idle.runs()
+
+
+def test_an_object_too_heavy_to_carry_is_refused_naming_it() -> None:
+    """The hold check weighs what the tool carries: the PUMA stretched out takes a 0.5 kg crate and
+    holds it; a 25 kg one it cannot, and the task is refused from the grasp on, naming the crate, its
+    mass, the joint, the torque needed and the limit. Without the grasp the same crate weighs nothing
+    on the arm (it stands in the world)."""
+    package = get_model("puma560")
+    values = package.check_values({})
+    q0 = np.array([0.0, 0.0, -np.pi / 2, 0.0, 0.0, 0.0])
+    tool = Planner(package, values, q0, 5.0).kin.tool_pose(q0)[0]
+    wait = m.Action("wait", {"duration": 0.5})
+    for mass in (0.5, 25.0):
+        crate = m.Obstacle("crate", "box", [float(x) for x in tool], size=[0.1] * 3, mass=mass)
+        planner = Planner(package, values, q0, 5.0, obstacles=[crate])
+        standing = planner.plan(m.Task("look", [wait, wait]))
+        assert planner.checks.holding_problem(standing) is None
+        carried = planner.plan(m.Task("lift", [wait, m.Action("grasp", {"object": "crate"}), wait]))
+        problem = planner.checks.holding_problem(carried)
+        if mass < 1.0:
+            assert problem is None, problem
+            continue
+        assert problem is not None
+        field, why = problem
+        assert field == "command.actions[2]", problem
+        assert why.startswith(
+            "at t = 0.500 s of the planned path joint2 cannot hold the arm carrying crate (25 kg)"
+        ), why
+        need = re.search(r"it needs ([0-9.]+) N m, its drive gives at most ([0-9.]+) N m", why)
+        capacity = holding_capacity(drive_array(package.n, values))
+        assert need is not None and float(need[1]) > float(need[2]) == pytest.approx(capacity[1], rel=1e-2)
