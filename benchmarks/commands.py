@@ -25,9 +25,9 @@
 - `open_loop_torque_error`: |mean tau_motor - kt * i| / (kt * i) over 5-30 ms after an open-loop
   current step of 1 A on joint 3 (the ripple, detent and current loop stay in), while the motor is
   still slow; `open_loop_torque_ratio_300ms` is tau_motor / (kt * i) at 0.3 s, when the motor turns
-  fast: field-oriented current loops (`current.rotor_frame` 1, the arms on Earth) keep it near 1; the
-  Spider's stationary-frame PIs (the paper's) lag the sinusoidal phase currents there, so its torque
-  per ampere falls (a property of the modelled drive, reported, not an error of the command path).
+  fast: field-oriented current loops (`current.rotor_frame` 1, every model's default) keep it near 1;
+  the paper's stationary-frame PIs (`current.rotor_frame` 0) lag the sinusoidal phase currents there,
+  and the torque per ampere falls to about 0.4 (tests/test_current_loop.py).
 
 Each key is the worst of the two models; `per_model` has every figure per model.
 """
