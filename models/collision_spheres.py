@@ -28,7 +28,7 @@ from simecs.mesh import files
 from .urdf import Geometry, UrdfError, resolve_uri
 
 #: At most this many spheres per solid: a link's contact costs its spheres' count per step.
-MAX_SPHERES = 24
+MAX_SPHERES = 48
 #: m: no sphere is thinner (a sliver of a solid still touches).
 MIN_RADIUS = 0.003
 #: A sphere reaches past its hull by this fraction of the solid's thickness (its smallest extent),
