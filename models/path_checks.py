@@ -162,8 +162,8 @@ class PathChecks:
         j = int(over[np.argmax(np.abs(g[over]) / capacity[over])])
         load = f" carrying {carried.name} ({carried.mass:g} kg)" if carried is not None else ""
         need = (
-            f"joint{j + 1} cannot hold the arm{load} against gravity: it needs {abs(g[j]):.3g} N m, its "
-            f"drive gives at most {capacity[j]:.3g} N m at rest (motor.i_max {P[j, dr.P_IMAX]:g} A, "
+            f"joint{j + 1} cannot hold the arm{load} against gravity: it needs {abs(g[j]):.1f} N m, its "
+            f"drive gives at most {capacity[j]:.1f} N m at rest (motor.i_max {P[j, dr.P_IMAX]:g} A, "
             f"motor.kt {P[j, dr.P_KT]:g} N m/A, gear.ratio {P[j, dr.P_N]:g})"
         )
         if initial:
