@@ -68,7 +68,8 @@ test: $(TEST_STAMP) $(CHROMIUM)
 	$(MAKE) --no-print-directory -j2 --output-sync=target lint warm
 	$(BIN)/python -m pytest -q -n 2 --dist loadfile --durations=20
 
-bench: $(STAMP) warm
+# The benchmarks check against the test oracles (yourdfpy) and drive the browser (playwright): the test extras.
+bench: $(TEST_STAMP) warm
 	$(BIN)/simecs bench model
 	$(BIN)/simecs bench commands
 	$(BIN)/simecs bench control
