@@ -790,6 +790,31 @@ def test_pendant_panel_buttons_and_sliders(server: Any) -> None:
     assert "**▶1**" in panel.table.content
 
 
+def test_a_slider_value_newer_than_its_callback_is_not_undone(server: Any) -> None:
+    """viser stores a slider's value on its own thread when the browser sends it, and calls back on
+    the tab's loop: typing "30" sends 3, then 30, and the 30 may be stored while the callback of 3
+    runs. That callback must not write its node (3 deg) back over the slider: the callback of 30
+    comes next and reads the slider (the fresh-clone failure: the path's node kept 3 deg)."""
+    ed = path.JointPathEditor(arm().links)
+    arrivals: list[float] = []
+
+    def preview(_q: list[float]) -> None:  # called inside the callback: the browser's next value lands
+        if arrivals:
+            panel.sliders.sliders[0].value = arrivals.pop()
+
+    panel = pendant.PendantPanel(
+        server.gui, ed, lambda: [0.0, 0.0, 0.0], lambda: None, preview, lambda _e: None
+    )
+    panel._clicked(Event(SimpleNamespace(value="Teach")))
+    slider = panel.sliders.sliders[0]
+    slider.value = 3.0  # the browser's "3"; its "30" lands during the callback of "3"
+    arrivals.append(30.0)
+    panel.sliders._moved(Event(slider))
+    assert slider.value == 30.0, "the callback of 3 wrote its node back over the newer 30"
+    panel.sliders._moved(Event(slider))
+    assert ed.nodes[0].q[0] == pytest.approx(math.radians(30))
+
+
 def test_joint_sliders_are_in_degrees_within_limits(server: Any) -> None:
     got = []
     s = joints.JointSliders(server.gui, arm().links, [0.5, 0.0, -3.0], got.append)

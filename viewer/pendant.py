@@ -112,11 +112,13 @@ class PendantPanel:
         else:
             self.editor.set_q(q)
         self.on_preview(q)
-        self.refresh()
+        # not the sliders: viser stores a slider's newer value (the next key of "30" after "3") before
+        # this callback of the older one runs, and writing the node back would undo it
+        self.refresh(sliders=False)
         self.on_changed()
 
-    def refresh(self) -> None:
-        """Bring every widget to the editor's state."""
+    def refresh(self, sliders: bool = True) -> None:
+        """Bring every widget to the editor's state (the sliders too, unless they are what changed)."""
         ed = self.editor
         self.table.content = ed.table_markdown()
         options = tuple(str(k + 1) for k in range(len(ed.nodes))) or ("-",)
@@ -127,7 +129,8 @@ class PendantPanel:
             self.node.value = want
         if ed.nodes:
             node = ed.nodes[ed.selected]
-            self.sliders.set_q(node.q)
+            if sliders:
+                self.sliders.set_q(node.q)
             if self.speed.value != node.speed_pct:
                 self.speed.value = node.speed_pct
             if self.acc.value != node.acc_pct:
