@@ -14,10 +14,9 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from mcap.writer import CompressionType, Writer
-
 from . import mcapfmt as fmt
 from .mcapread import RecordingError, has_footer, scan
+from .mcaprecords import zstd_file
 
 
 @dataclass
@@ -44,7 +43,7 @@ def recover(path: str | os.PathLike[str]) -> Recovery | None:
     tmp = p.with_name(f".{p.name}.recover.tmp")
     stream = open(tmp, "wb")  # noqa: SIM115 - closed below
     try:
-        w = Writer(stream, chunk_size=fmt.CHUNK_SIZE, compression=CompressionType.ZSTD, enable_data_crcs=True)
+        w = zstd_file(stream, fmt.CHUNK_SIZE)
         w.start(profile=sc.header.profile, library=sc.header.library)
         schema_ids = {sid: w.register_schema(s.name, s.encoding, s.data) for sid, s in sc.schemas.items()}
         channel_ids = {
@@ -57,7 +56,7 @@ def recover(path: str | os.PathLike[str]) -> Recovery | None:
         for md in sc.metadata:
             w.add_metadata(md.name, dict(md.metadata))
         for att in sc.attachments:
-            w.add_attachment(att.create_time, att.log_time, att.name, att.media_type, att.data)
+            w.add_attachment(att.log_time, att.create_time, att.name, att.media_type, att.data)
         last_ns = 0
         kept = 0
         for msg in sc.messages:

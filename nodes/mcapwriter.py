@@ -1,9 +1,8 @@
 """Writing one run into one MCAP file, fast and crash-safely (the format itself is mcapfmt.py).
 
-The mcap package's writer does the records, chunks, indexes and summary; `FastWriter` adds bulk
-appends for the full-rate `/vars` channel (the per-message path costs ~10 us, most of what recording
-costs), and `RunWriter` lays out a run: channels, metadata from the run's layout and context, frames,
-/log, /scene, flushes about once a second, and a footer on close.
+mcaprecords.py writes the records, chunks, indexes and summary, with bulk appends for the full-rate
+`/vars` channel; `RunWriter` lays out a run: channels, metadata from the run's layout and context,
+frames, /log, /scene, flushes about once a second, and a footer on close.
 """
 
 from __future__ import annotations
@@ -12,18 +11,12 @@ import fcntl
 import json
 import math
 import os
-import struct
-import threading
 import time
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import IO, Any
 
-import mcap.writer
 import numpy as np
-import zstandard
-from mcap.records import MessageIndex
-from mcap.writer import CompressionType, Writer
 from simecs.mesh import codec, frames
 from simecs.mesh import messages as m
 from simecs.mesh.environment import Obstacle
@@ -51,107 +44,8 @@ from .mcapfmt import (
     stamp,
     ts_json,
 )
+from .mcaprecords import zstd_file
 from .mcapscene import WorldScene, scene_update
-
-
-class _FastZstd(threading.local):
-    """zstd at level 1 for chunk compression: the mcap writer calls `zstandard.compress` at level 3,
-    which runs at ~80 MB/s here and gains only ~10 % on float data; level 1 runs ~3x faster."""
-
-    def __init__(self) -> None:
-        self._c = zstandard.ZstdCompressor(level=1)
-
-    def compress(self, data: bytes) -> bytes:
-        return self._c.compress(data)
-
-
-mcap.writer.zstandard = _FastZstd()  # type: ignore[attr-defined,assignment]  # one compressor per thread
-
-
-_MSG_HEAD = struct.Struct("<BQHIQQ")  # opcode, record length, channel id, sequence, log time, publish time
-_OP_MESSAGE = 0x05
-
-
-class _FastMessageIndex(MessageIndex):
-    """A message index written with one struct.pack instead of two calls per message."""
-
-    def write(self, stream: Any) -> None:
-        stream.start_record(0x07)  # MESSAGE_INDEX
-        stream.write2(self.channel_id)
-        stream.write4(len(self.records) * 16)
-        flat = [v for pair in self.records for v in pair]
-        stream.write(struct.pack(f"<{len(flat)}Q", *flat))
-        stream.finish_record()
-
-
-class FastWriter(Writer):
-    """The mcap Writer plus `add_messages`: many messages of one channel with one struct.pack each.
-
-    `Writer.add_message` makes ~10 Python calls per message (~10 us): for a full-rate channel that is
-    most of what recording costs. This does the same bookkeeping (chunk message index, chunk time
-    range, statistics, chunk size limit) on the writer's own state; the format tests read every file
-    back with CRC, statistics and index checks, so a change of mcap's internals shows at once."""
-
-    def add_messages(
-        self, channel_id: int, log_times: list[int], payloads: list[bytes], publish_time: int, sequence: int
-    ) -> None:
-        st = self._Writer__statistics  # type: ignore[attr-defined]
-        limit = self._Writer__chunk_size  # type: ignore[attr-defined]
-        cb = self._Writer__chunk_builder  # type: ignore[attr-defined]
-        if cb is None:
-            for t, data in zip(log_times, payloads, strict=True):
-                self.add_message(channel_id, t, data, publish_time, sequence)
-            return
-        pack = _MSG_HEAD.pack
-        for t, data in zip(log_times, payloads, strict=True):
-            buf = cb.record_writer._buffer
-            index = cb.message_indices.get(channel_id)
-            if index is None:
-                index = cb.message_indices[channel_id] = _FastMessageIndex(channel_id=channel_id, records=[])
-            if cb.num_messages == 0 or t < cb.message_start_time:
-                cb.message_start_time = t
-            if t > cb.message_end_time:
-                cb.message_end_time = t
-            index.records.append((t, buf.tell()))
-            buf.write(pack(_OP_MESSAGE, 22 + len(data), channel_id, sequence, t, publish_time))
-            buf.write(data)
-            cb.num_messages += 1
-            if st.message_count == 0 or t < st.message_start_time:
-                st.message_start_time = t
-            if t > st.message_end_time:
-                st.message_end_time = t
-            st.channel_message_counts[channel_id] += 1
-            st.message_count += 1
-            if buf.tell() > limit:
-                self._Writer__maybe_finalize_chunk()  # type: ignore[attr-defined]
-
-    def add_records(self, channel_id: int, log_times: np.ndarray, records: np.ndarray) -> None:
-        """Messages already laid out as MCAP Message records (see `VarsCodec.records`), in one write."""
-        cb = self._Writer__chunk_builder  # type: ignore[attr-defined]
-        n = len(records)
-        if n == 0:
-            return
-        st = self._Writer__statistics  # type: ignore[attr-defined]
-        buf = cb.record_writer._buffer
-        index = cb.message_indices.get(channel_id)
-        if index is None:
-            index = cb.message_indices[channel_id] = _FastMessageIndex(channel_id=channel_id, records=[])
-        lo, hi = int(log_times.min()), int(log_times.max())
-        if cb.num_messages == 0 or lo < cb.message_start_time:
-            cb.message_start_time = lo
-        cb.message_end_time = max(cb.message_end_time, hi)
-        base = buf.tell()
-        size = records.dtype.itemsize
-        index.records.extend(zip(log_times.tolist(), range(base, base + n * size, size), strict=True))
-        buf.write(records.tobytes())
-        cb.num_messages += n
-        if st.message_count == 0 or lo < st.message_start_time:
-            st.message_start_time = lo
-        st.message_end_time = max(st.message_end_time, hi)
-        st.channel_message_counts[channel_id] += n
-        st.message_count += n
-        if buf.tell() > self._Writer__chunk_size:  # type: ignore[attr-defined]
-            self._Writer__maybe_finalize_chunk()  # type: ignore[attr-defined]
 
 
 def layout_json(layout: m.RunLayout) -> str:
@@ -208,12 +102,7 @@ class RunWriter:
         self._stream: IO[bytes] = open(self.path, "xb")  # noqa: SIM115 - closed in close()/abandon()
         try:
             fcntl.flock(self._stream.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
-            self._w = FastWriter(
-                self._stream,
-                chunk_size=chunk_size,
-                compression=CompressionType.ZSTD,
-                enable_data_crcs=True,
-            )
+            self._w = zstd_file(self._stream, chunk_size)
             self._w.start(profile="", library=LIBRARY)
             meta = {
                 "format_version": FORMAT_VERSION,

@@ -302,3 +302,64 @@ def test_export_csv_round_trip(tmp_path: Path) -> None:
     assert lines[0] == "time,joint2.q,joint2.qd,joint2.tau_gear,joint2.i_a" and lines[1].startswith("s,rad,")
     assert n == len(lines) - 2 and float(lines[2].split(",")[0]) >= 0.1
     assert export.main([str(path), "--csv", "--vars", "nosuch.*", "-o", os.devnull]) == 2
+
+
+def test_the_mcap_records_read_back_with_the_mcap_packages_reader() -> None:
+    """The writer of mcaprecords.py against the mcap package's own reader (an independent reading of
+    the format), every CRC checked: several chunks of single and bulk messages, metadata and an
+    attachment between them, the statistics, every index and the summary; and the data section's CRC,
+    which that reader does not check, recomputed here."""
+    import io
+    import struct
+    import zlib
+
+    from mcap.reader import make_reader
+    from mcap.records import DataEnd
+    from mcap.stream_reader import StreamReader
+    from simecs.nodes.mcaprecords import zstd_file
+
+    out = io.BytesIO()
+    w = zstd_file(out, 4096)
+    w.start("", "simecs test")
+    text = w.register_channel("/text", "json", w.register_schema("s", "jsonschema", b"{}"), {"k": "v"})
+    raw = w.register_channel("/raw", "cdr", 0)
+    record = np.dtype([("head", "V31"), ("value", "<f8")])
+    sent: list[tuple[int, int, bytes]] = []
+    for k in range(300):
+        data = json.dumps({"k": k}).encode()
+        w.add_message(text, 1000 + 10 * k, data, 7, k)
+        sent.append((text, 1000 + 10 * k, data))
+        if k % 50 == 0:
+            times = np.arange(5, dtype=np.int64) + 1000 + 10 * k
+            rows = np.zeros(5, dtype=record)
+            for i, t in enumerate(times):
+                payload = struct.pack("<d", float(k + i))
+                head = struct.pack("<BQHIQQ", 0x05, 22 + 8, raw, 0, int(t), 9)
+                rows[i] = (head, float(k + i))
+                sent.append((raw, int(t), payload))
+            w.add_records(raw, times, rows)
+            w.add_metadata(f"m{k}", {"k": str(k)})
+        if k == 120:
+            w.flush()
+            w.add_attachment(5, 6, "note.txt", "text/plain", b"hello")
+    w.finish()
+    data = out.getvalue()
+    reader = make_reader(io.BytesIO(data), validate_crcs=True)
+    summary = reader.get_summary()
+    assert summary is not None and summary.statistics is not None
+    stats = summary.statistics
+    assert (stats.message_count, stats.schema_count, stats.channel_count) == (len(sent), 1, 2)
+    assert (stats.attachment_count, stats.metadata_count) == (1, 6) and stats.chunk_count > 3
+    assert dict(stats.channel_message_counts) == {text: 300, raw: 30}
+    assert (stats.message_start_time, stats.message_end_time) == (1000, 1000 + 10 * 299)
+    assert summary.channels[text].metadata == {"k": "v"} and summary.channels[raw].schema_id == 0
+    got = [(ch.id, msg.log_time, msg.data) for _s, ch, msg in reader.iter_messages(log_time_order=True)]
+    assert got == sorted(sent, key=lambda m: m[1])
+    late = [msg.log_time for _s, _c, msg in reader.iter_messages(starting_at=3000, topics=["/text"])]
+    assert late == [1000 + 10 * k for k in range(200, 300)]  # through the chunk and message indexes
+    assert [a.data for a in reader.iter_attachments()] == [b"hello"]
+    assert [md.name for md in reader.iter_metadata()] == [f"m{k}" for k in range(0, 300, 50)]
+    records = list(StreamReader(io.BytesIO(data), validate_crcs=True).records)
+    end = next(r for r in records if isinstance(r, DataEnd))
+    data_end_at = data.index(struct.pack("<BQI", 0x0F, 4, end.data_section_crc))
+    assert end.data_section_crc == zlib.crc32(data[:data_end_at])
