@@ -44,6 +44,7 @@ import numpy as np
 from numba import njit
 
 from . import drive as dr
+from . import references
 from .chain_dynamics import chain_frames, chain_state, gravity_torques
 from .chain_kinematics import (
     cholesky,
@@ -387,8 +388,8 @@ def control_update(
     )
     refs = np.empty((4, n))
     qr, qdr, qr2, qdr2 = refs[0], refs[1], refs[2], refs[3]
-    dr.ref_eval(seg, hold, tab, jmode, live, t, qr, qdr)
-    dr.ref_eval(seg, hold, tab, jmode, live, t_next, qr2, qdr2)
+    references.ref_eval(seg, hold, tab, jmode, live, t, qr, qdr)
+    references.ref_eval(seg, hold, tab, jmode, live, t_next, qr2, qdr2)
     # what the load resolvers read; with an error the chain's quantities are those of that reading
     q_m = q
     qd_m = qd
@@ -438,7 +439,7 @@ def control_update(
     )
     twist_damping(P, X, qd_m, i_ref)
     for j in range(n):
-        live[j, dr.LV_IREF] = i_ref[j]
+        live[j, references.LV_IREF] = i_ref[j]
     return saturated
 
 

@@ -19,8 +19,7 @@ import numpy as np
 from simecs.mesh import messages as m
 from simecs.mesh.environment import Obstacle
 
-from . import drive as dr
-from . import grasp, signals
+from . import grasp, references, signals
 
 
 @dataclass
@@ -96,11 +95,11 @@ class Plan:
             qs = np.empty((times.shape[0], q0.shape[0]))
             qd = np.empty(q0.shape[0])
             for k, t in enumerate(times):
-                dr.traj_eval(self.segments, q0, float(t), qs[k], qd)
+                references.traj_eval(self.segments, q0, float(t), qs[k], qd)
             return times, qs
         if self.tab is None or self.jmode is None:
             return None
-        if np.any((self.jmode == dr.JM_SPEED) | (self.jmode == dr.JM_CURRENT)):
+        if np.any((self.jmode == references.JM_SPEED) | (self.jmode == references.JM_CURRENT)):
             return None
         n = q0.shape[0]
         t, qs = self.tab[:, 0], self.tab[:, 1 : 1 + n]

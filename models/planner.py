@@ -37,8 +37,7 @@ from simecs.mesh.limits import limit
 from simecs.mesh.model import check_joints
 from simecs.mesh.robot_commands import ACTION_ARGS, NAME_ARG
 
-from . import contact_geometry, grasp, signals
-from . import drive as dr
+from . import contact_geometry, grasp, references, signals
 from .chain_dynamics import chain_frames
 from .description import ArmDescription
 from .errors import CommandError
@@ -103,7 +102,7 @@ class _Reference:
         self.q = qs[-1].copy()
 
     def joint_move(self, path: str, dest: np.ndarray, vmax: np.ndarray, amax: np.ndarray) -> None:
-        row = dr.plan_segment(self.q, dest, vmax, amax, 0.0)
+        row = references.plan_segment(self.q, dest, vmax, amax, 0.0)
         T, ta = float(row[1]), float(row[2])
         if T <= 0.0:
             return
@@ -205,7 +204,7 @@ class Planner:
             steps=steps,
             final_q=ref.q,
             tab=tab,
-            jmode=np.full(self.n, dr.JM_POSITION, dtype=np.int64),
+            jmode=np.full(self.n, references.JM_POSITION, dtype=np.int64),
             events=ref.events,
             grasps=ref.grasps,
             worlds=ref.worlds,
@@ -231,7 +230,7 @@ class Planner:
         samples = [q]
         for i, node in enumerate(cmd.nodes):
             dest = self._joints(node.q, f"nodes[{i}].q")
-            row = dr.plan_segment(
+            row = references.plan_segment(
                 q, dest, self.vmax * node.speed_pct / 100, self.amax * node.acc_pct / 100, t
             )
             steps.append(PlanStep(f"nodes[{i}]", "joint", t, t + float(row[1]), q_end=floats(dest)))

@@ -12,6 +12,7 @@ from numba import njit
 from simecs.mesh.hil import SENSOR_JOINT_FIELDS
 
 from . import drive as dr
+from . import references
 
 PER_JOINT = len(SENSOR_JOINT_FIELDS)  # the kernel below writes them in that order
 assert PER_JOINT == 9
@@ -23,7 +24,7 @@ def sensor_row(P, seg, hold, tab, jmode, live, X, q, qd, t, out):
     n = q.shape[0]
     qr = np.empty(n)
     qdr = np.empty(n)
-    dr.ref_eval(seg, hold, tab, jmode, live, t, qr, qdr)
+    references.ref_eval(seg, hold, tab, jmode, live, t, qr, qdr)
     sig = np.empty(dr.NO + 10)
     out[0] = t
     for j in range(n):

@@ -35,8 +35,8 @@ from simecs.mesh.robot_commands import (
     TableSignal,
 )
 
-from .drive import JM_CURRENT, JM_HOLD, JM_POSITION, JM_SPEED  # the kernel owns the modes
 from .errors import CommandError
+from .references import JM_CURRENT, JM_HOLD, JM_POSITION, JM_SPEED  # the references own the modes
 
 #: Sampling of sines and chirps: points per period of the highest frequency in effect, and the
 #: widest and narrowest spacing (a slow wave still gets 100 points per second; a 500 Hz one 1e5).

@@ -19,7 +19,7 @@ from simecs.mesh.environment import Obstacle, check_obstacles
 from simecs.mesh.kinematics import rot_rpy
 from simecs.mesh.model import CONTROL_SYSTEMS
 
-from . import chain_dynamics, grasp
+from . import chain_dynamics, drive_integrator, grasp, references
 from . import drive as dr
 from .chain_dynamics import gravity_torques
 from .contact import contact_prestep, pair_width
@@ -61,7 +61,7 @@ class Simulation:
         self.forces = np.zeros((0, 5))  # the hybrid controller's force profile (opspace.FP_*)
         #: Live inputs per joint (drive.LV_*): the jog, superposed on the reference, and the current set
         #: points of an external controller for the joints it drives.
-        self.live = np.zeros((self.n, dr.NLIVE))
+        self.live = np.zeros((self.n, references.NLIVE))
         self._external = np.zeros(self.n, dtype=bool)  # the joints an external controller drives
         self._control = ("joint_independent", 0.001)  # the built-in control system and its period
         self._opspace: OpspaceController | None = None
@@ -269,7 +269,7 @@ class Simulation:
         if self._running:
             qr = np.empty(self.n)
             qdr = np.empty(self.n)
-            dr.traj_eval(self.seg, self.hold, t0, qr, qdr)
+            references.traj_eval(self.seg, self.hold, t0, qr, qdr)
             self.hold = qr.copy()
             q = qr
         else:
@@ -280,7 +280,7 @@ class Simulation:
             # The set point is the destination as commanded: the controller compares it with what its
             # load resolver reads, so a resolver error shows as an error of the pose reached, as on
             # a real arm (no controller knows its own sensor's error).
-            row = dr.plan_segment(q, dest, vmax * sp / 100.0, amax * ac / 100.0, t)
+            row = references.plan_segment(q, dest, vmax * sp / 100.0, amax * ac / 100.0, t)
             rows.append(row)
             t += row[1]
             q = dest
@@ -292,20 +292,20 @@ class Simulation:
         s. Joints in current mode do not jog. Returns the rates applied."""
         t = self._time
         js = self.live
-        js[:, dr.LV_OFFSET] += js[:, dr.LV_RATE] * (t - js[:, dr.LV_T0])
-        js[:, dr.LV_T0] = t
+        js[:, references.LV_OFFSET] += js[:, references.LV_RATE] * (t - js[:, references.LV_T0])
+        js[:, references.LV_T0] = t
         qr, qdr = np.empty(self.n), np.empty(self.n)
-        dr.ref_nominal(self.seg, self.hold, self.tab, self.jmode, t, qr, qdr)
-        now = qr + js[:, dr.LV_OFFSET]
+        references.ref_nominal(self.seg, self.hold, self.tab, self.jmode, t, qr, qdr)
+        now = qr + js[:, references.LV_OFFSET]
         applied = np.asarray(rates, dtype=float).copy()
         for j, lk in enumerate(self._desc.links):
-            if self.jmode[j] == dr.JM_CURRENT or not math.isfinite(applied[j]):
+            if self.jmode[j] == references.JM_CURRENT or not math.isfinite(applied[j]):
                 applied[j] = 0.0
             elif applied[j] > 0:
                 applied[j] = min(applied[j], max(0.0, (lk.joint_max - now[j]) / horizon))
             else:
                 applied[j] = max(applied[j], min(0.0, (lk.joint_min - now[j]) / horizon))
-        js[:, dr.LV_RATE] = applied
+        js[:, references.LV_RATE] = applied
         return applied
 
     def set_external(self, joints: Sequence[bool] | np.ndarray) -> None:
@@ -315,8 +315,8 @@ class Simulation:
         if mask.shape != (self.n,):
             raise ValueError(f"expected {self.n} flags, one per joint")
         self._external = mask.copy()
-        self.live[:, dr.LV_EXTERNAL] = mask
-        self.live[:, dr.LV_IREF] = 0.0
+        self.live[:, references.LV_EXTERNAL] = mask
+        self.live[:, references.LV_IREF] = 0.0
 
     def set_forces(self, forces: np.ndarray) -> None:
         """The force set points of the next run (rows of opspace.FP_*: from t, push along an axis with
@@ -340,7 +340,7 @@ class Simulation:
     def set_actuators(self, i_ref: np.ndarray) -> None:
         """The external controller's current set points (A), held until the next call (zero-order
         hold); the entries of joints the built-in controller keeps are not used."""
-        self.live[:, dr.LV_IREF] = i_ref
+        self.live[:, references.LV_IREF] = i_ref
 
     def sensors(self, out: np.ndarray) -> None:
         """What an external controller reads now into `out` (models/sensors.py, mesh/hil.py)."""
@@ -383,9 +383,11 @@ class Simulation:
         self._reset_world(rebuild=values_changed)
         self._run_values = dict(self.values)
         self._pending_events = list(self._events)
-        self.live[:, [dr.LV_OFFSET, dr.LV_RATE, dr.LV_T0, dr.LV_IREF]] = 0.0  # set_external stays
+        self.live[:, [references.LV_OFFSET, references.LV_RATE, references.LV_T0, references.LV_IREF]] = (
+            0.0  # set_external stays
+        )
         self._opspace = self._make_opspace(h)
-        self.live[:, dr.LV_EXTERNAL] = True if self._opspace is not None else self._external
+        self.live[:, references.LV_EXTERNAL] = True if self._opspace is not None else self._external
         self.h = h
         self.k_out = max(1, int(round(output_interval / h)))
         self.dt_out = self.k_out * h
@@ -447,7 +449,7 @@ class Simulation:
             raise ValueError(
                 f"settings.control_period: {period:g} s is not a whole number of solver steps ({h:g} s)"
             )
-        if np.any((self.jmode == dr.JM_SPEED) | (self.jmode == dr.JM_CURRENT)):
+        if np.any((self.jmode == references.JM_SPEED) | (self.jmode == references.JM_CURRENT)):
             raise ValueError(
                 f"settings.control_system: {system} tracks positions; this command sets joint speeds or "
                 "currents directly (run it under joint_independent)"
@@ -513,14 +515,14 @@ class Simulation:
             control_steps > 0 and not repeat and k % control_steps == 0,  # a control period starts
             *tail,
         )
-        if status == dr.STEP_NOT_FINITE:
+        if status == drive_integrator.STEP_NOT_FINITE:
             bad = [j + 1 for j in range(self.n) if not np.all(np.isfinite(self.X[j, : dr.NS]))]
             self._fail = (
                 f"the drive integration broke down: drive states of joint(s) {bad or '?'} not finite at "
                 f"t = {ts:.6f} s: take a smaller step (settings.step)"
             )
             return False
-        if status == dr.STEP_FRICTION:
+        if status == drive_integrator.STEP_FRICTION:
             self._fail = self._friction_failure(ts)
             return False
         mbs.SetObjectParameter(self._kt, "jointForceVector", self._tau)
@@ -548,12 +550,15 @@ class Simulation:
 
     def _friction_failure(self, ts: float) -> str:
         """Why a step left the friction model's accuracy: wrong numbers are not returned as results."""
-        bad = [j for j in range(self.n) if abs(self.X[j, dr.S_Z]) > dr.friction_bound(self.P, j)]
+        bad = [
+            j for j in range(self.n) if abs(self.X[j, dr.S_Z]) > drive_integrator.friction_bound(self.P, j)
+        ]
         j = bad[0] if bad else 0
         return (
             f"the drive integration broke down at t = {ts:.6f} s: joint{j + 1}'s friction state left its "
             f"physical bound (motor speed {self.X[j, dr.S_OM]:.1f} rad/s, step {self.h:g} s with up to "
-            f"{dr.MAX_SUBSTEP_FACTOR * self.nsub} drive substeps, gear.sigma0 = {self.P[j, dr.P_S0]:g}): "
+            f"{drive_integrator.MAX_SUBSTEP_FACTOR * self.nsub} drive substeps, "
+            f"gear.sigma0 = {self.P[j, dr.P_S0]:g}): "
             "take a smaller step (settings.step) or a softer gear.sigma0"
         )
 

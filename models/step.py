@@ -12,9 +12,10 @@ import numpy as np
 from numba import njit
 
 from . import drive as dr
+from . import references
 from .chain_dynamics import chain_state, gravity_torques
 from .chain_kinematics import spd_inverse
-from .drive import drive_step
+from .drive_integrator import drive_step
 from .jit import CACHE as _CACHE
 from .jit import FAST as _FAST
 from .opspace import control_update
@@ -132,15 +133,15 @@ def gravity_feedforward(P, seg, hold, tab, jmode, live, pre_R, pre_p, masses, co
     n = live.shape[0]
     cascade = False
     for j in range(n):
-        cascade = cascade or live[j, dr.LV_EXTERNAL] <= 0.5
+        cascade = cascade or live[j, references.LV_EXTERNAL] <= 0.5
     if not cascade or (gravity[0] == 0.0 and gravity[1] == 0.0 and gravity[2] == 0.0):
         for j in range(n):
-            live[j, dr.LV_GRAVITY] = 0.0
+            live[j, references.LV_GRAVITY] = 0.0
         return
     refs = np.empty((3, n))
     qr, qdr, g = refs[0], refs[1], refs[2]
-    dr.ref_eval(seg, hold, tab, jmode, live, t, qr, qdr)
+    references.ref_eval(seg, hold, tab, jmode, live, t, qr, qdr)
     gravity_torques(pre_R, pre_p, masses, coms, inertias, gravity, qr, g)
     for j in range(n):
         holding = g[j] / P[j, dr.P_N] * dr.resting_gear_factor(P[j, dr.P_ETA])
-        live[j, dr.LV_GRAVITY] = P[j, dr.P_FFG] * holding / P[j, dr.P_KT]
+        live[j, references.LV_GRAVITY] = P[j, dr.P_FFG] * holding / P[j, dr.P_KT]

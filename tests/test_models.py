@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from simecs.mesh.columns import GRASPED_FRAME, POSE_FIELDS, pose_column
 from simecs.mesh.kinematics import link_poses
-from simecs.models import ParameterError, SimulationError, chain_dynamics, get_model, list_models
+from simecs.models import ParameterError, SimulationError, chain_dynamics, get_model, list_models, references
 from simecs.models import drive as dr
 
 Q0 = [0.3, -0.4, 0.5, 1.1, -0.6, 0.7, -0.2]
@@ -503,7 +503,7 @@ def test_each_ripple_source_at_its_own_harmonic(spider, source, harmonic):
     for te in np.arange(turns) * 2 * math.pi / turns:
         X = np.zeros((P.shape[0], dr.NL))
         X[j, dr.S_TH] = te / p
-        dr.joint_signals(P, j, X, 0.0, 0.0, amps, 0.0, dr.JM_CURRENT, 0.0, out)
+        dr.joint_signals(P, j, X, 0.0, 0.0, amps, 0.0, references.JM_CURRENT, 0.0, out)
         torque.append(out[10])
     spectrum = np.abs(np.fft.rfft(torque)) / turns * 2
     mean = np.mean(torque)
