@@ -1,7 +1,7 @@
 """A robot command of any level (paper §2.1) turned into what the drives follow, checked before a run.
 
-A joint path stays a table of trapezoid segments (drive.traj_eval, exact). Every other level becomes a
-sampled reference table (drive.ref_eval, linear between rows): a Cartesian `lin` move is planned in
+A joint path stays a table of trapezoid segments (references.traj_eval, exact). Every other level becomes a
+sampled reference table (references.ref_eval, linear between rows): a Cartesian `lin` move is planned in
 geometry first and in time second. Its joint solutions are found along the line at a spacing its
 accuracy needs (ArmKinematics.walk_line: a cubic Hermite curve through them stays within
 LIN_TOLERANCE of the line), whatever its speed; then a path-velocity profile moves along that curve
@@ -46,8 +46,7 @@ from .line_walk import LINE_JUMP, LINE_KNOTS, LINE_SINGULAR, LineWalk
 from .mechanics import chain_arrays
 from .path_checks import PathChecks
 from .plan import Plan, PlanStep, World, floats
-from .reference_rows import LIN_TOLERANCE, PROFILE_LAG, line_rows, trapezoid_times
-from .trapezoid import trapezoid_samples
+from .reference_rows import LIN_TOLERANCE, PROFILE_LAG, ReferenceTable, line_rows
 
 #: Smallest singular value of the 6 x n tool Jacobian a `lin` move may pass through.
 SINGULAR_SIGMA = 1e-3
@@ -64,61 +63,6 @@ TOOL_PATH_POINTS = 1000
 
 def _where(path: str, sub: str) -> str:
     return f"{path}.{sub}" if path else sub
-
-
-class _Reference:
-    """A reference table being built move by move: rows [t, q, qd], the set point moving on, and the
-    world the arm moves in (objects grasped and released on the way)."""
-
-    def __init__(self, q0: np.ndarray, max_rows: int, obstacles: Sequence[Obstacle], reach: float) -> None:
-        """`reach`: the farthest a point of the arm is from its base (how far a joint turn moves it)."""
-        self.n = q0.shape[0]
-        self.reach = reach
-        self.t = 0.0
-        self.q = q0.copy()
-        self.max_rows = max_rows
-        self.blocks: list[np.ndarray] = [np.concatenate([[0.0], q0, np.zeros(self.n)])[None, :]]
-        self.rows = 1
-        self.events: list[tuple[float, dict[str, float]]] = []
-        self.grasps: list[tuple[float, str]] = []
-        self.worlds = [World(0.0, list(obstacles))]
-
-    @property
-    def world(self) -> World:
-        return self.worlds[-1]
-
-    def add(self, path: str, times: np.ndarray, qs: np.ndarray, qds: np.ndarray) -> None:
-        """Rows at times after the current end (the first sample, the current one, is left out)."""
-        block = np.column_stack([self.t + times[1:], qs[1:], qds[1:]])
-        self.rows += block.shape[0]
-        if self.rows > self.max_rows:
-            raise CommandError(
-                path,
-                f"the command expands to more than {self.max_rows:,} reference samples "
-                f"(reference_samples): split it or make its moves shorter",
-            )
-        self.blocks.append(block)
-        self.t += float(times[-1])
-        self.q = qs[-1].copy()
-
-    def joint_move(self, path: str, dest: np.ndarray, vmax: np.ndarray, amax: np.ndarray) -> None:
-        row = references.plan_segment(self.q, dest, vmax, amax, 0.0)
-        T, ta = float(row[1]), float(row[2])
-        if T <= 0.0:
-            return
-        times = trapezoid_times(T, ta, self.reach * float(np.sum(np.abs(dest - self.q))))
-        s, sd = trapezoid_samples(T, ta, times)
-        dq = dest - self.q
-        self.add(path, times, self.q + s[:, None] * dq, sd[:, None] * dq)
-        self.q = dest.copy()
-
-    def hold(self, path: str, duration: float) -> None:
-        if duration > 0.0:
-            qs = np.vstack([self.q, self.q])
-            self.add(path, np.array([0.0, duration]), qs, np.zeros_like(qs))
-
-    def table(self) -> np.ndarray:
-        return np.vstack(self.blocks)
 
 
 class Planner:
@@ -178,7 +122,7 @@ class Planner:
             return self._joint_path(command)
         if isinstance(command, m.DirectInput):
             return self._direct_input(command)
-        ref = _Reference(self.q0, self.max_rows, self.obstacles, self.kin.reach)
+        ref = ReferenceTable(self.q0, self.max_rows, self.obstacles, self.kin.reach)
         steps: list[PlanStep] = []
         forces = []
         if isinstance(command, m.CartesianPath):
@@ -284,7 +228,9 @@ class Planner:
             raise CommandError(exc.field, exc.problem) from None
         return np.asarray(q, dtype=float)
 
-    def _ptp(self, ref: _Reference, path: str, p1: np.ndarray, R1: np.ndarray, sp: float, ac: float) -> None:
+    def _ptp(
+        self, ref: ReferenceTable, path: str, p1: np.ndarray, R1: np.ndarray, sp: float, ac: float
+    ) -> None:
         self._within_reach(path, p1)
         res = self.kin.solve_near(p1, R1, ref.q)
         if not res.ok:
@@ -316,7 +262,9 @@ class Planner:
             f"position {_fmt(p)} m, rpy {_fmt(rpy_of(R))} rad",
         )
 
-    def _lin(self, ref: _Reference, path: str, p1: np.ndarray, R1: np.ndarray, sp: float, ac: float) -> float:
+    def _lin(
+        self, ref: ReferenceTable, path: str, p1: np.ndarray, R1: np.ndarray, sp: float, ac: float
+    ) -> float:
         """A straight line in position, slerp in orientation: planned in geometry (the joint solutions
         along it, ArmKinematics.walk_line, each nearest the one before, so among the Spider's postures
         for a pose the one closest to where the arm just was), then in time (_line_rows). Returns how
@@ -427,7 +375,7 @@ class Planner:
         ]
 
     # ---- actions ----
-    def _action(self, ref: _Reference, act: m.Action, path: str, task: str) -> PlanStep:
+    def _action(self, ref: ReferenceTable, act: m.Action, path: str, task: str) -> PlanStep:
         args = self._args(act, _where(path, "args"))
         t0 = ref.t
         sp = float(args.get("speed_pct", 100.0))
@@ -474,7 +422,7 @@ class Planner:
         chain_frames(self._arrays.pre_R, self._arrays.pre_p, q, R_all, p_all)
         return R_all[-1], p_all[-1]
 
-    def _grasp(self, ref: _Reference, name: str, where: str) -> None:
+    def _grasp(self, ref: ReferenceTable, name: str, where: str) -> None:
         world = ref.world
         index = next((k for k, ob in enumerate(world.obstacles) if ob.name == name), -1)
         if index < 0:
@@ -491,7 +439,7 @@ class Planner:
         ref.grasps.append((ref.t, name))
         ref.worlds.append(World(ref.t, world.obstacles, grasp.take(index, ob, R, p)))
 
-    def _release(self, ref: _Reference, where: str) -> None:
+    def _release(self, ref: ReferenceTable, where: str) -> None:
         world = ref.world
         if world.held is None:
             raise CommandError(where, "the tool holds nothing to release (grasp comes first)")

@@ -1,25 +1,32 @@
-"""A motion as the rows of a sampled reference table (drive.ref_eval interpolates linearly between
+"""A motion as the rows of a sampled reference table (references.ref_eval interpolates linearly between
 them), spaced by accuracy rather than by time: a joint trapezoid sampled where it curves, and a
 Cartesian `lin` move timed by a path-velocity profile along its joint curve (the fastest that keeps
-the Cartesian maxima and every joint's speed and acceleration limits; planner.py walks the curve).
+the Cartesian maxima and every joint's speed and acceleration limits; planner.py walks the curve);
+and `ReferenceTable`, the table a command's moves are appended to, with the world they happen in.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import numpy as np
 from numba import njit
+from simecs.mesh.environment import Obstacle
 
+from . import references
+from .errors import CommandError
 from .jit import CACHE as _CACHE
 from .jit import FAST as _FAST
 from .line_walk import LineWalk
+from .plan import World
+from .trapezoid import trapezoid_samples
 
 #: s: the closest two rows of a sampled reference may be (where a move curves fast; slow or straight
 #: stretches take fewer rows, spaced by accuracy).
 REFERENCE_PERIOD = 1e-3
 #: Largest distance (m) and angle (rad) between the planned pose of a `lin` move and its line, at any
-#: row of the reference and between two rows (the linear interpolation of drive.ref_eval).
+#: row of the reference and between two rows (the linear interpolation of references.ref_eval).
 LIN_TOLERANCE = 1e-6
 #: How far (m, or rad) along its path a sampled reference's linear interpolation may lag or lead its
 #: speed profile where that accelerates: a timing error, not a path error (it sets how many rows an
@@ -56,7 +63,7 @@ def line_rows(
 
     The grid cuts each knot segment so that the joint-space chord of a piece stays within half
     LIN_TOLERANCE of the curve (its error falls with the square of its length), the curve being within
-    the other half of the line: the rows drive.ref_eval interpolates linearly. `along` (line
+    the other half of the line: the rows references.ref_eval interpolates linearly. `along` (line
     parameter) bounds how far that interpolation may lag the profile where it accelerates."""
     ta = min(vs / as_, math.sqrt(1.0 / as_))
     asked = max(ta, 1.0 / vs, 1.0 / (as_ * ta)) + ta
@@ -259,3 +266,58 @@ def _profile_rows(S, Q, D, grid, u, lower, upper, vmax, along, period):
             if r > 0:
                 over = max(over, abs(qs[r, j] - qs[r - 1, j]) / (t[r] - t[r - 1]) / vmax[j])
     return tab, over
+
+
+class ReferenceTable:
+    """A reference table being built move by move: rows [t, q, qd], the set point moving on, and the
+    world the arm moves in (objects grasped and released on the way)."""
+
+    def __init__(self, q0: np.ndarray, max_rows: int, obstacles: Sequence[Obstacle], reach: float) -> None:
+        """`reach`: the farthest a point of the arm is from its base (how far a joint turn moves it)."""
+        self.n = q0.shape[0]
+        self.reach = reach
+        self.t = 0.0
+        self.q = q0.copy()
+        self.max_rows = max_rows
+        self.blocks: list[np.ndarray] = [np.concatenate([[0.0], q0, np.zeros(self.n)])[None, :]]
+        self.rows = 1
+        self.events: list[tuple[float, dict[str, float]]] = []
+        self.grasps: list[tuple[float, str]] = []
+        self.worlds = [World(0.0, list(obstacles))]
+
+    @property
+    def world(self) -> World:
+        return self.worlds[-1]
+
+    def add(self, path: str, times: np.ndarray, qs: np.ndarray, qds: np.ndarray) -> None:
+        """Rows at times after the current end (the first sample, the current one, is left out)."""
+        block = np.column_stack([self.t + times[1:], qs[1:], qds[1:]])
+        self.rows += block.shape[0]
+        if self.rows > self.max_rows:
+            raise CommandError(
+                path,
+                f"the command expands to more than {self.max_rows:,} reference samples "
+                f"(reference_samples): split it or make its moves shorter",
+            )
+        self.blocks.append(block)
+        self.t += float(times[-1])
+        self.q = qs[-1].copy()
+
+    def joint_move(self, path: str, dest: np.ndarray, vmax: np.ndarray, amax: np.ndarray) -> None:
+        row = references.plan_segment(self.q, dest, vmax, amax, 0.0)
+        T, ta = float(row[1]), float(row[2])
+        if T <= 0.0:
+            return
+        times = trapezoid_times(T, ta, self.reach * float(np.sum(np.abs(dest - self.q))))
+        s, sd = trapezoid_samples(T, ta, times)
+        dq = dest - self.q
+        self.add(path, times, self.q + s[:, None] * dq, sd[:, None] * dq)
+        self.q = dest.copy()
+
+    def hold(self, path: str, duration: float) -> None:
+        if duration > 0.0:
+            qs = np.vstack([self.q, self.q])
+            self.add(path, np.array([0.0, duration]), qs, np.zeros_like(qs))
+
+    def table(self) -> np.ndarray:
+        return np.vstack(self.blocks)
