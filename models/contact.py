@@ -6,7 +6,7 @@ pulling) and rubs it with Coulomb friction, regularised to a viscous law below a
 (sticking, without a state).
 Forces act at the sphere centres; their joint torques are J^T F.
 
-The step is that of the drives (drive.drive_step): at the step start every sphere near an obstacle
+The step is that of the drives (drive_integrator.drive_step): at the step start every sphere near an obstacle
 becomes a *pair*, with its centre and its Jacobian; within the step the drive substeps move it with
 the predicted joint motion (c = c0 + J (q - q0)), so the contact is integrated at the substep, as stiff
 as the gear, and the chain receives the step's mean torque. The substeps follow the stiffest pair
@@ -345,7 +345,8 @@ def _link_outputs(spheres, bound, obs, caps, R_all, p_all, qd, near, weight, bes
 @njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
 def contact_prestep(pre_R, pre_p, masses, coms, inertias, gravity, tables, q, qd, h, nsub, tau_out):
     """The step's mean contact torque into tau_out when the drives are off (nothing else acts on the
-    joints): the load side predicted over RK4 substeps as in drive.drive_step. `tables`: as there."""
+    joints): the load side predicted over RK4 substeps as in drive_integrator.drive_step. `tables`:
+    as there."""
     spheres, bounds, obs, pairs, caps, _cw, scratch = tables
     n = q.shape[0]
     R_all, p_all, M, bias = chain_state(pre_R, pre_p, masses, coms, inertias, gravity, q, qd)

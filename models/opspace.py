@@ -365,7 +365,7 @@ def control_update(
     i_ref,
 ):
     """One control period from t: the set points now and at the next period's start t_next (on the
-    step grid: its t then, to the bit) (drive.ref_eval), the current set points into i_ref and
+    step grid: its t then, to the bit) (references.ref_eval), the current set points into i_ref and
     live[:, LV_IREF] (held until the next period). True when one saturated.
     R_all, p_all, M, bias: the chain's joint frames, mass matrix and bias forces at the true q, qd
     (step.py); the controller sees them through its load resolvers.

@@ -53,7 +53,7 @@ class Plan:
     steps: list[PlanStep]
     final_q: np.ndarray
     joint_nodes: list[tuple[np.ndarray, float, float]] | None = None
-    segments: np.ndarray | None = None  # joint paths: the trapezoid rows of drive.plan_segment
+    segments: np.ndarray | None = None  # joint paths: the trapezoid rows of references.plan_segment
     forces: np.ndarray = field(default_factory=lambda: np.zeros((0, 5)))  # opspace.FP_* rows
     tab: np.ndarray | None = None
     jmode: np.ndarray | None = None

@@ -2,7 +2,7 @@
 
 The row layout is the protocol's (simecs.mesh.hil.SENSOR_FIELDS): the time, then per joint the load
 and motor resolvers (angle and speed, with their modelled errors), the two measured phase currents,
-the command's set points at that time (jog included) and the joint's command mode (drive.JM_*).
+the command's set points at that time (jog included) and the joint's command mode (references.JM_*).
 """
 
 from __future__ import annotations

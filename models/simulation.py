@@ -59,7 +59,7 @@ class Simulation:
         self.tab = np.zeros((0, 1 + 2 * self.n))  # a sampled reference (planner.py), when not a joint path
         self.jmode = np.zeros(self.n, dtype=np.int64)
         self.forces = np.zeros((0, 5))  # the hybrid controller's force profile (opspace.FP_*)
-        #: Live inputs per joint (drive.LV_*): the jog, superposed on the reference, and the current set
+        #: Live inputs per joint (references.LV_*): the jog, superposed on the reference, and the current set
         #: points of an external controller for the joints it drives.
         self.live = np.zeros((self.n, references.NLIVE))
         self._external = np.zeros(self.n, dtype=bool)  # the joints an external controller drives
@@ -235,8 +235,8 @@ class Simulation:
         events: Sequence[tuple[float, Mapping[str, float]]] = (),
         grasps: Sequence[tuple[float, str]] = (),
     ) -> None:
-        """The next run follows a sampled reference (rows [t, r, rd], drive.ref_eval) with each joint in
-        its mode (drive.JM_*), applies `events` (parameter changes, e.g. a payload) at their times and
+        """The next run follows a sampled reference (rows [t, r, rd], references.ref_eval) with each joint in
+        its mode (references.JM_*), applies `events` (parameter changes, e.g. a payload) at their times and
         takes (a name) or releases ('') an obstacle at the times of `grasps`. The planner (planner.py)
         makes these from a robot command; it has checked them."""
         tab = np.ascontiguousarray(tab, dtype=float)
@@ -459,7 +459,7 @@ class Simulation:
         return OpspaceController(self.values, self.n, k, h, self.forces if pushing else np.zeros((0, 5)))
 
     def _command_state(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """What every kernel reads the set points from (drive.ref_eval): drive parameters, joint-path
+        """What every kernel reads the set points from (references.ref_eval): drive parameters, joint-path
         segments, held positions, sampled reference, joint modes, live inputs."""
         return self.P, self.seg, self.hold, self.tab, self.jmode, self.live
 

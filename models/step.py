@@ -59,7 +59,7 @@ def chain_step(
 ):
     """The step from t to t + h at the chain state q, qd: when `control_due`, the operational-space
     controller's period first (opspace.control_update: gains, period, forces, f_tool, integ, memo,
-    i_ref are its own), then the drives over the step (drive.drive_step, whose status this returns:
+    i_ref are its own), then the drives over the step (drive_integrator.drive_step, whose status this returns:
     STEP_*)."""
     R_all, p_all, M, bias = chain_state(pre_R, pre_p, masses, coms, inertias, gravity, q, qd)
     Minv = spd_inverse(M)

@@ -1,5 +1,5 @@
 """The trapezoidal speed profile of a joint-path segment: the drives' set points follow it in the run
-(drive.traj_eval) and the planner samples it (the path check, the preview), so both use this one."""
+(references.traj_eval) and the planner samples it (the path check, the preview), so both use this one."""
 
 from __future__ import annotations
 

@@ -81,7 +81,7 @@ def test_a_line_too_fast_for_a_joint_is_time_scaled_to_the_joint_limits() -> Non
     assert np.max(speed) > 0.95  # slowed no more than the binding joint needs
     acc = np.abs(np.diff(qd, axis=0)) / np.diff(t)[:, None]
     assert np.all(acc <= p.amax * 1.02), np.max(acc / p.amax, axis=0)
-    # Still the same straight line, at every row and between rows (drive.ref_eval is linear).
+    # Still the same straight line, at every row and between rows (references.ref_eval is linear).
     p0, R0 = p.kin.tool_pose(p.q0)
     p1 = p0 + TEACH_LINE
     worst = max(off_line(p.kin, qk, p0, p1, R0) for qk in q)

@@ -1,7 +1,7 @@
 """The compiled kernels free every array they make, whatever path a step takes.
 
 A step runs a dozen kernels that make scratch arrays, and the drives' hot loop is compiled without
-numba's reference counting (drive.rk4_substeps; numba refuses to compile an allocation there). An
+numba's reference counting (drive_integrator.rk4_substeps; numba refuses to compile an allocation there). An
 array that one of them failed to free would leak at every step, silently, until a long real-time run
 filled its host's memory. numba's allocation counters see it at once: over a stretch of steps every
 allocation of the compiled code is freed again, for each path a step can take (the drives alone, the
