@@ -207,9 +207,14 @@ class ServiceKeeper:
             if all(name in procs and procs[name].poll() is None for name in SERVICE_NODES):
                 return self.service
             self.service.mesh.close()
+        self.service = None
         mesh = LocalMesh()
-        mesh.start_hub()
-        self.service = start_service(mesh)
+        try:
+            mesh.start_hub()
+            self.service = start_service(mesh)
+        except BaseException:
+            mesh.close()  # a node that never came up: stop the others, or they outlive the tests
+            raise
         return self.service
 
     def close(self) -> None:
