@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import struct
 import zlib
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Mapping
 from typing import IO
 
 import numpy as np
@@ -26,6 +26,7 @@ MAGIC = b"\x89MCAP0\r\n"
 _RECORD_HEAD = struct.Struct("<BQ")  # opcode, content length
 _MESSAGE_HEAD = struct.Struct("<BQHIQQ")  # opcode, length, channel id, sequence, log time, publish time
 _MESSAGE_FIXED = 22  # channel id, sequence, log time, publish time
+_INDEX_ENTRY = struct.Struct("<QQ")  # a message index entry: log time, offset in the chunk
 
 
 def _string(text: str) -> bytes:
@@ -71,7 +72,7 @@ class McapRecords:
         self._chunk_messages = 0
         self._chunk_start = 0
         self._chunk_end = 0
-        self._chunk_index: dict[int, list[int]] = {}  # channel -> [log time, offset, ...] in the chunk
+        self._chunk_index: dict[int, bytearray] = {}  # channel -> its message index entries in the chunk
         self._chunk_indexes: list[bytes] = []
         self._attachment_indexes: list[bytes] = []
         self._metadata_indexes: list[bytes] = []
@@ -125,26 +126,15 @@ class McapRecords:
     def add_message(
         self, channel_id: int, log_time: int, data: bytes, publish_time: int, sequence: int = 0
     ) -> None:
-        index = self._chunk_index.setdefault(channel_id, [])
-        index += (log_time, len(self._chunk))
+        self._chunk_index.setdefault(channel_id, bytearray()).extend(
+            _INDEX_ENTRY.pack(log_time, len(self._chunk))
+        )
         self._chunk += _MESSAGE_HEAD.pack(
             Opcode.MESSAGE, _MESSAGE_FIXED + len(data), channel_id, sequence, log_time, publish_time
         )
         self._chunk += data
         self._counted(channel_id, 1, log_time, log_time)
         self._maybe_end_chunk()
-
-    def add_messages(
-        self,
-        channel_id: int,
-        log_times: Sequence[int],
-        payloads: Sequence[bytes],
-        publish_time: int,
-        sequence: int,
-    ) -> None:
-        """Messages of one channel, each with its log time, sharing a publish time and sequence."""
-        for log_time, data in zip(log_times, payloads, strict=True):
-            self.add_message(channel_id, log_time, data, publish_time, sequence)
 
     def add_records(self, channel_id: int, log_times: np.ndarray, records: np.ndarray) -> None:
         """Messages already laid out as whole Message records (one per element of `records`, a
@@ -154,9 +144,10 @@ class McapRecords:
             return
         base = len(self._chunk)
         size = records.dtype.itemsize
-        offsets = np.arange(base, base + n * size, size, dtype=np.uint64)
-        pairs = np.column_stack([np.asarray(log_times, dtype=np.uint64), offsets]).reshape(-1)
-        self._chunk_index.setdefault(channel_id, []).extend(pairs.tolist())
+        entries = np.empty((n, 2), dtype="<u8")
+        entries[:, 0] = log_times
+        entries[:, 1] = np.arange(base, base + n * size, size)
+        self._chunk_index.setdefault(channel_id, bytearray()).extend(entries.tobytes())
         self._chunk += records.tobytes()
         self._counted(channel_id, n, int(log_times.min()), int(log_times.max()))
         self._maybe_end_chunk()
@@ -179,9 +170,8 @@ class McapRecords:
         chunk_length = self._offset - chunk_start
         index_offsets: dict[int, int] = {}
         indexes_start = self._offset
-        for channel_id, flat in self._chunk_index.items():
+        for channel_id, entries in self._chunk_index.items():
             index_offsets[channel_id] = self._offset
-            entries = struct.pack(f"<{len(flat)}Q", *flat)
             self._write(record(Opcode.MESSAGE_INDEX, struct.pack("<HI", channel_id, len(entries)) + entries))
         self._chunk_indexes.append(
             record(

@@ -201,13 +201,11 @@ class RunWriter:
                 for k, i in enumerate(pick):
                     ts = ts_json(log_ns[i])
                     if pv is not None and (finite or all(map(math.isfinite, pv[k]))):
-                        w.add_messages(
-                            self.ch_tf, [log_ns[i]], [self.poses.encode(pv[k], ts)], frame.wall_ns, seq
-                        )
+                        w.add_message(self.ch_tf, log_ns[i], self.poses.encode(pv[k], ts), frame.wall_ns, seq)
                         written += 1
                     if jv is not None and (finite or all(map(math.isfinite, jv[k]))):
-                        w.add_messages(
-                            self.ch_joints, [log_ns[i]], [self.joints.encode(jv[k], ts)], frame.wall_ns, seq
+                        w.add_message(
+                            self.ch_joints, log_ns[i], self.joints.encode(jv[k], ts), frame.wall_ns, seq
                         )
                         written += 1
                 if finite:
