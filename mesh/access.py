@@ -21,7 +21,7 @@ from __future__ import annotations
 
 from typing import Any, Literal
 
-from .keys import KEYS, NODE_TOKENS, ROOT, USERS, KeySpec, check_name, wildcard
+from .keys import KEYS, NODE_TOKENS, ROOT, RUN_TOKENS, USERS, KeySpec, check_name, wildcard
 
 Role = Literal["user", "watcher"]
 
@@ -126,7 +126,7 @@ def hub_access_control(users: dict[str, Role], service_user: str) -> dict[str, A
             "service_all",
             "ingress",
             ALL_MESSAGES,
-            [f"{ROOT}/**", f"{ROOT}/@node/**", f"{ROOT}/@run/**", f"{ROOT}/**/@adv/**"],
+            [f"{ROOT}/**", NODE_TOKENS, RUN_TOKENS, f"{ROOT}/**/@adv/**"],
         )
     ]
     rules[0]["flows"] = ["ingress", "egress"]

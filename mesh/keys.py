@@ -1,25 +1,18 @@
-"""Every zenoh key expression of the protocol: one table, and the builders and parsers made from it.
-
-`KEYS` says for each key its layout, how it is used (query, put, cached put, liveliness token), which
-role writes it (the querier of a query, the publisher of a put, the declarer of a token), which role
-answers a query, and what it carries. Builders and parsers read the layout from the table, so a key
-changes in one place; PROTOCOL.md §3 and docs/protocol.schema.json are generated from it, and a test
-forbids taking keys apart anywhere else.
+"""Building, checking and taking apart the protocol's keys, from their one table (`key_table.KEYS`,
+re-exported here with `KeySpec`): a key's layout changes in the table only, and a test forbids taking
+keys apart anywhere else.
 """
 
 from __future__ import annotations
 
 import re
 import secrets
-from dataclasses import dataclass
 
-from .limits import RUNS_KEPT
+from .key_table import KEYS, PLACEHOLDER, ROOT, KeySpec  # noqa: F401 (keys.KeySpec, keys.ROOT)
 from .primitives import NAME_PATTERN, SESSION_ID_PATTERN
 
-ROOT = "simecs"
 SESSION_ID_RE = re.compile(SESSION_ID_PATTERN)
 NAME_RE = re.compile(NAME_PATTERN)
-_PLACEHOLDER = re.compile(r"<(\w+)>")
 
 
 class KeyProblem(ValueError):
@@ -30,319 +23,14 @@ class KeyProblem(ValueError):
         super().__init__(problem)
 
 
-@dataclass(frozen=True, kw_only=True)
-class KeySpec:
-    """One key of the protocol.
+def _fixed_part(name: str) -> str:
+    """The layout of key `name` before its first chunk (`simecs/u` of `simecs/u/<user>/sessions`)."""
+    return KEYS[name].pattern.split("/<", 1)[0]
 
-    `writer` is the role that puts it, sends the query, or declares the token; `answerer` the role that
-    answers a query. Roles: client, proxy, simulator, worker (a simulator's run process), hotfeedback,
-    recorder, any node. `payload` and `reply` name what travels: a message type of mesh/messages.py or
-    mesh/model.py (replies are `Ok{data: <type>}` or an `Error`), `frame` (a binary frame, §6),
-    `mcap` (the bytes of an MCAP file), `glb` (binary glTF 2.0), `bundle` (a model directory as a
-    gzip-compressed tar, models/bundle.py), or `per command` (messages.REPLIES);
-    `|` separates choices.
-    """
-
-    name: str
-    pattern: str
-    kind: str  # query | put | cached put | token
-    writer: str
-    answerer: str = ""
-    payload: str = ""
-    reply: str = ""
-    meaning: str
-    #: A query without payload that still changes something (a watcher may not send it).
-    changes: bool = False
-
-    @property
-    def chunks(self) -> list[str]:
-        return _PLACEHOLDER.findall(self.pattern)
-
-
-_TABLE = (
-    # -- server-wide ----------------------------------------------------------------------------------
-    KeySpec(
-        name="library",
-        pattern="simecs/library",
-        kind="query",
-        writer="client",
-        answerer="proxy",
-        reply="ModelList",
-        meaning="the model library",
-    ),
-    KeySpec(
-        name="model",
-        pattern="simecs/library/<model>",
-        kind="query",
-        writer="client",
-        answerer="proxy",
-        reply="ModelDescription",
-        meaning="everything a client needs to show, animate, parametrise and command a model",
-    ),
-    KeySpec(
-        name="doc",
-        pattern="simecs/library/<model>/doc/<page>",
-        kind="query",
-        writer="client",
-        answerer="proxy",
-        reply="DocPage",
-        meaning="one page of the model's hypertext documentation",
-    ),
-    KeySpec(
-        name="model_mesh",
-        pattern="simecs/library/<model>/mesh/<mesh>",
-        kind="query",
-        writer="client",
-        answerer="proxy",
-        reply="glb",
-        meaning="the triangle mesh a `mesh` shape of the model names, as binary glTF 2.0 (binary reply; "
-        "colours as face colours; decimated toward 4000 triangles), for drawing",
-    ),
-    KeySpec(
-        name="sessions",
-        pattern="simecs/u/<user>/sessions",
-        kind="query",
-        writer="client",
-        answerer="proxy",
-        payload="SessionRequest",
-        reply="per command",
-        meaning="create a session of <user>, or list <user>'s sessions",
-    ),
-    KeySpec(
-        name="recordings",
-        pattern="simecs/u/<user>/recordings",
-        kind="query",
-        writer="client",
-        answerer="recorder",
-        reply="RecordingList",
-        meaning="<user>'s recordings kept on the server, newest first",
-    ),
-    KeySpec(
-        name="recording",
-        pattern="simecs/u/<user>/recordings/<name>",
-        kind="query",
-        writer="client",
-        answerer="recorder",
-        payload="mcap",
-        reply="mcap | RecordingInfo",
-        meaning="without payload: download the recording (binary reply, attachment RecordingInfo; one still "
-        "being written is answered when its run ends, after at most 3 s, else `conflict`); with an "
-        "MCAP file as payload: upload it under <name> (reply RecordingInfo)",
-    ),
-    KeySpec(
-        name="recording_info",
-        pattern="simecs/u/<user>/recordings/<name>/info",
-        kind="query",
-        writer="client",
-        answerer="recorder",
-        reply="RecordingInfo",
-        meaning="what one recording holds",
-    ),
-    KeySpec(
-        name="recording_results",
-        pattern="simecs/u/<user>/recordings/<name>/results",
-        kind="query",
-        writer="client",
-        answerer="recorder",
-        reply="frame",
-        meaning="the recorded run's samples, as a run's results (§6.2: the same selector, binary reply, "
-        "attachment ResultsAttachment): runs compared without replaying them",
-    ),
-    KeySpec(
-        name="recording_delete",
-        pattern="simecs/u/<user>/recordings/<name>/delete",
-        kind="query",
-        writer="client",
-        answerer="recorder",
-        reply="RecordingInfo",
-        meaning="delete one recording (not while its run is being recorded); the reply says what it was",
-        changes=True,
-    ),
-    KeySpec(
-        name="simulator_run",
-        pattern="simecs/simulators/<node>/run",
-        kind="query",
-        writer="proxy",
-        answerer="simulator",
-        payload="RunRequest",
-        reply="Accepted",
-        meaning="hand one run to a simulator host, which starts it in a worker process",
-    ),
-    KeySpec(
-        name="simulator_model",
-        pattern="simecs/simulators/<node>/models/<model>",
-        kind="query",
-        writer="proxy",
-        answerer="simulator",
-        reply="bundle",
-        meaning="a model the host offers (its status lists it), as a bundle of its model directory: how a "
-        "host's own model reaches the proxy's library",
-    ),
-    KeySpec(
-        name="node_status",
-        pattern="simecs/nodes/<role>/<node>/status",
-        kind="cached put",
-        writer="any node",
-        payload="NodeStatus",
-        meaning="a node's state and figures: on start, on change (at most 5 per s), every 5 s",
-    ),
-    # -- per session ----------------------------------------------------------------------------------
-    KeySpec(
-        name="cmd",
-        pattern="simecs/u/<user>/sessions/<session>/cmd",
-        kind="query",
-        writer="client",
-        answerer="proxy",
-        payload="SessionCommand",
-        reply="per command",
-        meaning="every change to a session, and its runs (§5.2)",
-    ),
-    KeySpec(
-        name="params",
-        pattern="simecs/u/<user>/sessions/<session>/params",
-        kind="cached put",
-        writer="proxy",
-        payload="ParamValues",
-        meaning="every parameter value, after each change",
-    ),
-    KeySpec(
-        name="obstacles",
-        pattern="simecs/u/<user>/sessions/<session>/obstacles",
-        kind="cached put",
-        writer="proxy",
-        payload="ObstacleValues",
-        meaning="the session's obstacles, after each set_obstacles (what every client of it draws)",
-    ),
-    KeySpec(
-        name="command",
-        pattern="simecs/u/<user>/sessions/<session>/command",
-        kind="cached put",
-        writer="proxy",
-        payload="CommandValue",
-        meaning="the session's command and its plan, after each set_command (what every client's pendants "
-        "show)",
-    ),
-    KeySpec(
-        name="state",
-        pattern="simecs/u/<user>/sessions/<session>/state",
-        kind="cached put",
-        writer="proxy",
-        payload="SessionState",
-        meaning="lifecycle and progress (progress at most 5 per s, and on every phase or step change)",
-    ),
-    KeySpec(
-        name="control",
-        pattern="simecs/u/<user>/sessions/<session>/control",
-        kind="put",
-        writer="proxy",
-        payload="RunControl",
-        meaning="pause, resume, stop, abort or seek, to the worker of the session's run",
-    ),
-    KeySpec(
-        name="run_status",
-        pattern="simecs/u/<user>/sessions/<session>/run",
-        kind="put",
-        writer="worker",
-        payload="RunStatus",
-        meaning="a worker's report on its run (at most 5 per s, and at once on every phase or step change)",
-    ),
-    KeySpec(
-        name="layout",
-        pattern="simecs/u/<user>/sessions/<session>/vars/layout",
-        kind="cached put",
-        writer="worker",
-        payload="RunLayout",
-        meaning="what the frames of a run mean, once per run before its first frame; cached only while "
-        "the run's worker lives (a finished run's columns come with its results/<run>)",
-    ),
-    KeySpec(
-        name="vars_full",
-        pattern="simecs/u/<user>/sessions/<session>/vars/full",
-        kind="put",
-        writer="worker",
-        payload="frame",
-        meaning="every output sample, all columns",
-    ),
-    KeySpec(
-        name="vars_live",
-        pattern="simecs/u/<user>/sessions/<session>/vars/live",
-        kind="put",
-        writer="hotfeedback",
-        payload="frame",
-        meaning="the newest sample, live columns only, at most live_rate_hz per wall second",
-    ),
-    KeySpec(
-        name="results_list",
-        pattern="simecs/u/<user>/sessions/<session>/results",
-        kind="query",
-        writer="client",
-        answerer="proxy",
-        reply="RunList",
-        meaning=f"the runs the session keeps (the last {RUNS_KEPT}), oldest first",
-    ),
-    KeySpec(
-        name="results",
-        pattern="simecs/u/<user>/sessions/<session>/results/<run>",
-        kind="query",
-        writer="client",
-        answerer="simulator",
-        reply="frame",
-        meaning="full-resolution results of a run (§6.2), answered by the host that holds them (binary "
-        "reply, attachment ResultsAttachment); the proxy answers not_found for a run the session lacks",
-    ),
-    KeySpec(
-        name="notices",
-        pattern="simecs/u/<user>/sessions/<session>/notices",
-        kind="put",
-        writer="recorder, simulator",
-        payload="Notice",
-        meaning="something the user must know about a run; the proxy lists it in SessionState.warnings",
-    ),
-    KeySpec(
-        name="jog",
-        pattern="simecs/u/<user>/sessions/<session>/jog",
-        kind="put",
-        writer="client",
-        payload="JogInput",
-        meaning="live jogging of a running run: a velocity superposed on its command (§5.4, JogInput)",
-    ),
-    KeySpec(
-        name="hil_sensors",
-        pattern="simecs/u/<user>/sessions/<session>/hil/sensors",
-        kind="put",
-        writer="worker",
-        payload="frame",
-        meaning="controller external: the sensors at the start of each control period, one row (§6.3)",
-    ),
-    KeySpec(
-        name="hil_actuators",
-        pattern="simecs/u/<user>/sessions/<session>/hil/actuators",
-        kind="put",
-        writer="client",
-        payload="frame",
-        meaning="controller external: the current set points answering a sensor frame, same seq (§6.3)",
-    ),
-    # -- liveliness tokens: under '@' chunks, so `simecs/**` data subscribers never match them ----------
-    KeySpec(
-        name="node_token",
-        pattern="simecs/@node/<role>/<node>",
-        kind="token",
-        writer="any node",
-        meaning="the node is up and ready; its loss: stopped, crashed or cut off",
-    ),
-    KeySpec(
-        name="run_token",
-        pattern="simecs/@run/<user>/<session>/<run>",
-        kind="token",
-        writer="worker",
-        meaning="the worker of a run is alive; its loss fails the run within 1 s",
-    ),
-)
-KEYS: dict[str, KeySpec] = {k.name: k for k in _TABLE}
 
 # Wildcards used by nodes that serve or watch every user's sessions (and in PROTOCOL.md §3.4).
-LIBRARY = "simecs/library"
-USERS = "simecs/u"
+LIBRARY = KEYS["library"].pattern
+USERS = _fixed_part("sessions")
 
 
 def wildcard(name: str, **fixed: str) -> str:
@@ -350,12 +38,12 @@ def wildcard(name: str, **fixed: str) -> str:
     of a private mesh may watch): what serves or watches all of them."""
     for chunk, value in fixed.items():
         check_name(value, chunk)
-    return _PLACEHOLDER.sub(lambda mt: fixed.get(mt.group(1), "*"), KEYS[name].pattern)
+    return PLACEHOLDER.sub(lambda mt: fixed.get(mt.group(1), "*"), KEYS[name].pattern)
 
 
 NODES_STATUS = wildcard("node_status")
-NODE_TOKENS = f"{ROOT}/@node/**"
-RUN_TOKENS = f"{ROOT}/@run/**"
+NODE_TOKENS = _fixed_part("node_token") + "/**"
+RUN_TOKENS = _fixed_part("run_token") + "/**"
 #: The simulator hosts: their tokens (up = ready to take runs) and their statuses (their load).
 SIMULATOR_TOKENS = KEYS["node_token"].pattern.replace("<role>", "simulator").replace("<node>", "*")
 SIMULATOR_STATUS = KEYS["node_status"].pattern.replace("<role>", "simulator").replace("<node>", "*")
@@ -441,7 +129,7 @@ def build(key: str, /, **chunks: str) -> str:
     missing = set(spec.chunks) - set(chunks)
     if missing or set(chunks) - set(spec.chunks):
         raise TypeError(f"key {key} takes chunks {spec.chunks}, got {sorted(chunks)}")
-    return _PLACEHOLDER.sub(lambda m: _check(m.group(1), chunks[m.group(1)]), spec.pattern)
+    return PLACEHOLDER.sub(lambda m: _check(m.group(1), chunks[m.group(1)]), spec.pattern)
 
 
 def model(model_id: str) -> str:
@@ -596,7 +284,7 @@ def hil_actuators(user: str, session: str) -> str:
 
 # -- parsing ----------------------------------------------------------------------------------------
 _MATCHERS = {
-    name: re.compile("^" + _PLACEHOLDER.sub(r"(?P<\1>[^/]+)", spec.pattern) + "$")
+    name: re.compile("^" + PLACEHOLDER.sub(r"(?P<\1>[^/]+)", spec.pattern) + "$")
     for name, spec in KEYS.items()
 }
 
@@ -609,10 +297,16 @@ def parse(name: str, key: object) -> dict[str, str]:
     return {chunk: _check(chunk, value) for chunk, value in found.groupdict().items()}
 
 
+#: Any per-session key: the layout of `cmd` up to its session, then the rest.
+_PER_SESSION = re.compile(
+    "^" + PLACEHOLDER.sub(r"(?P<\1>[^/]+)", KEYS["cmd"].pattern.rsplit("/", 1)[0]) + "/"
+)
+
+
 def owner_of(key: object) -> tuple[str, str]:
     """(user, session) of any per-session key (`simecs/u/<user>/sessions/<session>/...`), each checked;
     KeyProblem if it is not one."""
-    parts = str(key).split("/", 5)
-    if len(parts) < 6 or parts[:2] != [ROOT, "u"] or parts[3] != "sessions":
+    found = _PER_SESSION.match(str(key))
+    if found is None:
         raise KeyProblem("session", f"key {str(key)!r:.80} is not a per-session key")
-    return _check("user", parts[2]), _check("session", parts[4])
+    return _check("user", found["user"]), _check("session", found["session"])

@@ -152,6 +152,12 @@ class ModelSummary(Record):
     ] = msgspec.field(default_factory=lambda: ["joint_independent"])
 
 
+class ModelList(Message, tag="models"):
+    """The model library (reply of `simecs/library`)."""
+
+    models: list[ModelSummary]
+
+
 class ModelDescription(Message, tag="model"):
     """Everything a client needs to show, animate, parametrise and command a model."""
 

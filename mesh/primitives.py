@@ -17,6 +17,8 @@ SESSION_ID_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9_-]{21}$"
 NAME_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,63}$"
 MAX_TEXT = 100_000
 MAX_NUMBERS = 100_000
+#: The protocol's version: every message that travels alone carries it as `v`.
+VERSION: Literal[1] = 1
 
 #: 1-64 letters, digits, '_', '-', '.', starting with a letter or digit (PROTOCOL.md calls it "name").
 Name = Annotated[str, Meta(pattern=NAME_PATTERN)]
@@ -42,4 +44,4 @@ class Record(Struct, forbid_unknown_fields=True):
 class Message(Record, kw_only=True, tag_field="type"):
     """A message that travels alone: told apart by `type`, versioned by `v` (required on the wire)."""
 
-    v: Literal[1] = 1
+    v: Literal[1] = VERSION

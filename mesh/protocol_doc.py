@@ -19,6 +19,12 @@ from typing import Any
 from . import keys, limits, phases
 from .primitives import NAME_PATTERN, SESSION_ID_PATTERN
 from .schema import protocol_schema, schema_text
+from .session_commands import SESSION_COMMANDS, SESSION_REQUESTS
+
+
+def _names(classes: list[Any]) -> list[str]:
+    return [c.__name__ for c in classes]
+
 
 #: Message tables, in the order the document explains them. Every $defs entry is in exactly one group.
 GROUPS: list[tuple[str, list[str]]] = [
@@ -30,22 +36,9 @@ GROUPS: list[tuple[str, list[str]]] = [
     ),
     (
         "commands",
-        ["SetParams", "ResetParams", "SetInitial", "SetCommand", "SetSettings", "SetObstacles", "Run"]
-        + ["Replay", "Continue", "Pause"]
-        + ["Resume", "Abort", "Stop", "Seek", "SaveParamSet", "LoadParamSet", "DeleteParamSet"]
-        + ["ListParamSets"]
-        + ["SaveProgram", "LoadProgram", "DeleteProgram", "ListPrograms", "ProgramEntry"]
-        + [
-            "GetSession",
-            "CloseSession",
-            "SessionCommand",
-            "RunSettings",
-            "RunStarted",
-            "CommandPlan",
-            "PlanStep",
-            "SignalPreview",
-            "PlannedMotion",
-        ],
+        _names(SESSION_COMMANDS)
+        + ["SessionCommand", "ProgramEntry", "RunSettings", "RunStarted", "CommandPlan", "PlanStep"]
+        + ["SignalPreview", "PlannedMotion"],
     ),
     (
         "robot_commands",
@@ -54,7 +47,8 @@ GROUPS: list[tuple[str, list[str]]] = [
     ),
     (
         "sessions",
-        ["CreateSession", "ListSessions", "SessionRequest", "SessionEntry", "SessionSnapshot", "SessionState"]
+        _names(SESSION_REQUESTS)
+        + ["SessionRequest", "SessionEntry", "SessionSnapshot", "SessionState"]
         + ["HilStats", "ParamValues", "ObstacleValues", "CommandValue", "RunInfo", "RunList", "Notice"],
     ),
     (

@@ -1,6 +1,6 @@
 """The protocol as one machine-readable schema: `docs/protocol.schema.json`, made from the Structs of
-messages.py and model.py, the key table of keys.py, the phase table of phases.py and the frame header
-of frames.py, so it can never say something the nodes do not do.
+messages.py and model.py, the key table of key_table.py, the phase table of phases.py, the commands of
+session_commands.py and the frame header of frames.py, so it can never say something the nodes do not do.
 
     python -m simecs.mesh.protocol_doc          # rewrite docs/protocol.schema.json and PROTOCOL.md's tables
     python -m simecs.mesh.protocol_doc --check  # exit 1 if either is out of date (the tests do the same)
@@ -16,7 +16,19 @@ from typing import Any
 
 import msgspec
 
-from . import frames, hil, keys, phases
+from . import (
+    frames,
+    hil,
+    keys,
+    node_messages,
+    phases,
+    plans,
+    replies,
+    run_messages,
+    run_settings,
+    session_commands,
+    session_state,
+)
 from . import messages as m
 from . import model as md
 from .robot_commands import ACTION_ARGS, ACTION_DOC, NAME_ARG
@@ -39,19 +51,22 @@ BINARY = {
     "bundle": "a model directory as a gzip-compressed tar (docs/MODELS.md, 'A host's own models')",
 }
 REF = "#/$defs/{name}"
+#: Base classes that are not messages of their own.
+_BASES = ("Command", "SessionCommandBase", "SessionRequestBase", "RobotCommandBase")
 
 
 def message_types() -> list[type]:
     """Every Struct of the protocol, in the order the modules define them."""
     out: list[type] = []
-    for module in (md, m):
+    modules = (md, replies, run_settings, session_commands, plans, session_state, run_messages, node_messages)
+    for module in modules:
         for obj in vars(module).values():
             ours = (
                 isinstance(obj, type)
                 and issubclass(obj, msgspec.Struct)
                 and obj.__module__ == module.__name__
             )
-            if ours and obj.__name__ not in ("Command", "RobotCommandBase") and obj not in out:
+            if ours and obj.__name__ not in _BASES and obj not in out:
                 out.append(obj)
     return out
 
@@ -143,16 +158,12 @@ def protocol_schema() -> dict[str, Any]:
         for k in keys.KEYS.values()
     ]
     commands = {
-        str(cls.__struct_config__.tag): {  # type: ignore[attr-defined]
+        str(cls.__struct_config__.tag): {
             "request": {"$ref": REF.format(name=cls.__name__)},
-            "reply": _ok(schema_of[repr(m.REPLIES[cls])]),
-            **(
-                {"allowed_in": list(phases.ALLOWED[cls.__struct_config__.tag][0])}  # type: ignore[attr-defined]
-                if cls.__struct_config__.tag in phases.ALLOWED  # type: ignore[attr-defined]
-                else {}
-            ),
+            "reply": _ok(schema_of[repr(cls.reply)]),
+            **({"allowed_in": list(cls.accepted_in)} if cls in session_commands.SESSION_COMMANDS else {}),
         }
-        for cls in m.REPLIES
+        for cls in (*session_commands.SESSION_COMMANDS, *session_commands.SESSION_REQUESTS)
     }
     return {
         "$schema": "https://json-schema.org/draft/2020-12/schema",

@@ -20,7 +20,7 @@ from typing import Any
 
 import msgspec
 import zenoh
-from simecs.mesh import files, keys, limits, phases
+from simecs.mesh import files, keys, limits, phases, session_commands
 from simecs.mesh import messages as m
 from simecs.mesh.client import MeshClient, NoReply, RemoteError
 from simecs.mesh.config import lossless_put
@@ -330,7 +330,7 @@ class Proxy(Node):
         with self.lock:
             rec = self.store.get(req.key)
             rec.active_at = time.time()
-            why = phases.refusal(cmd.op, rec.phase)
+            why = session_commands.refusal(cmd.op, rec.phase)
             if why:
                 raise RequestError("conflict", why)
             if isinstance(cmd, m.Replay):
@@ -346,7 +346,7 @@ class Proxy(Node):
         initial pose: refused here, naming its field, if the model cannot carry it out."""
         with self.lock:
             rec = self.store.get(key)
-            why = phases.refusal(cmd.op, rec.phase)
+            why = session_commands.refusal(cmd.op, rec.phase)
             if why:
                 raise RequestError("conflict", why)
             command = cmd.command if isinstance(cmd, m.SetCommand) else rec.command

@@ -9,7 +9,7 @@ import time
 
 import numpy as np
 import pytest
-from simecs.mesh import codec, frames, keys, phases
+from simecs.mesh import codec, frames, keys, session_commands
 from simecs.mesh import messages as m
 from simecs.mesh.client import RemoteError, SessionClient
 
@@ -138,7 +138,9 @@ def test_an_idle_arm_is_jogged_in_a_run_until_stopped_and_stop_finishes_it(servi
     assert err.value.code == "bad_request" and err.value.field == "command"
     with pytest.raises(RemoteError) as err:
         s.stop()
-    assert err.value.code == "conflict" and err.value.error.message == phases.refusal("stop", "configured")
+    assert err.value.code == "conflict" and err.value.error.message == session_commands.refusal(
+        "stop", "configured"
+    )
 
     full: list[frames.Frame] = []
     layouts: list[m.RunLayout] = []
@@ -200,7 +202,9 @@ def test_stop_finishes_a_timed_run_early_even_paused(service: Service) -> None:
     assert abs(rows[-1, 0] - info.sim_time) < 1e-6 and rows.shape[0] == info.samples
     with pytest.raises(RemoteError) as err:  # nothing runs any more
         s.stop()
-    assert err.value.code == "conflict" and err.value.error.message == phases.refusal("stop", "finished")
+    assert err.value.code == "conflict" and err.value.error.message == session_commands.refusal(
+        "stop", "finished"
+    )
 
 
 @pytest.mark.shares_service

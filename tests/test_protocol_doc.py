@@ -6,11 +6,12 @@ from __future__ import annotations
 import inspect
 import json
 import re
+import typing
 from pathlib import Path
 
 import jsonschema
 import pytest
-from simecs.mesh import codec, frames, keys, phases, protocol_doc, schema
+from simecs.mesh import codec, frames, keys, phases, protocol_doc, schema, session_commands
 from simecs.mesh import messages as m
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -87,12 +88,17 @@ def test_the_frame_header_table_is_the_struct() -> None:
 def test_phase_table_is_closed_and_every_command_has_its_phases() -> None:
     for event, moves in phases.TRANSITIONS.items():
         assert set(moves) <= set(phases.PHASES) and set(moves.values()) <= set(phases.PHASES), event
-    for cls in m.REPLIES:
-        op = cls.__struct_config__.tag
-        if cls not in (m.CreateSession, m.ListSessions):
-            assert op in phases.ALLOWED, f"command {op} has no phases in mesh/phases.py"
-    assert phases.refusal("pause", "finished") == "nothing to pause: the session is finished"
-    assert phases.refusal("run", "created") == ""
+    for cls in session_commands.SESSION_COMMANDS:
+        assert cls.accepted_in and set(cls.accepted_in) <= set(phases.PHASES), cls.__name__
+        assert cls in m.REPLIES and m.REPLIES[cls] is cls.reply, cls.__name__
+    # every command on the cmd key, and only those, is in the union the proxy decodes
+    union = set(typing.get_args(m.SessionCommand))
+    assert union == set(session_commands.SESSION_COMMANDS) and len(union) == len(m.REPLIES) - 2
+    assert session_commands.refusal("pause", "finished") == "nothing to pause: the session is finished"
+    assert session_commands.refusal("run", "created") == ""
+    assert (
+        session_commands.refusal("save_param_set", "closed") == "save_param_set is not possible while closed"
+    )
 
 
 def validator(name: str) -> jsonschema.Draft202012Validator:

@@ -19,7 +19,7 @@ import msgspec
 import numpy as np
 import pytest
 from simecs.benchmarks.viewer import viewer_latency
-from simecs.mesh import codec, columns, frames, keys, phases, shapes, table_csv
+from simecs.mesh import codec, columns, frames, keys, session_commands, shapes, table_csv
 from simecs.mesh import messages as m
 from simecs.mesh.client import NoReply, RemoteError
 from simecs.mesh.codec import DecodeError
@@ -1460,7 +1460,7 @@ def test_run_buttons_are_refused_locally_with_the_phase_table(phase: str, op: st
     ctl.control.run_action(op)
     ctl.drain()
     note = got.of(events.Notice)[-1]
-    assert note.body == phases.refusal(op, phase) and note.kind == "warning"
+    assert note.body == session_commands.refusal(op, phase) and note.kind == "warning"
     assert len(sc.sent) == sent
 
 
@@ -1540,7 +1540,9 @@ def test_a_refused_parameter_comes_back_to_the_server_value() -> None:
     sent = len(sc.sent)
     ctl.edits.set_param("link2.mass", 5.0)
     ctl.drain()
-    assert len(sc.sent) == sent and got.of(events.Notice)[-1].body == phases.refusal("set_params", "running")
+    assert len(sc.sent) == sent and got.of(events.Notice)[-1].body == session_commands.refusal(
+        "set_params", "running"
+    )
     sc.watched["on_params"](m.ParamValues(sc.id, "arm3", {**ctl.values, "link2.mass": 7.0}))
     assert got.of(events.ValuesChanged)[-1].values["link2.mass"] == 7.0
 

@@ -8,7 +8,7 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 from typing import Any
 
-from simecs.mesh import codec, phases
+from simecs.mesh import codec, phases, session_commands
 from simecs.mesh import messages as m
 from simecs.mesh.codec import DecodeError
 from simecs.mesh.model import CONTROL_SYSTEM_TITLES
@@ -70,7 +70,7 @@ def status_detail(st: m.SessionState | None) -> str:
 
 def applicable(phase: str) -> list[str]:
     """The run buttons that act in `phase` (the others say why not when clicked)."""
-    return [label for label, op in RUN_BUTTONS.items() if not phases.refusal(op, phase)]
+    return [label for label, op in RUN_BUTTONS.items() if not session_commands.refusal(op, phase)]
 
 
 #: The run bar's hint: what its buttons do, and the keys that do the same.

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
-from simecs.mesh import keys, phases
+from simecs.mesh import keys, session_commands
 from simecs.mesh import messages as m
 from simecs.mesh.client import SessionClient
 from simecs.mesh.model import ModelDescription
@@ -57,7 +57,7 @@ class TabState:
 
     def refusal(self, op: str) -> str:
         """Why command `op` would be refused now ('' when it applies): `phases.refusal`."""
-        return phases.refusal(op, self.phase)
+        return session_commands.refusal(op, self.phase)
 
     def replay_of(self, run_id: str) -> str:
         """The recording run `run_id` replays ('' for a simulation)."""
