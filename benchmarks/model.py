@@ -106,7 +106,7 @@ def move_case(model: str, target: tuple[float, ...], speed: float, acc: float, s
     try:
         sim.set_initial(list(pkg.home()))
         sim.set_joint_path([(list(target), speed, acc)])
-        moving = sim.path_duration()
+        moving = sim.set_points.path_duration()
         sim.start(moving + REST_S, 0.002, step, substeps)
         rows = sim.advance(moving + REST_S)
         return rows, list(sim.columns), moving

@@ -162,11 +162,11 @@ def warmup(alongside: bool = False) -> float:
     sim.set_control("opspace_motion", 0.002)  # the operational-space controller's kernel
     sim.start(0.004, 0.002)
     sim.advance(0.004)
-    sim.set_forces(np.array([[0.0, 0.0, 0.0, -1.0, 1.0]]))  # the hybrid one reads the tool's force
+    sim.set_points.set_forces(np.array([[0.0, 0.0, 0.0, -1.0, 1.0]]))  # the hybrid one reads the tool's force
     sim.set_control("opspace_hybrid", 0.002)
     sim.start(0.004, 0.002)
     sim.advance(0.004)
-    sim.set_forces(np.zeros((0, 5)))
+    sim.set_points.set_forces(np.zeros((0, 5)))
     sim.set_control("joint_independent", 0.001)
     sim.set_values({"drives.enabled": 0.0})  # contact with the drives off
     sim.start(0.004, 0.002)

@@ -191,7 +191,7 @@ def check_model(directory: str | Path, *, run: bool = True, log: TextIO = sys.st
         sim.set_initial(list(package.home()))
         target = list(spec.standard_target)
         sim.set_joint_path([(target, 100.0, 100.0)])
-        stop = sim.path_duration() + 0.5
+        stop = sim.set_points.path_duration() + 0.5
         sim.start(stop, 0.01)
         rows = sim.advance(stop)
         columns = list(sim.columns)

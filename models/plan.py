@@ -74,7 +74,7 @@ class Plan:
         else:
             assert self.tab is not None and self.jmode is not None
             sim.set_reference(self.tab, self.jmode, self.events, self.grasps)
-        sim.set_forces(self.forces)
+        sim.set_points.set_forces(self.forces)
 
     def pushing(self, times: np.ndarray) -> np.ndarray:
         """Whether the tool is meant to push (a force set point above 0) at each of `times`."""

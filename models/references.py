@@ -41,7 +41,7 @@ def traj_eval(seg, hold, t, qr, qdr):
 # joint modes: what the reference table holds for a joint (models/signals.py writes them)
 JM_POSITION, JM_SPEED, JM_CURRENT, JM_HOLD = 0, 1, 2, 3
 
-# live inputs per joint, changed between solver calls (Simulation.jog, Simulation.set_actuators):
+# live inputs per joint, changed between solver calls (SetPoints.jog, SetPoints.set_actuators):
 # the jog (offset at t0, rate, t0) and an external controller's current set point, which replaces
 # the built-in cascade of the joint while LV_EXTERNAL is 1 (the drive's current loops stay); and,
 # renewed every step (step.gravity_feedforward), the cascade's gravity feed-forward current.

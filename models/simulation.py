@@ -8,29 +8,28 @@ Exudyn solver call, and the output rows are taken inside the step loop (docs/MOD
 from __future__ import annotations
 
 import math
-import numbers
 import time as _time
 from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
 import numpy as np
-from simecs.mesh import scene_state
-from simecs.mesh.environment import Obstacle, check_obstacles
+from simecs.mesh.environment import Obstacle
 from simecs.mesh.kinematics import rot_rpy
 from simecs.mesh.model import CONTROL_SYSTEMS
 
-from . import chain_dynamics, drive_integrator, grasp, references
+from . import chain_dynamics, drive_integrator, references
 from . import drive as dr
 from .chain_dynamics import gravity_torques
-from .contact import contact_prestep, pair_width
-from .contact_geometry import link_bounds, sphere_table
+from .contact import contact_prestep
 from .description import ArmDescription
 from .errors import SimulationError
 from .exudyn_chain import ExudynChain, exudyn
 from .mechanics import MECH_PREFIXES, chain_arrays, drive_array, gravity_of, init_states, tool_point, vec
 from .opspace import OpspaceController
 from .output_row import output_row
+from .run_world import RunWorld
 from .sensors import sensor_row
+from .set_points import SetPoints
 from .step import chain_step, gravity_feedforward
 
 #: The step kernel, called with its arguments spread from tuples cached per solver call (the stub's
@@ -54,15 +53,9 @@ class Simulation:
         self._gravity = gravity_of(self.values)  # changed in place: the step's argument tuples hold it
         self.q0 = np.zeros(self.n)
         self.qd0 = np.zeros(self.n)
-        self.X, self.hold = self._at_rest()
-        self.seg = np.zeros((0, 3 + 2 * self.n))
-        self.tab = np.zeros((0, 1 + 2 * self.n))  # a sampled reference (planner.py), when not a joint path
-        self.jmode = np.zeros(self.n, dtype=np.int64)
-        self.forces = np.zeros((0, 5))  # the hybrid controller's force profile (opspace.FP_*)
-        #: Live inputs per joint (references.LV_*): the jog, superposed on the reference, and the current set
-        #: points of an external controller for the joints it drives.
-        self.live = np.zeros((self.n, references.NLIVE))
-        self._external = np.zeros(self.n, dtype=bool)  # the joints an external controller drives
+        #: what the drives follow (a joint path, a sampled reference, forces, live inputs)
+        self.set_points = SetPoints(self._desc.links, self.P)
+        self._rest()
         self._control = ("joint_independent", 0.001)  # the built-in control system and its period
         self._opspace: OpspaceController | None = None
         self._no_control = OpspaceController.idle(self.n)  # what the step kernel is handed without one
@@ -71,7 +64,6 @@ class Simulation:
         self._events: list[tuple[float, dict[str, float], str | None]] = []
         self._pending_events: list[tuple[float, dict[str, float], str | None]] = []
         self._run_values: dict[str, float] | None = None  # the values a run started with
-        self._nodes: list[tuple[np.ndarray, float, float]] = []
         self._solver: Any = None
         self._running = False
         self._stop_time = 0.0
@@ -83,14 +75,7 @@ class Simulation:
         self._nrows = 0
         self._k_next = 0
         self._t_next = 0.0
-        self._obstacles: list[Obstacle] = list(self._desc.obstacles)
-        # the run's own world: its obstacles (a released object where it was left), the object held,
-        # the names the run grasps, the grasp state of the result rows, what the user must be told
-        self._world: list[Obstacle] = list(self._obstacles)
-        self._held: grasp.Held | None = None
-        self._taken: set[str] = set()
-        self._grasp_state = grasp.no_grasp()
-        self._notices: list[str] = []
+        self._world = RunWorld(package.spec, self._desc.obstacles)
         self._contact_tables()
         self._chain = ExudynChain(self._mech, self._tool_local(), self._gravity, self._prestep)
         self._mbs: Any = self._chain.mbs  # the hot path reads these two on every step
@@ -104,63 +89,47 @@ class Simulation:
         """m/s^2 in world axes (the `gravity.*` parameters)."""
         return self._gravity.copy()
 
-    def _at_rest(self) -> tuple[np.ndarray, np.ndarray]:
+    def _rest(self) -> None:
         """The drive states and held set points of the arm at rest at q0, its gears carrying gravity."""
-        return init_states(self.P, self.q0, self.holding_torques(self.q0))
+        self.X, hold = init_states(self.P, self.q0, self.holding_torques(self.q0))
+        self.set_points.hold_at(hold)
 
     def _update_mechanics(self) -> None:
-        held = self._held
-        carried = None if held is None else grasp.held_body(self._world[held.index], held)
-        self._mech = chain_arrays(self.package.spec, self.values, carried)
+        self._mech = chain_arrays(self.package.spec, self.values, self._world.carried())
         self._chain.update(self._mech, self._tool_local())
         self._contact_tables()
 
     def _contact_tables(self) -> None:
-        """The arm's contact spheres at the values now (with the object it holds), the obstacles' table
-        (grasp states marked) and the kernels' work arrays."""
-        arm = sphere_table(self.package.spec, self.values)
-        spheres, self._obs = grasp.world_tables(arm, self._world, self._taken, self._held, self.n - 1)
-        ns, no = spheres.shape[0], self._obs.shape[0]
-        self._caps = np.zeros((ns, no))
-        pairs = np.zeros((ns * no, pair_width(self.n)))
-        bounds = link_bounds(spheres)
-        #: what the kernels read: the tables, then their work arrays (step.chain_step)
-        work = (pairs, self._caps, np.zeros((4, self.n)), np.zeros((4, 3)))
-        self._contact = (spheres, bounds, self._obs, *work)
-        self._contact_rows = (spheres, bounds, self._obs, self._caps)
+        """The world's contact tables at the values now, and what the step reads of them."""
+        self._world.build_tables(self.values)
+        self._contact = self._world.contact
+        self._touching = self._world.obstacle_table.shape[0] > 0
 
     def set_obstacles(self, obstacles: Sequence[Obstacle]) -> None:
         """What the arm can touch in the runs that follow (the model's own obstacles until then)."""
-        check_obstacles(obstacles)
+        self._world.set_obstacles(obstacles)
         if self._running:
             self._finalize()
-        self._obstacles = list(obstacles)
         self._reset_world()
 
     @property
     def obstacles(self) -> list[Obstacle]:
-        return list(self._obstacles)
+        return self._world.obstacles
 
     @property
     def world(self) -> list[Obstacle]:
         """The run's obstacles now: those of `obstacles`, a released object where the tool left it."""
-        return list(self._world)
+        return self._world.objects
 
     def take_notices(self) -> list[str]:
         """What the run has to tell its user since the last call (a grasp that missed its object)."""
-        out, self._notices = self._notices, []
-        return out
+        return self._world.take_notices()
 
     def _reset_world(self, rebuild: bool = False) -> None:
-        """The world of the coming run: the obstacles as set, nothing held, the run's grasps known;
-        the chain rebuilt when something was held (or `rebuild`: the values changed), else only the
-        contact tables."""
-        rebuild = rebuild or self._held is not None
-        self._world = list(self._obstacles)
-        self._held = None
-        self._taken = {name for _t, _c, name in self._events if name}
-        self._grasp_state = grasp.no_grasp()
-        if rebuild:
+        """The world of the coming run (the obstacles as set, nothing held, the run's grasps known); the
+        chain rebuilt when something was held (or `rebuild`: the values changed), else only the contact
+        tables."""
+        if self._world.reset({name for _t, _c, name in self._events if name}) or rebuild:
             self._update_mechanics()
         else:
             self._contact_tables()
@@ -183,7 +152,7 @@ class Simulation:
         if not np.array_equal(gravity, self._gravity):
             self._gravity[:] = gravity
             self._chain.set_gravity(gravity)
-        self.X, self.hold = self._at_rest()
+        self._rest()
 
     def set_initial(self, q: Sequence[float] | np.ndarray, qd: Sequence[float] | None = None) -> None:
         """Joint positions at rest -> every internal state; `qd` (extension) is for drives-off studies."""
@@ -195,37 +164,12 @@ class Simulation:
                 raise ValueError(f"{lk.joint}: {qv[i]:g} rad outside [{lk.joint_min:g}, {lk.joint_max:g}]")
         self.q0 = qv.copy()
         self.qd0 = np.zeros(self.n) if qd is None else vec(qd).copy()
-        self.X, self.hold = self._at_rest()
-        self.seg = np.zeros((0, 3 + 2 * self.n))
+        self._rest()
 
     def set_joint_path(self, nodes: Sequence[tuple[Sequence[float], float, float]]) -> None:
         """The path of the next run (or, during a run, from now on): every node (destination in rad,
         speed %, acceleration %) is reached and stopped at. Checked here, so a bad node fails early."""
-        parsed: list[tuple[np.ndarray, float, float]] = []
-        for k, node in enumerate(nodes):
-            try:
-                dest_in, sp, ac = node
-            except (TypeError, ValueError):
-                raise ValueError(f"path node {k}: expected (joint vector, speed %, acc %)") from None
-            dest = vec(dest_in)
-            if dest.shape != (self.n,) or not np.all(np.isfinite(dest)):
-                raise ValueError(f"path node {k}: expected {self.n} finite joint positions")
-            for i, lk in enumerate(self._desc.links):
-                if not lk.joint_min <= dest[i] <= lk.joint_max:
-                    raise ValueError(
-                        f"path node {k}: {lk.joint} {dest[i]:g} rad outside "
-                        f"[{lk.joint_min:g}, {lk.joint_max:g}]"
-                    )
-            for what, v in (("speed", sp), ("acc", ac)):
-                if isinstance(v, bool) or not (isinstance(v, numbers.Real) and 0 < float(v) <= 100):
-                    raise ValueError(f"path node {k}: {what} % must be in (0, 100], got {v!r}")
-            parsed.append((dest, float(sp), float(ac)))
-        self._nodes = parsed
-        t0 = self._time if self._running else 0.0
-        self.seg = self._plan(t0)
-        self.tab = np.zeros((0, 1 + 2 * self.n))
-        self.jmode = np.zeros(self.n, dtype=np.int64)
-        self.forces = np.zeros((0, 5))
+        self.set_points.follow_path(nodes, self._time if self._running else None)
         self._events = []
 
     def set_reference(
@@ -239,92 +183,25 @@ class Simulation:
         its mode (references.JM_*), applies `events` (parameter changes, e.g. a payload) at their times and
         takes (a name) or releases ('') an obstacle at the times of `grasps`. The planner (planner.py)
         makes these from a robot command; it has checked them."""
-        tab = np.ascontiguousarray(tab, dtype=float)
-        if tab.ndim != 2 or tab.shape[1] != 1 + 2 * self.n or tab.shape[0] < 1:
-            raise ValueError(f"a reference table has rows of {1 + 2 * self.n} numbers")
-        if not np.all(np.isfinite(tab)) or np.any(np.diff(tab[:, 0]) < 0):
-            raise ValueError("a reference table needs finite numbers and times that do not decrease")
         for _t, changes in events:
             self.package.check_values({**self.values, **changes})
             if any(not k.startswith("payload.") for k in changes):
                 raise ValueError("only payload.* parameters change during a run")
-        names = {ob.name for ob in self._obstacles}
+        names = self._world.names
         for _t, name in grasps:
             if name and name not in names:
                 raise ValueError(f"grasp: no obstacle named {name}")
-        self.tab = tab
-        self.jmode = np.ascontiguousarray(jmode, dtype=np.int64)
+        self.set_points.follow_reference(tab, jmode)
         timed: list[tuple[float, dict[str, float], str | None]] = [
             (float(t), dict(c), None) for t, c in events
         ]
         timed += [(float(t), {}, name) for t, name in grasps]
         self._events = sorted(timed, key=lambda e: e[0])  # stable: the plan's order at one time
-        self._nodes = []
-        self.seg = np.zeros((0, 3 + 2 * self.n))
-        self.forces = np.zeros((0, 5))
-
-    def _plan(self, t0: float) -> np.ndarray:
-        vmax = self.P[:, dr.P_VMAX]
-        amax = self.P[:, dr.P_AMAX]
-        if self._running:
-            qr = np.empty(self.n)
-            qdr = np.empty(self.n)
-            references.traj_eval(self.seg, self.hold, t0, qr, qdr)
-            self.hold = qr.copy()
-            q = qr
-        else:
-            q = self.hold.copy()
-        rows = []
-        t = t0
-        for dest, sp, ac in self._nodes:
-            # The set point is the destination as commanded: the controller compares it with what its
-            # load resolver reads, so a resolver error shows as an error of the pose reached, as on
-            # a real arm (no controller knows its own sensor's error).
-            row = references.plan_segment(q, dest, vmax * sp / 100.0, amax * ac / 100.0, t)
-            rows.append(row)
-            t += row[1]
-            q = dest
-        return np.array(rows) if rows else np.zeros((0, 3 + 2 * self.n))
 
     def jog(self, rates: np.ndarray, horizon: float) -> np.ndarray:
         """Move the set points at `rates` (rad/s per joint) from now on, on top of the command (live
-        jogging); a rate is cut so its joint's set point stays within the joint's range for `horizon`
-        s. Joints in current mode do not jog. Returns the rates applied."""
-        t = self._time
-        js = self.live
-        js[:, references.LV_OFFSET] += js[:, references.LV_RATE] * (t - js[:, references.LV_T0])
-        js[:, references.LV_T0] = t
-        qr, qdr = np.empty(self.n), np.empty(self.n)
-        references.ref_nominal(self.seg, self.hold, self.tab, self.jmode, t, qr, qdr)
-        now = qr + js[:, references.LV_OFFSET]
-        applied = np.asarray(rates, dtype=float).copy()
-        for j, lk in enumerate(self._desc.links):
-            if self.jmode[j] == references.JM_CURRENT or not math.isfinite(applied[j]):
-                applied[j] = 0.0
-            elif applied[j] > 0:
-                applied[j] = min(applied[j], max(0.0, (lk.joint_max - now[j]) / horizon))
-            else:
-                applied[j] = max(applied[j], min(0.0, (lk.joint_min - now[j]) / horizon))
-        js[:, references.LV_RATE] = applied
-        return applied
-
-    def set_external(self, joints: Sequence[bool] | np.ndarray) -> None:
-        """Hand the control of the marked joints to an external controller (from now on, and for the
-        runs that follow): their current set point is what `set_actuators` gives, 0 until then."""
-        mask = np.asarray(joints, dtype=bool)
-        if mask.shape != (self.n,):
-            raise ValueError(f"expected {self.n} flags, one per joint")
-        self._external = mask.copy()
-        self.live[:, references.LV_EXTERNAL] = mask
-        self.live[:, references.LV_IREF] = 0.0
-
-    def set_forces(self, forces: np.ndarray) -> None:
-        """The force set points of the next run (rows of opspace.FP_*: from t, push along an axis with
-        f N), for the hybrid controller; the planner makes them from the Cartesian nodes' `force`."""
-        table = np.ascontiguousarray(forces, dtype=float).reshape(-1, 5)
-        if not np.all(np.isfinite(table)) or np.any(table[:, 4] < 0) or np.any(np.diff(table[:, 0]) < 0):
-            raise ValueError("a force profile needs finite rows, forces >= 0 and times that do not decrease")
-        self.forces = table
+        jogging): SetPoints.jog. Returns the rates applied."""
+        return self.set_points.jog(rates, horizon, self._time)
 
     def set_control(self, system: str, period: float) -> None:
         """The built-in control system of the runs that follow (mesh.model.CONTROL_SYSTEMS), updated
@@ -337,16 +214,11 @@ class Simulation:
             raise ValueError(f"settings.control_period: {period!r} s is not a positive time")
         self._control = (system, float(period))
 
-    def set_actuators(self, i_ref: np.ndarray) -> None:
-        """The external controller's current set points (A), held until the next call (zero-order
-        hold); the entries of joints the built-in controller keeps are not used."""
-        self.live[:, references.LV_IREF] = i_ref
-
     def sensors(self, out: np.ndarray) -> None:
         """What an external controller reads now into `out` (models/sensors.py, mesh/hil.py)."""
         sd = self._sd
         ok = sensor_row(
-            *self._command_state(),
+            *self.set_points.arrays(),
             self.X,
             np.asarray(sd.GetODE2Coordinates()),
             np.asarray(sd.GetODE2Coordinates_t()),
@@ -355,12 +227,6 @@ class Simulation:
         )
         if not ok:
             raise SimulationError(f"a sensor value is not finite at t = {self._time:.6f} s")
-
-    def path_duration(self) -> float:
-        """Seconds from the first segment's start to the last one's end (0 without a path)."""
-        if self.seg.shape[0] == 0:
-            return 0.0
-        return float(self.seg[-1, 0] + self.seg[-1, 1] - (self.seg[0, 0]))
 
     def start(
         self, stop_time: float, output_interval: float, step: float | None = None, substeps: int | None = None
@@ -383,11 +249,8 @@ class Simulation:
         self._reset_world(rebuild=values_changed)
         self._run_values = dict(self.values)
         self._pending_events = list(self._events)
-        self.live[:, [references.LV_OFFSET, references.LV_RATE, references.LV_T0, references.LV_IREF]] = (
-            0.0  # set_external stays
-        )
         self._opspace = self._make_opspace(h)
-        self.live[:, references.LV_EXTERNAL] = True if self._opspace is not None else self._external
+        self.set_points.start_run(self._opspace is not None)
         self.h = h
         self.k_out = max(1, int(round(output_interval / h)))
         self.dt_out = self.k_out * h
@@ -413,14 +276,12 @@ class Simulation:
         mbs.SetObjectParameter(self._kt, "jointForceVector", [0.0] * self.n)
         mbs.systemData.SetODE2Coordinates(list(self.q0), configuration=exu.ConfigurationType.Initial)
         mbs.systemData.SetODE2Coordinates_t(list(self.qd0), configuration=exu.ConfigurationType.Initial)
-        self.X, self.hold = self._at_rest()
-        self._nodes_copy = list(self._nodes)
-        self.seg = self._plan(0.0) if self._nodes else np.zeros((0, 3 + 2 * self.n))
+        self._rest()
         self._Xbak = self.X.copy()
         self._last_k = -1
         self._tau = np.zeros(self.n)
         self._f_tool = np.zeros(3)
-        self._caps[:] = 0.0
+        self._world.caps[:] = 0.0
         self._work = np.zeros((5, self.n, dr.NL))
         self._fail: str | None = None
         self._drives_on = self.values["drives.enabled"] > 0.5
@@ -439,7 +300,8 @@ class Simulation:
     def _make_opspace(self, h: float) -> OpspaceController | None:
         """The operational-space controller of the coming run, or None under joint-independent control."""
         system, period = self._control
-        pushing = bool(np.any(self.forces[:, 4] > 0))
+        sp = self.set_points
+        pushing = bool(np.any(sp.forces[:, 4] > 0))
         if pushing and system != "opspace_hybrid":
             raise ValueError(f"settings.control_system: the command sets forces: {system} cannot follow them")
         if system == "joint_independent":
@@ -449,19 +311,14 @@ class Simulation:
             raise ValueError(
                 f"settings.control_period: {period:g} s is not a whole number of solver steps ({h:g} s)"
             )
-        if np.any((self.jmode == references.JM_SPEED) | (self.jmode == references.JM_CURRENT)):
+        if np.any((sp.jmode == references.JM_SPEED) | (sp.jmode == references.JM_CURRENT)):
             raise ValueError(
                 f"settings.control_system: {system} tracks positions; this command sets joint speeds or "
                 "currents directly (run it under joint_independent)"
             )
-        if self._external.any():
+        if sp.external.any():
             raise ValueError(f"settings.control_system: {system} is built in: it needs controller builtin")
-        return OpspaceController(self.values, self.n, k, h, self.forces if pushing else np.zeros((0, 5)))
-
-    def _command_state(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """What every kernel reads the set points from (references.ref_eval): drive parameters, joint-path
-        segments, held positions, sampled reference, joint modes, live inputs."""
-        return self.P, self.seg, self.hold, self.tab, self.jmode, self.live
+        return OpspaceController(self.values, self.n, k, h, sp.forces if pushing else np.zeros((0, 5)))
 
     def _prestep(self, mbs: Any, t: float) -> bool:
         """Once per mechanics step, before it: the output row at the step start when one is due, then
@@ -469,7 +326,7 @@ class Simulation:
         h = self._it.currentStepSize
         ts = t - h  # the step start: the chain state and the drive states are those of ts
         due = ts >= self._t_next - 0.5 * self.h
-        if not (due or self._drives_on or self._obs.shape[0]):
+        if not (due or self._drives_on or self._touching):
             return True
         t0 = _time.perf_counter()
         out0 = self.timing["output"]
@@ -484,7 +341,7 @@ class Simulation:
                 return False
         m = self._mech_arrays
         if not self._drives_on:  # nothing acts on the joints but the contacts
-            if self._obs.shape[0]:
+            if self._touching:
                 contact_prestep(
                     *m,  # the chain arrays (mechanics.ChainArrays)
                     self._gravity,
@@ -534,7 +391,7 @@ class Simulation:
         them, and the solver steps per control period (0: no controller). Taken once per solver call:
         nothing replaces these arrays while the solver runs, and each step saves the lookups."""
         ctl = self._opspace or self._no_control
-        head = (*self._command_state(), *self._mech_arrays, self._gravity, self.X, self._Xbak)
+        head = (*self.set_points.arrays(), *self._mech_arrays, self._gravity, self.X, self._Xbak)
         tail = (
             self._Rrpy[-1],
             self._tool_loc,
@@ -572,7 +429,7 @@ class Simulation:
             self._rows = np.concatenate([self._rows, np.empty((k + 8, self._rows.shape[1]))])
         m = self._mech_arrays
         status = output_row(
-            *self._command_state(),
+            *self.set_points.arrays(),
             self.X,
             q,
             qd,
@@ -581,8 +438,8 @@ class Simulation:
             m[1],
             self._Rrpy,
             self._tool_loc,
-            self._contact_rows,
-            self._grasp_state,
+            self._world.contact_rows,
+            self._world.grasp_state,
             self._rows,
             k,
         )
@@ -639,21 +496,7 @@ class Simulation:
         R_all, p_all = np.empty((self.n, 3, 3)), np.empty((self.n, 3))
         chain_dynamics.chain_frames(self._mech.pre_R, self._mech.pre_p, q, R_all, p_all)
         R, p = R_all[-1], p_all[-1]
-        if not name:
-            if self._held is not None:
-                k = self._held.index
-                centre, frame = grasp.world_pose(self._held, R, p)
-                self._world[k] = scene_state.at_pose(self._world[k], centre, frame)
-                self._held = None
-                grasp.set_state(self._grasp_state, k + 1, False, centre, frame)
-            return
-        k = next(i for i, ob in enumerate(self._world) if ob.name == name)
-        why = grasp.reach_problem(self._world[k], p + R @ self._tool_loc)
-        if why:
-            self._notices.append(f"the grasp at t = {self._time:.3f} s took nothing: {why}")
-            return
-        self._held = grasp.take(k, self._world[k], R, p)
-        grasp.set_state(self._grasp_state, k + 1, True, self._held.p, self._held.R)
+        self._world.grasp(name, R, p, p + R @ self._tool_loc, self._time)
 
     def _advance_chunk(self, until: float) -> np.ndarray:
         """One solver call up to `until`: the rows inside the chunk are taken in the PreStep at the
@@ -671,7 +514,7 @@ class Simulation:
         self._nrows = 0
         if self._k_next == 0:
             # the t = 0 row's currents with the feed-forward of the first step
-            gravity_feedforward(*self._command_state(), *self._mech_arrays, self._gravity, 0.0)
+            gravity_feedforward(*self.set_points.arrays(), *self._mech_arrays, self._gravity, 0.0)
             self._row_now()  # t = 0
         # the chunk ends on the last grid point within `until`; at an output sample, exactly on its time
         t_mid = math.floor(until / h + 1e-9) * h

@@ -74,7 +74,7 @@ class Lockstep:
                 f"settings.control_period: {self.period:g} s is not a whole number of solver steps "
                 f"({sim.h:g} s)"
             )
-        sim.set_external(external_joints(st, joints))
+        sim.set_points.set_external(external_joints(st, joints))
         self.row = np.empty(1 + len(hil.SENSOR_JOINT_FIELDS) * self.n)
         self.seq = 0
         self.stats = m.HilStats()
@@ -125,7 +125,7 @@ class Lockstep:
             i_ref = self._exchange(t)
             if i_ref is None:
                 break
-            sim.set_actuators(i_ref)
+            sim.set_points.set_actuators(i_ref)
             parts.append(sim.advance(t + self.period))
             self.seq += 1
         if not parts:

@@ -160,7 +160,7 @@ def test_move_settles_where_gains_predict(spider):
     target[3] = 0.8
     target[0] = 0.6  # a PI joint moving too: it settles on its target
     sim.set_joint_path([(target, 100.0, 100.0)])
-    data = run(sim, sim.path_duration() + 2.5, out=0.01)
+    data = run(sim, sim.set_points.path_duration() + 2.5, out=0.01)
     P = sim.P[3]
     th = col(sim, data, f"{j}.q_motor")[-1]
     p = P[dr.P_POLES]
@@ -190,7 +190,7 @@ def test_backlash_dead_zone(spider):
     target[4] += 0.3
     back = np.array(Q0)
     sim.set_joint_path([(target, 100.0, 100.0), (back, 100.0, 100.0)])
-    data = run(sim, sim.path_duration() + 0.5, out=0.001)
+    data = run(sim, sim.set_points.path_duration() + 0.5, out=0.001)
     tw = col(sim, data, f"{j}.twist")
     tau = col(sim, data, f"{j}.tau_gear")
     inside = np.abs(tw) < 0.5 * b - 1e-6
@@ -304,12 +304,12 @@ def test_all_path_nodes_executed(spider):
     b = -a
     c = 0.5 * a
     sim.set_joint_path([(a, 100, 100), (b, 50, 80), (c, 100, 30)])
-    assert sim.seg.shape[0] == 3
-    data = run(sim, sim.path_duration() + 1.5, out=0.005)
+    assert sim.set_points.seg.shape[0] == 3
+    data = run(sim, sim.set_points.path_duration() + 1.5, out=0.005)
     t = data[:, 0]
     qr = np.stack([col(sim, data, f"joint{j}.q_ref") for j in range(1, 8)], axis=1)
     for k, dest in enumerate((a, b, c)):
-        t_end = sim.seg[k, 0] + sim.seg[k, 1]
+        t_end = sim.set_points.seg[k, 0] + sim.set_points.seg[k, 1]
         i = int(np.argmin(np.abs(t - t_end)))
         assert np.max(np.abs(qr[i] - dest)) < 1e-3
     q = np.stack([col(sim, data, f"joint{j}.q") for j in range(1, 8)], axis=1)
@@ -386,7 +386,7 @@ def test_every_model_runs_the_same_drive_family(model_id):
     sim.set_initial(list(pkg.home()))
     target = list(pkg.spec.standard_target)
     sim.set_joint_path([(target, 100, 100)])
-    data = run(sim, sim.path_duration() + 0.7, out=0.01)
+    data = run(sim, sim.set_points.path_duration() + 0.7, out=0.01)
     q = np.stack([col(sim, data, f"joint{j}.q") for j in range(1, len(d.links) + 1)], axis=1)
     assert np.max(np.abs(q[-1] - target)) < 2e-3
     npos = len(d.pose_column_names()) - len(POSE_FIELDS)  # the links' and the tool's poses
@@ -525,7 +525,7 @@ def test_a_load_resolver_error_shows_in_the_pose_reached(spider):
     goal = list(Q0)
     goal[1] = target
     sim.set_joint_path([(goal, 100.0, 100.0)])
-    data = run(sim, sim.path_duration() + 2.0, out=0.01)
+    data = run(sim, sim.set_points.path_duration() + 2.0, out=0.01)
     q = col(sim, data, "joint2.q")[-1]
     # within the rest limit cycle (backlash, stiction, integral action: ~0.1 mrad)
     assert q + el * math.sin(q) == pytest.approx(target, abs=3e-4)
@@ -540,7 +540,7 @@ def puma_fast_move(values: dict | None = None, substeps: int | None = None) -> t
     sim.set_initial([0.0] * 6)
     sim.set_joint_path([([2.5, 2.0, -2.0, 2.5, 1.5, 3.0], 100, 100)])
     try:
-        data = run(sim, sim.path_duration() + 0.3, out=0.002, substeps=substeps)
+        data = run(sim, sim.set_points.path_duration() + 0.3, out=0.002, substeps=substeps)
     finally:
         sim.close()
     return data, sim.columns
