@@ -40,10 +40,8 @@ import json
 import math
 import os
 import re
-import socket
 import statistics
 import time
-import urllib.request
 from collections.abc import Callable
 from typing import Any
 
@@ -51,9 +49,10 @@ from simecs.nodes.local_mesh import LocalMesh
 from simecs.testing import browser
 from simecs.viewer.cartesian_pendant import GIZMO
 
+from .viewer_page import MODEL_BUTTON, USER, free_port, shown_session_of, start_viewer
+from .viewer_reconnect import RESTARTS, measure_reconnect
+
 STANDARD_TARGET = (0.8, 0.6, -0.7, 1.0, 0.9, -0.8, 1.2)  # rad: standard_target of models/library/spider
-MODEL_BUTTON = "Load Spider arm (joint-independent control)"
-USER = "bench"  # the viewer's user for browsers that have none (its --user)
 FINISHED = re.compile(r"finished run r\d+")  # the status line of a run that ended
 TARGET_UPDATES_PER_S = 30.0
 TARGET_FIRST_FRAME_S = 1.0
@@ -62,16 +61,7 @@ TARGET_SCRUB_MS = 100.0
 LIVE_RUNS_S = (2.0, 5.0, 10.0)  # stop times of the runs under a live plot, real time
 TARGET_AXIS_RATIO = 1.2  # shown time span / min(live window, run's span)
 AXIS_EVERY_MS = 150.0
-RESTARTS = 6
-DOWN_S = (0.5, 2.0, 0.0, 5.0, 1.0, 3.0)  # how long the viewer stays stopped, restart by restart
-BACK_WITHIN_S = 30.0  # a page not back this long after the viewer's return did not come back
 TARGET_RECONNECT_S = 5.0
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 def warm_up(mesh: LocalMesh) -> float:
@@ -195,17 +185,6 @@ def measure_scrub(page: Any, moves: int = 15) -> dict[str, Any]:
     return {"scrub_frame_ms": float(statistics.median(waits)), "scrub_moves": len(waits)}
 
 
-def shown_session_of(page: Any, timeout: float = 60.0) -> str:
-    """The first 8 characters of the session the page's header names, once it names one."""
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        prefix = browser.shown_session(page)
-        if prefix:
-            return prefix
-        time.sleep(0.1)
-    raise TimeoutError(f"the page named no session within {timeout:.0f} s")
-
-
 def session_of(mesh: LocalMesh, page: Any) -> Any:
     """The page's session, as the typed client sees it (found from the page's header)."""
     prefix = shown_session_of(page)
@@ -269,131 +248,6 @@ def measure_live_axis(page: Any, session: Any, run_timeout_s: float = 60.0) -> d
         "live_axis_lowest_s": lowest,
         "live_axis_negative": lowest < -1e-9,
         "live_window_s": window,
-    }
-
-
-def viewer_flags(port: int) -> tuple[str, ...]:
-    return ("--host", "127.0.0.1", "--port", str(port), "--user", USER)
-
-
-def start_viewer(mesh: LocalMesh, port: int, timeout: float = 60.0) -> float:
-    """Start the viewer node on `port`; the wall-clock time its port first accepted a connection and
-    answered (returns once the node is live too)."""
-    mesh.spawn("viewer", "simecs.viewer.app", *viewer_flags(port), node_id="viewer-t")
-    end = time.monotonic() + timeout
-    while True:
-        asked = time.time()  # a connection that is accepted is accepted at once
-        try:  # what a browser asks first: the page (a bare connection makes the viewer log an error)
-            with urllib.request.urlopen(f"http://127.0.0.1:{port}/", timeout=2.0) as reply:
-                reply.read()
-            ready = asked
-            break
-        except OSError:
-            if time.monotonic() > end or mesh.procs["viewer"].poll() is not None:
-                raise RuntimeError(f"the viewer did not open port {port}:\n{mesh.log('viewer')}") from None
-            time.sleep(0.02)
-    mesh.wait_node("viewer", "viewer-t", timeout=timeout)
-    return ready
-
-
-def session_page(context: Any, url: str) -> Any:
-    """A new page of `context` that loaded the Spider (a session of its own)."""
-    page = context.new_page()
-    page.add_init_script(browser.PROBE_JS)
-    page.goto(url)
-    page.get_by_role("button", name=MODEL_BUTTON).click(timeout=60_000)
-    shown_session_of(page)
-    return page
-
-
-def sessions(mesh: LocalMesh) -> set[str]:
-    return {s.session for s in mesh.client().list_sessions(USER) if s.phase != "closed"}
-
-
-def worst(events: list[dict[str, Any]]) -> float:
-    """The longest time to come back of `events` (inf when one did not come back)."""
-    return max((math.inf if e["back_s"] is None else e["back_s"] for e in events), default=0.0)
-
-
-def measure_reconnect(mesh: LocalMesh, chrome: Any, port: int, first: Any) -> dict[str, Any]:
-    """Three pages with a session each (`first` and one more in its window, one in a window of its
-    own), the viewer stopped and started again RESTARTS times; each time, whether and when each page
-    showed its own session again without a reload. The front page of the first window alternates,
-    so each of its pages spends restarts in the background (without focus)."""
-    url = f"http://127.0.0.1:{port}"
-    pages = [first, session_page(first.context, url)]
-    pages.append(session_page(chrome.new_context(viewport=browser.VIEWPORT), url))
-    prefixes = [shown_session_of(p) for p in pages]
-    if len(set(prefixes)) != len(pages):
-        raise RuntimeError(f"the pages do not have a session each: {prefixes}")
-    expected = sessions(mesh)
-    for page, prefix in zip(pages, prefixes, strict=True):
-        browser.real_focus(page)
-        browser.watch_session(page, prefix)
-    events: list[dict[str, Any]] = []
-    crashes: list[dict[str, Any]] = []
-    kept = True
-    for k in range(RESTARTS):
-        pages[k % 2].bring_to_front()
-        time.sleep(0.3)
-        focus = [browser.has_focus(p) for p in pages]
-        shown = [browser.session_shown(p) for p in pages]
-        if not all(seen and seen[-1][1] >= 0 for seen in shown):
-            raise RuntimeError(f"restart {k + 1}: a page does not show its session before the stop")
-        element = [seen[-1][1] for seen in shown]
-        loaded = [browser.loaded_at(p) for p in pages]
-        stopped = time.time() * 1000.0  # wall-clock ms, as the page notes its links
-        mesh.stop("viewer")
-        time.sleep(DOWN_S[k % len(DOWN_S)])
-        ready = start_viewer(mesh, port)
-        back: list[float | None] = [None] * len(pages)
-        while time.time() < ready + BACK_WITHIN_S and None in back:
-            for i, page in enumerate(pages):
-                if back[i] is None:
-                    at = browser.shown_anew_after(page, element[i])
-                    back[i] = None if at is None else at / 1000.0 - ready
-            if mesh.procs["viewer"].poll() is not None:
-                break
-            time.sleep(0.1)
-        exit_code = mesh.procs["viewer"].poll()
-        if exit_code is not None:  # the viewer died: said, and started again for the next restart
-            crashes.append({"restart": k + 1, "exit": exit_code, "log": mesh.log("viewer")[-1500:]})
-            start_viewer(mesh, port)
-        for i, page in enumerate(pages):
-            took = back[i] if browser.loaded_at(page) == loaded[i] else None  # a reload is not "back"
-            up = [t for t, kind in browser.links(page) if kind == "connected" and t > stopped]
-            events.append(
-                {
-                    "restart": k + 1,
-                    "page": i + 1,
-                    "focus": focus[i],
-                    "down_s": round(ready - stopped / 1000.0, 3),  # the viewer's stop to its port open
-                    "connected_s": round(up[0] / 1000.0 - ready, 3) if up else None,  # websocket up again
-                    "back_s": None if took is None else round(took, 3),  # its session shown again
-                }
-            )
-            if took is None:  # brought back by hand, for the next restart
-                page.reload()
-                shown_session_of(page)
-                browser.watch_session(page, prefixes[i])
-        if sessions(mesh) != expected:
-            kept = False
-        time.sleep(1.0)  # the pages settle (the tabs keep their view about once a second)
-    times = [e["back_s"] for e in events if e["back_s"] is not None]
-    background = [e for e in events if not e["focus"]]
-    return {
-        "reconnect_pages": len(events),
-        "reconnect_pages_back": len(times),
-        "reconnect_s_max": max(times, default=math.inf),
-        "reconnect_s_p50": statistics.median(times) if times else math.inf,
-        # the worst of the pages that had the focus, and of those in the background of their window
-        "reconnect_s_max_focused": worst([e for e in events if e["focus"]]),
-        "reconnect_s_max_background": worst(background),
-        "reconnect_background": len(background),
-        "reconnect_background_back": sum(1 for e in background if e["back_s"] is not None),
-        "reconnect_sessions_kept": kept,
-        "reconnect_viewer_crashes": crashes,
-        "reconnect_events": events,
     }
 
 
