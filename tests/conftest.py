@@ -317,7 +317,7 @@ class ConsoleKeepingBrowser:
 @pytest.fixture(scope="module")
 def server() -> Iterator[Any]:
     """A viser server on a free loopback port, without a browser: the viewer's panels are built on it
-    and driven by injected events (test_viewer_logic.py, test_viewer_cartesian.py)."""
+    and driven by injected events (test_viewer_panels.py, test_viewer_tab.py, test_viewer_cartesian.py)."""
     import viser
 
     srv = viser.ViserServer(host="127.0.0.1", port=free_port(), verbose=False)

@@ -1,6 +1,6 @@
 """The Cartesian pendant without a browser (issue 12, build item 2): the path as data, and the panel
 and its 3D gizmo driven by injected user events on a real viser server, with the server's answers
-(a plan, a refusal naming a node) from the fake mesh of test_viewer_logic.py."""
+(a plan, a refusal naming a node) from the fake mesh of viewer_fakes.py."""
 
 from __future__ import annotations
 
@@ -18,7 +18,7 @@ from simecs.mesh.kinematics import link_frames, quat_from_matrix, rot_rpy
 from simecs.viewer import cartesian
 from simecs.viewer.path import PathError
 
-from .test_viewer_logic import Event, arm, started_tab, state
+from .viewer_fakes import Event, arm, started_tab, state
 
 POSE = cartesian.Pose([0.4, 0.1, 0.3], [0.0, 0.2, -0.1])
 

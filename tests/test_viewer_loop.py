@@ -14,7 +14,7 @@ from typing import Any
 import pytest
 from simecs.viewer.loop import LoopClosed, TabLoop
 
-from .test_viewer_logic import FakeClient, arm, loaded_tab
+from .viewer_fakes import FakeClient, arm, loaded_tab
 
 
 def test_the_loop_runs_jobs_in_order_on_one_thread_whoever_posts_them() -> None:
@@ -137,7 +137,7 @@ def test_a_tab_on_its_own_thread_applies_events_from_many_threads_without_a_lock
     so the panels see them one at a time (the tab holds no lock any more)."""
     from simecs.viewer.tab import Tab
 
-    from .test_viewer_logic import FakeHost, FakeMesh
+    from .viewer_fakes import FakeHost, FakeMesh
 
     model = arm()
     client = FakeClient(server)

@@ -11,7 +11,7 @@ import pytest
 from simecs.mesh.kinematics import link_poses
 from simecs.viewer import trace
 
-from .test_viewer_logic import arm, layout, live_frame, loaded_tab, state
+from .viewer_fakes import arm, layout, live_frame, loaded_tab, state
 
 
 class Scene:

@@ -4,7 +4,7 @@ viser runs a callback of a user's click on its thread pool, several at once and 
 events and ticks; the panels would then change under each other. The tab hands its panels this
 client instead: every `add_*` of its `gui` and `scene` returns the real handle, with its callback
 registrars (`on_click`, `on_update`, ...) wrapped so the callbacks they take run on the loop. Nothing
-else changes: a panel uses viser's API as documented. `tests/test_viewer_logic.py` checks that every
+else changes: a panel uses viser's API as documented. `tests/test_viewer_loop.py` checks that every
 callback a loaded page registered is one of these.
 """
 
