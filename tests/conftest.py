@@ -19,7 +19,7 @@ from typing import Any
 
 import pytest
 from simecs.mesh.client import MeshClient, NoReply, RemoteError, SessionClient
-from simecs.mesh.config import load, open_session
+from simecs.mesh.config import open_session
 from simecs.nodes.local_mesh import LocalMesh, clean_env
 from simecs.nodes.local_mesh import wait_until as wait_until  # the tests import it from here
 from simecs.nodes.secure import SecureFolder
@@ -84,26 +84,9 @@ class Secured:
 @pytest.fixture
 def secured() -> Iterator[Secured]:
     mesh = LocalMesh(endpoint=f"tls/127.0.0.1:{free_port()}")
-    folder = SecureFolder(mesh.folder / "secure")
-    passwords = {"ann": folder.add_user("ann"), "bob": folder.add_user("bob")}
-    passwords["eve"] = folder.add_user("eve", "watcher")
-    folder.ensure_certificates([])
-    hub = folder.hub_config([mesh.endpoint])
-    nodes = str(folder.node_config(mesh.endpoint, str(mesh.key_file)))
-    mesh.client_config = load(nodes)  # the harness joins as the service
     try:
-        mesh.spawn("hub", "simecs.nodes.hub", "--mesh-config", str(hub), node_id="hub")
-        mesh.client()
-        data = mesh.folder / "data"
-        mesh.start_together(  # their start-ups overlap, as `simecs up` starts them
-            {
-                "simulator": ("--results-dir", str(data / "results"), "--mesh-config", nodes),
-                "proxy": ("--data-dir", str(data), "--mesh-config", nodes),
-                "hotfeedback": ("--mesh-config", nodes),
-                "recorder": ("--dir", str(mesh.folder / "rec"), "--mesh-config", nodes),
-            }
-        )
-        yield Secured(mesh, folder, passwords, nodes)
+        service = mesh.start_secured({"ann": "user", "bob": "user", "eve": "watcher"})
+        yield Secured(mesh, service.folder, service.passwords, service.node_config)
     finally:
         mesh.close()
 
