@@ -14,7 +14,6 @@ from pathlib import Path
 import numpy as np
 from simecs.mesh import keys
 from simecs.mesh.client import MeshClient, SessionClient
-from simecs.mesh.config import load
 from simecs.nodes.local_mesh import LocalMesh, wait_until
 from simecs.testing import netns
 
@@ -87,24 +86,11 @@ def plain_mesh(hosts: Hosts) -> LanMesh:
 def secured_mesh(hosts: Hosts) -> tuple[LanMesh, str]:
     """As `simecs up` (private, its default) and the `secured` fixture make it, with two users, ann and
     eve; returns the mesh and ann's password (eve's: `mesh.eve`)."""
-    from simecs.nodes.secure import SecureFolder
-
     mesh = LanMesh(hosts, hosts.endpoint("tls", TLS_PORT), "secured")
-    folder = SecureFolder(mesh.folder / "secure")
-    password = folder.add_user("ann")
-    mesh.eve = folder.add_user("eve")  # the attacker of the forgery trial, a user like any other
-    mesh.ca_file = str(folder.ca_file)
-    folder.ensure_certificates([hosts.addresses["hub"]])
-    hub = folder.hub_config([mesh.endpoint])
-    nodes = str(folder.node_config(mesh.endpoint, str(mesh.key_file)))
-    mesh.client_config = load(nodes, env={})  # the harness joins as the service
-    mesh.spawn("hub", HUB, "--mesh-config", str(hub), node_id="hub")
-    mesh.client()
-    data = mesh.folder / "data"
-    mesh.start("proxy", "--data-dir", str(data), "--mesh-config", nodes)
-    mesh.start("simulator", "--results-dir", str(data / "results"), "--mesh-config", nodes)
-    mesh.start("hotfeedback", "--mesh-config", nodes)
-    mesh.start("recorder", "--dir", str(mesh.folder / "rec"), "--mesh-config", nodes)
+    service = mesh.start_secured({"ann": "user", "eve": "user"}, [hosts.addresses["hub"]])
+    mesh.eve = service.passwords["eve"]  # the attacker of the forgery trial, a user like any other
+    mesh.ca_file = str(service.folder.ca_file)
+    password = service.passwords["ann"]
     return mesh, password
 
 

@@ -14,13 +14,16 @@ import subprocess
 import sys
 import tempfile
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from simecs.mesh import seal as seals
 from simecs.mesh.client import MeshClient
-from simecs.mesh.config import MeshConfig
+from simecs.mesh.config import MeshConfig, load
+
+from .secure import SecureFolder
 
 
 def wait_until(
@@ -42,6 +45,16 @@ def clean_env() -> dict[str, str]:
     env["SIMECS_CLIENT_CONFIG"] = ""  # never this machine's user's file (`simecs up`): each test its own mesh
     env["PYTHONUNBUFFERED"] = "1"
     return env
+
+
+@dataclass
+class SecuredService:
+    """What `LocalMesh.start_secured` made: the secure folder, each user's password and the service
+    nodes' configuration file."""
+
+    folder: SecureFolder
+    passwords: dict[str, str]
+    node_config: str
 
 
 class LocalMesh:
@@ -139,6 +152,30 @@ class LocalMesh:
             }
         )
         return data
+
+    def start_secured(self, users: Mapping[str, str], addresses: Sequence[str] = ()) -> SecuredService:
+        """A private mesh as `simecs up` makes it by default, on this mesh's (TLS) endpoint: a hub with
+        the generated access rules, `users` (name -> role) with passwords of their own, the service's
+        nodes (simulator, proxy, hot-feedback, recorder) joined as the service, and this harness
+        joined as the service too. The hub's certificate names `addresses` besides loopback."""
+        folder = SecureFolder(self.folder / "secure")
+        passwords = {name: folder.add_user(name, role) for name, role in users.items()}
+        folder.ensure_certificates(list(addresses))
+        hub = folder.hub_config([self.endpoint])
+        nodes = str(folder.node_config(self.endpoint, str(self.key_file)))
+        self.client_config = load(nodes, env={})
+        self.spawn("hub", "simecs.nodes.hub", "--mesh-config", str(hub), node_id="hub")
+        self.client()  # returns once the hub accepts clients
+        data = self.folder / "data"
+        self.start_together(  # their start-ups overlap, as `simecs up` starts them
+            {
+                "simulator": ("--results-dir", str(data / "results"), "--mesh-config", nodes),
+                "proxy": ("--data-dir", str(data), "--mesh-config", nodes),
+                "hotfeedback": ("--mesh-config", nodes),
+                "recorder": ("--dir", str(self.folder / "rec"), "--mesh-config", nodes),
+            }
+        )
+        return SecuredService(folder, passwords, nodes)
 
     def log(self, name: str) -> str:
         path = self.folder / f"{name}.log"
