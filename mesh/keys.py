@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import re
 import secrets
+from typing import NamedTuple, Protocol
 
 from .key_table import KEYS, PLACEHOLDER, ROOT, KeySpec  # noqa: F401 (keys.KeySpec, keys.ROOT)
 from .primitives import NAME_PATTERN, SESSION_ID_PATTERN
@@ -213,6 +214,40 @@ def simulator_model(host_id: str, model_id: str) -> str:
 def simulator_models(host_id: str) -> str:
     """Every model bundle one host serves."""
     return KEYS["simulator_model"].pattern.replace("<node>", _check("node", host_id)).replace("<model>", "*")
+
+
+class RunOf(Protocol):
+    """Anything that names a run by its user, session and run id (a RunRequest, a RunRef)."""
+
+    user: str
+    session: str
+    run_id: str
+
+
+class RunRef(NamedTuple):
+    """One run as the protocol names it: its user, session and run id (the chunks of its token)."""
+
+    user: str
+    session: str
+    run_id: str
+
+    @classmethod
+    def of(cls, run: RunOf) -> RunRef:
+        """The run a RunRequest (or anything with user, session and run_id) is about."""
+        return cls(run.user, run.session, run.run_id)
+
+    @classmethod
+    def of_token(cls, key: object) -> RunRef:
+        """The run whose liveliness token is `key`; KeyProblem if it is not a run token."""
+        chunks = parse("run_token", key)
+        return cls(chunks["user"], chunks["session"], chunks["run"])
+
+    @property
+    def token(self) -> str:
+        return run_token(self.user, self.session, self.run_id)
+
+    def __str__(self) -> str:
+        return f"{self.session}/{self.run_id}"
 
 
 def run_token(user: str, session: str, run_id: str) -> str:

@@ -16,7 +16,7 @@ import subprocess
 import time
 from dataclasses import dataclass, field
 
-from simecs.mesh import load
+from simecs.mesh import keys, load
 from simecs.mesh import messages as m
 
 from .worker import COST, PROGRESS
@@ -106,7 +106,7 @@ class HostLoad:
         self.cpus = set(os.sched_getaffinity(0))
         self.models = models
         self.max_runs = max_runs
-        self.runs: dict[str, HostedRun] = {}
+        self.runs: dict[keys.RunRef, HostedRun] = {}
         self._partial: dict[int, bytes] = {}  # a worker's unfinished last line, by pid
         self.cost: dict[str, float] = {}  # of paced runs, by model
         self.fast_cost: dict[str, float] = {}  # of runs as fast as possible, by model
@@ -124,7 +124,7 @@ class HostLoad:
     def refusal(self, request: m.RunRequest) -> str:
         return load.refusal(self.current, request)
 
-    def add(self, key: str, proc: subprocess.Popen[str], request: m.RunRequest, warm: bool) -> None:
+    def add(self, key: keys.RunRef, proc: subprocess.Popen[str], request: m.RunRequest, warm: bool) -> None:
         run = HostedRun(
             proc,
             request.session,
@@ -137,7 +137,7 @@ class HostLoad:
         self.runs[key] = run
         self.current = self._build()  # counted at once: the next request sees it
 
-    def remove(self, key: str) -> None:
+    def remove(self, key: keys.RunRef) -> None:
         run = self.runs.pop(key, None)
         if run is not None:
             self._partial.pop(run.proc.pid, None)

@@ -257,8 +257,8 @@ class RunTracker:
         alive = set()
         for reply in self.z().liveliness().get(keys.RUN_TOKENS, timeout=1.0):
             if reply.ok is not None:
-                token = keys.parse("run_token", reply.ok.key_expr)
-                alive.add((token["session"], token["run"]))
+                ref = keys.RunRef.of_token(reply.ok.key_expr)
+                alive.add((ref.session, ref.run_id))
         with self.lock:
             for rec in self.store:
                 mine = (rec.id, rec.state.run_id) in alive
@@ -385,10 +385,9 @@ class RunTracker:
         if sample.kind != zenoh.SampleKind.DELETE:
             return
         try:
-            token = keys.parse("run_token", sample.key_expr)
+            user, sid, run_id = keys.RunRef.of_token(sample.key_expr)
         except ValueError:
             return
-        user, sid, run_id = token["user"], token["session"], token["run"]
         gone_at = time.monotonic()
         # The worker's last RunStatus may still be on its way (another channel than liveliness):
         # give it a moment before calling the run lost. Still well within the 1 s promise.
@@ -554,15 +553,14 @@ class RunTracker:
             if back:
                 for reply in self.z().liveliness().get(keys.RUN_TOKENS, timeout=1.0):
                     if reply.ok is not None:
-                        token = keys.parse("run_token", reply.ok.key_expr)
-                        alive.add((token["user"], token["session"], token["run"]))
+                        alive.add(keys.RunRef.of_token(reply.ok.key_expr))
             with self.lock:
                 for (user, sid), run_id in list(self.suspended.items()):
                     del self.suspended[(user, sid)]
                     rec = self.store.owned(user, sid)
                     if rec is None or rec.state.run_id != run_id or rec.phase not in phases.GOING:
                         continue
-                    if (user, sid, run_id) in alive:
+                    if keys.RunRef(user, sid, run_id) in alive:
                         self.log.info("session %s run %s: its worker is back with the hub", sid, run_id)
                     elif back:
                         self._settle_ended_run(rec, "its simulator process was lost while the hub was away")

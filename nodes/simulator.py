@@ -62,8 +62,8 @@ class Simulator(Node):
         self.spawned_at: dict[int, float] = {}  # pids of workers not warm yet: when they were started
         #: Sessions closed lately: an aborted run's worker may store results after the close.
         self.closed: dict[tuple[str, str], None] = {}
-        self.busy: dict[str, subprocess.Popen[str]] = {}
-        self.fast: set[str] = set()  # busy runs paced as fast as possible (CPU-bound)
+        self.busy: dict[keys.RunRef, subprocess.Popen[str]] = {}
+        self.fast: set[keys.RunRef] = set()  # busy runs paced as fast as possible (CPU-bound)
         self.mesh_config_path = ""
         self._bundles: dict[str, bytes] = {}  # model id -> its bundle, made on the first ask
 
@@ -179,9 +179,8 @@ class Simulator(Node):
                     del self.busy[key]
                     self.load.remove(key)
                     self.fast.discard(key)
-                    user, session, _run = key.split(" ")
-                    if (user, session) in self.closed:  # its worker stored results after the close
-                        self.store.remove(user, session)
+                    if (key.user, key.session) in self.closed:  # its worker stored results after the close
+                        self.store.remove(key.user, key.session)
                     if code not in (0, 3):
                         self.log.warning("worker of %s exited with code %s", key, code)
                         self._report_lost(key, code)
@@ -193,12 +192,12 @@ class Simulator(Node):
         if not defer:
             self._refill()
 
-    def _report_lost(self, key: str, code: int) -> None:
+    def _report_lost(self, key: keys.RunRef, code: int) -> None:
         """A worker that died (perhaps before its liveliness token was up) fails its run.
 
         The proxy ignores this if the worker's own final status or the loss of its token came first.
         """
-        user, session, run_id = key.split(" ")
+        user, session, run_id = key
         reason = f"the simulator process of run {run_id} disappeared (exit code {code})"
         # what it computed, from its partial file (not for a closed session: its results went with it)
         kept = None if (user, session) in self.closed else self.store.salvage(user, session, run_id, reason)
@@ -220,7 +219,7 @@ class Simulator(Node):
     def _on_run(self, req: Request) -> m.Accepted:
         req.from_service("run requests")  # the proxy's: its admission and its sessions' owners
         run = req.json(m.RunRequest)
-        key = f"{run.user} {run.session} {run.run_id}"
+        key = keys.RunRef.of(run)
         with self.lock:
             taken = self.busy.get(key)
             if taken is not None and taken.poll() is None:
