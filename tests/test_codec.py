@@ -12,15 +12,11 @@ import msgspec.inspect as mi
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from simecs.mesh import codec, messages, primitives
-from simecs.mesh import model as model_types
+from simecs.mesh.protocol import codec, messages, primitives, schema
+from simecs.mesh.protocol import model as model_types
 
-MESSAGE_TYPES = [
-    obj
-    for mod in (messages, model_types)
-    for obj in vars(mod).values()
-    if isinstance(obj, type) and issubclass(obj, msgspec.Struct) and obj.__module__ == mod.__name__
-]
+#: Every Struct of the protocol (the schema's own list of them).
+MESSAGE_TYPES = schema.message_types()
 SESSION = "A" * 22
 OPS = {cls.__struct_config__.tag: cls for cls in typing.get_args(messages.SessionCommand)}
 
@@ -230,7 +226,7 @@ def test_a_number_out_of_range_in_an_action_argument_is_refused_again_and_again(
     decode runs in a child process so that a crash fails this test instead of the test runner."""
     script = """
 import gc
-from simecs.mesh import codec, messages as m
+from simecs.mesh.protocol import codec, messages as m
 p = b'{"op":"save_program","v":1,"name":"x","program":{"kind":"task","name":"t","actions":['
 p += b'{"kind":"action","primitive":"wait","args":{"duration":1e999}}]}}'
 for _ in range(3000):
