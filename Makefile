@@ -53,15 +53,15 @@ lint: $(TEST_STAMP)
 	@mkdir -p $(TYPES) && for p in $(PACKAGES); do ln -sfn ../../../$$p $(TYPES)/$$p; done
 	$(BIN)/mypy
 	PYTHONPATH=.simecs/types $(BIN)/lint-imports --no-cache
-	$(BIN)/python -m simecs.mesh.protocol_doc --check
+	$(BIN)/python -m simecs.mesh.protocol.protocol_doc --check
 
 format: $(TEST_STAMP)
 	$(BIN)/ruff check --fix $(CODE)
 	$(BIN)/ruff format $(CODE)
 
-# Rewrite docs/protocol.schema.json and the generated tables of docs/PROTOCOL.md from mesh/.
+# Rewrite docs/protocol.schema.json and the generated tables of docs/PROTOCOL.md from mesh/protocol/.
 schema: $(STAMP)
-	$(BIN)/python -m simecs.mesh.protocol_doc
+	$(BIN)/python -m simecs.mesh.protocol.protocol_doc
 
 # Lint and the drives' compile run side by side (one core each): on a fresh clone that saves half a minute.
 test: $(TEST_STAMP) $(CHROMIUM)

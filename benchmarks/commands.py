@@ -81,8 +81,8 @@ def standard_line(model_id: str) -> StandardLine:
     """LINE_LENGTH m at 50 % from the model's standard posture, along the first of DIRECTIONS the arm
     can follow (the same move for every bench that quotes "the standard LIN move")."""
     from simecs import models
-    from simecs.mesh import messages as m
-    from simecs.mesh.kinematics import rpy_of
+    from simecs.mesh.protocol import messages as m
+    from simecs.mesh.rules.kinematics import rpy_of
 
     pkg, planner = _planner(model_id, 60.0)
     p0, R0 = planner.kin.tool_pose(planner.q0)
@@ -121,7 +121,7 @@ def run_line(
 
 
 def _lin(model_id: str) -> dict[str, float]:
-    from simecs.mesh.kinematics import matrix_from_quat
+    from simecs.mesh.rules.kinematics import matrix_from_quat
 
     line = standard_line(model_id)
     pkg, planner, plan, p0, target = line
@@ -173,7 +173,7 @@ def _ik(model_id: str, count: int = 200) -> dict[str, float]:
 
 
 def _mission(model_id: str) -> dict[str, float]:
-    from simecs.mesh import messages as m
+    from simecs.mesh.protocol import messages as m
 
     _pkg, planner = _planner(model_id, 600.0)
     q0 = planner.q0
@@ -205,8 +205,8 @@ def _mission(model_id: str) -> dict[str, float]:
 
 def _pendant(model_id: str) -> dict[str, float]:
     from simecs import models
-    from simecs.mesh import messages as m
-    from simecs.mesh.kinematics import rpy_of
+    from simecs.mesh.protocol import messages as m
+    from simecs.mesh.rules.kinematics import rpy_of
     from simecs.models.planner import Planner
 
     pkg = models.get_model(model_id)
@@ -274,7 +274,7 @@ def _pendant(model_id: str) -> dict[str, float]:
 
 
 def _open_loop(model_id: str) -> dict[str, float]:
-    from simecs.mesh import messages as m
+    from simecs.mesh.protocol import messages as m
 
     pkg, planner = _planner(model_id, 0.3)
     values, q0 = planner.values, planner.q0

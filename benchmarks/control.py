@@ -93,7 +93,7 @@ def _best_of_three(
 
 def _contact_figures() -> dict[str, float]:
     from simecs import models
-    from simecs.mesh import messages as m
+    from simecs.mesh.protocol import messages as m
     from simecs.models.contact_geometry import TOOL_RADIUS
     from simecs.models.ik import ArmKinematics
 
@@ -147,7 +147,7 @@ def _contact_figures() -> dict[str, float]:
 def _urdf_figures() -> dict[str, float]:
     """An imported arm's contact through its URDF collision solids, and every arm against itself."""
     from simecs import models
-    from simecs.mesh import messages as m
+    from simecs.mesh.protocol import messages as m
     from simecs.testing.collision import fold_target, link_hull_points
 
     pkg = models.get_model("panda")
@@ -186,8 +186,8 @@ SETTLE_S = 0.5
 
 def _hybrid_figures() -> dict[str, float]:
     from simecs import models
-    from simecs.mesh import messages as m
-    from simecs.mesh.kinematics import rpy_of
+    from simecs.mesh.protocol import messages as m
+    from simecs.mesh.rules.kinematics import rpy_of
     from simecs.models.contact_geometry import TOOL_RADIUS
     from simecs.models.planner import Planner
 

@@ -27,9 +27,11 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from simecs.mesh import affinity, batch, frames, keys
-from simecs.mesh import messages as m
+from simecs.mesh import batch
 from simecs.mesh.client import MeshClient, SessionClient
+from simecs.mesh.process import affinity
+from simecs.mesh.protocol import frames, keys
+from simecs.mesh.protocol import messages as m
 from simecs.nodes.local_mesh import LocalMesh, clean_env, wait_until
 
 EXAMPLE = Path(__file__).resolve().parent.parent / "docs" / "examples" / "external_controller.py"
@@ -51,7 +53,7 @@ def start_controller(mesh: LocalMesh, session: SessionClient, runs: int) -> subp
         [*argv, "--runs", str(runs)],
         stdout=subprocess.PIPE,
         env=clean_env(),
-        # placed like the viewer: on the mesh core, beside the hub (mesh/affinity.py)
+        # placed like the viewer: on the mesh core, beside the hub (mesh/process/affinity.py)
         preexec_fn=(lambda: os.sched_setaffinity(0, {cpu})) if cpu is not None else None,
     )
     assert proc.stdout is not None

@@ -17,10 +17,10 @@ from typing import Any
 
 import numpy as np
 import zenoh
-from simecs.mesh import frames, keys
-from simecs.mesh import messages as m
 from simecs.mesh.client import SessionClient
-from simecs.mesh.config import MeshConfig, open_session
+from simecs.mesh.process.config import MeshConfig, open_session
+from simecs.mesh.protocol import frames, keys
+from simecs.mesh.protocol import messages as m
 from simecs.nodes.local_mesh import LocalMesh, clean_env, wait_until
 
 from .lan_mesh import (
@@ -104,7 +104,7 @@ def slow_trial(mesh: LanMesh) -> dict[str, Any]:
 
 # -- 5. the recorder crashes ------------------------------------------------------------------------------
 def recorder_crash_trial(mesh: LanMesh) -> dict[str, Any]:
-    from simecs.nodes import mcapread
+    from simecs.nodes.recording import mcapread
 
     client = mesh.client()
     s = prepared(client, "carol", CRASH_STOP, "realtime")

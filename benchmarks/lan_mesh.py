@@ -12,8 +12,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from simecs.mesh import keys
 from simecs.mesh.client import MeshClient, SessionClient
+from simecs.mesh.protocol import keys
 from simecs.nodes.local_mesh import LocalMesh, wait_until
 from simecs.testing import netns
 
@@ -114,7 +114,7 @@ def closed_recordings(
     mesh: LocalMesh, s: SessionClient, run_id: str, parts: int, timeout: float
 ) -> list[Path]:
     """The run's `parts` recording files once each is complete (has its footer)."""
-    from simecs.nodes import mcapread
+    from simecs.nodes.recording import mcapread
 
     def done() -> list[Path]:
         paths = recording_files(mesh, s, run_id)
@@ -125,7 +125,7 @@ def closed_recordings(
 
 def recording_matches(mesh: LocalMesh, s: SessionClient, run_id: str) -> bool:
     """The run's one recording holds exactly its results, with no gap left."""
-    from simecs.nodes import mcapread
+    from simecs.nodes.recording import mcapread
 
     try:
         (path,) = closed_recordings(mesh, s, run_id, 1, 40.0)

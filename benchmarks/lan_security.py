@@ -12,10 +12,10 @@ from typing import Any
 
 import numpy as np
 import zenoh
-from simecs.mesh import frames, keys
-from simecs.mesh import messages as m
 from simecs.mesh.client import MeshClient
-from simecs.mesh.config import MeshConfig, TlsConfig
+from simecs.mesh.process.config import MeshConfig, TlsConfig
+from simecs.mesh.protocol import frames, keys
+from simecs.mesh.protocol import messages as m
 from simecs.nodes.local_mesh import wait_until
 
 from .lan_mesh import ENDED, OUTPUT, LanMesh, live_nodes, prepared, recording_matches, sim_time_above
@@ -311,6 +311,6 @@ def fuzz_trial(mesh: LanMesh) -> dict[str, Any]:
 
 
 def mcapread_complete(path: Path) -> bool:
-    from simecs.nodes import mcapread
+    from simecs.nodes.recording import mcapread
 
     return mcapread.has_footer(path)

@@ -28,13 +28,13 @@ from typing import Any
 import numpy as np
 import zenoh
 import zenoh.ext
-from simecs.mesh import codec, frames, keys
-from simecs.mesh import messages as m
 from simecs.mesh.client import MeshClient
-from simecs.mesh.config import MeshConfig, open_session
+from simecs.mesh.process.config import MeshConfig, open_session
+from simecs.mesh.protocol import codec, frames, keys
+from simecs.mesh.protocol import messages as m
 from simecs.mesh.seal import SealedPublisher
-from simecs.nodes import mcapread
 from simecs.nodes.local_mesh import LocalMesh, clean_env
+from simecs.nodes.recording import mcapread
 
 STOP = 5.0
 OUTPUT = 0.002

@@ -29,9 +29,9 @@ from typing import Any
 
 import zenoh
 import zenoh.ext
-from simecs.mesh import codec, keys
-from simecs.mesh import messages as m
 from simecs.mesh.client import SessionClient
+from simecs.mesh.protocol import codec, keys
+from simecs.mesh.protocol import messages as m
 from simecs.nodes.local_mesh import LocalMesh, wait_until
 from simecs.testing import netns
 

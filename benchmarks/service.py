@@ -4,7 +4,7 @@ Everything runs on a private mesh (LocalMesh: hub on a unix socket, real node pr
 1. latency from a sample leaving the simulator worker to a client receiving it decimated, p50/p99,
    beside a raw zenoh ping-pong between two Python client processes through the same hub (a ping
    round trip crosses the hub twice, as a live sample does: worker -> hub -> hot-feedback -> hub ->
-   client), at the live frames' pace and placed like the viewer (`--cpu`, see mesh/affinity.py);
+   client), at the live frames' pace and placed like the viewer (`--cpu`, see mesh/process/affinity.py);
 2. how many standard-case sessions run at once at real-time pacing and keep up (every run's RTF
    >= 0.95 of the requested 1.0);
 3. RTF of the standard case as fast as possible through the service, with live streaming and a live
@@ -26,9 +26,10 @@ from typing import Any, cast
 
 import numpy as np
 import zenoh
-from simecs.mesh import affinity, frames, keys
 from simecs.mesh.client import MeshClient, SessionClient
-from simecs.mesh.config import MeshConfig, open_session
+from simecs.mesh.process import affinity
+from simecs.mesh.process.config import MeshConfig, open_session
+from simecs.mesh.protocol import frames, keys
 from simecs.nodes.local_mesh import LocalMesh, clean_env
 
 STOP = 5.0

@@ -1,2 +1,3 @@
-"""The protocol of simecs, and every rule more than one process needs: keys, messages, phases, frames,
-columns, shape geometry, codec, schema, mesh configuration and the node runtime, in one place."""
+"""Everything more than one process shares: the protocol (`protocol/`), the rules several processes
+compute alike (`rules/`), the plumbing every process joins the mesh with (`process/`), and the client
+side (`client`, `batch`)."""

@@ -15,9 +15,9 @@ from typing import Any
 
 import numpy as np
 
-from . import messages as m
-from . import phases
 from .client import MeshClient, SessionClient
+from .protocol import messages as m
+from .protocol import phases
 
 #: Outcome measures of a variable over a run: `kind:variable`, e.g. `overshoot:joint2.q`.
 MEASURES: dict[str, str] = {

@@ -15,14 +15,14 @@ import numpy as np
 import zenoh
 import zenoh.ext
 
-from . import codec, frames, keys
-from . import messages as m
-from . import seal as seals
-from .config import MeshConfig, load_client, open_session
-from .model import DocPage, ModelDescription, ModelSummary
-from .results import selector_query
-from .seal import Seal
-from .workers import BoundedWorker
+from .process import seal as seals
+from .process.config import MeshConfig, load_client, open_session
+from .process.seal import Seal
+from .process.workers import BoundedWorker
+from .protocol import codec, frames, keys
+from .protocol import messages as m
+from .protocol.model import DocPage, ModelDescription, ModelSummary
+from .rules.results import selector_query
 
 
 class RemoteError(Exception):
@@ -56,7 +56,7 @@ class MeshClient:
     """Server-wide requests; `session(id)` gives the per-session API.
 
     With the service's `seal` (only processes of the service have it: the viewer, tests), what a
-    session publishes is shown only if a service node put it (mesh/seal.py); other clients take it
+    session publishes is shown only if a service node put it (mesh/process/seal.py); other clients take it
     as it comes."""
 
     def __init__(
@@ -110,7 +110,7 @@ class MeshClient:
             if answer.ok is not None:
                 body = answer.ok.payload.to_bytes()
                 if self.seal is not None and not self.seal.sample_valid(answer.ok, body):
-                    forged += 1  # not a service node's answer (mesh/seal.py): another peer's, ignored
+                    forged += 1  # not a service node's answer (mesh/process/seal.py): another peer's, ignored
                     continue
                 data: Any = codec.loads(m.Ok, body).data
                 return data if reply is Any else codec.from_obj(reply, data)

@@ -18,7 +18,7 @@ import os
 from pathlib import Path
 
 import numpy as np
-from simecs.mesh.model import ModelSummary
+from simecs.mesh.protocol.model import ModelSummary
 
 from .errors import CommandError, ParameterError, SimulationError
 from .model_file import MODEL_FILE, ModelFileError, load_model_dir
@@ -120,7 +120,7 @@ def get_model(model_id: str) -> ModelPackage:
 
 def costs(seconds: float = 0.25) -> dict[str, float]:
     """CPU s per simulated s of each model (default values, a joint move, the default step): the
-    simulator's first estimate of what a run costs, until its runs measure it (mesh/load.py)."""
+    simulator's first estimate of what a run costs, until its runs measure it (mesh/rules/load.py)."""
     import time
 
     out = {}

@@ -23,7 +23,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from simecs.mesh import files
+from simecs.mesh.process import files
 
 from .urdf import Geometry, UrdfError, resolve_uri
 

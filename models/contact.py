@@ -1,4 +1,4 @@
-"""Contact between the arm and the obstacles (mesh/environment.py): a compiled penalty model.
+"""Contact between the arm and the obstacles (mesh/protocol/environment.py): a compiled penalty model.
 
 The arm touches the world through spheres (contact_geometry.py). An obstacle pushes a sphere out
 along the surface normal with `stiffness` x penetration + `damping` x penetration rate (never
@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from numba import njit
-from simecs.mesh import columns
+from simecs.mesh.protocol import columns
 
 from .chain_dynamics import chain_frames, chain_state
 from .chain_kinematics import spd_inverse

@@ -16,8 +16,8 @@ from collections.abc import Mapping, Sequence
 
 import numpy as np
 from numba import njit
-from simecs.mesh.environment import OBSTACLE_KINDS, Obstacle
-from simecs.mesh.kinematics import rot_rpy
+from simecs.mesh.protocol.environment import OBSTACLE_KINDS, Obstacle
+from simecs.mesh.rules.kinematics import rot_rpy
 
 from .collision_spheres import solid_spheres
 from .jit import CACHE as _CACHE

@@ -12,10 +12,9 @@ from typing import Literal
 
 import msgspec
 import numpy as np
-from simecs.mesh import columns
-from simecs.mesh.codec import DecodeError
-from simecs.mesh.kinematics import rot_rpy, rpy_of
-from simecs.mesh.model import (
+from simecs.mesh.protocol import columns
+from simecs.mesh.protocol.codec import DecodeError
+from simecs.mesh.protocol.model import (
     CONTROL_SYSTEMS,
     InitEquation,
     Link,
@@ -24,8 +23,9 @@ from simecs.mesh.model import (
     Shape,
     Variable,
 )
-from simecs.mesh.model import check_values as check_bounds
-from simecs.mesh.robot_commands import COMMAND_LEVELS
+from simecs.mesh.protocol.model import check_values as check_bounds
+from simecs.mesh.protocol.robot_commands import COMMAND_LEVELS
+from simecs.mesh.rules.kinematics import rot_rpy, rpy_of
 
 from . import contact, grasp
 from . import drive as dr

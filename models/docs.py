@@ -9,7 +9,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 
-from simecs.mesh.model import DocPage, InitEquation, Parameter
+from simecs.mesh.protocol.model import DocPage, InitEquation, Parameter
 
 from . import drive as dr
 from .spec import ArmSpec

@@ -18,9 +18,9 @@ from dataclasses import dataclass
 
 import numpy as np
 from numba import njit
-from simecs.mesh.environment import Obstacle
-from simecs.mesh.kinematics import rot_rpy
-from simecs.mesh.robot_commands import GRASP_REACH
+from simecs.mesh.protocol.environment import Obstacle
+from simecs.mesh.protocol.robot_commands import GRASP_REACH
+from simecs.mesh.rules.kinematics import rot_rpy
 
 from .chain_dynamics import quats_from_matrices
 from .contact_geometry import CARRIED, GRASPED, HELD, OB_GRASP, obstacle_table, surface_contact
@@ -32,7 +32,8 @@ MAX_SPHERES_PER_AXIS = 6
 
 
 #: Output columns (`grasp.*` variables): the object last taken (its number in the run's list, 1..;
-#: 0: none yet) and whether the tool holds it; its pose is the `grasped` pose frame (mesh/columns.py).
+#: 0: none yet) and whether the tool holds it; its pose is the `grasped` pose frame
+#: (mesh/protocol/columns.py).
 GRASP_OUTPUTS = ("object", "held")
 # the grasp state the result rows read: object number, held, then its centre and frame (row-major): in
 # the last joint's frame while held, in the world's once released (and before any grasp: the origin)

@@ -33,7 +33,7 @@ from typing import NamedTuple
 
 import numpy as np
 from scipy.optimize import minimize
-from simecs.mesh.kinematics import rot_rpy
+from simecs.mesh.rules.kinematics import rot_rpy
 
 from .chain_kinematics import rotation_vector, rotvec_exp, tool_frames, tool_jacobian
 from .ik_solver import ST_STALLED, cost_grad, solve_kernel, tool_positions_of

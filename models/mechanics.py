@@ -12,7 +12,7 @@ from collections.abc import Mapping, Sequence
 from typing import NamedTuple
 
 import numpy as np
-from simecs.mesh.kinematics import rot_rpy
+from simecs.mesh.rules.kinematics import rot_rpy
 
 from . import drive as dr
 from .spec import ArmSpec

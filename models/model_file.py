@@ -16,10 +16,10 @@ from typing import Annotated, Literal
 import json5
 import msgspec
 from msgspec import Meta
-from simecs.mesh.codec import DecodeError, from_obj
-from simecs.mesh.environment import ObstacleList, check_obstacles
-from simecs.mesh.model import Shape
-from simecs.mesh.primitives import Name, Record, Text
+from simecs.mesh.protocol.codec import DecodeError, from_obj
+from simecs.mesh.protocol.environment import ObstacleList, check_obstacles
+from simecs.mesh.protocol.model import Shape
+from simecs.mesh.protocol.primitives import Name, Record, Text
 
 from .drives_catalog import size_class, size_for_limits
 from .spec import ArmSpec, LinkSpec, ParamInfo, Visual

@@ -3,7 +3,7 @@ joint's variables (drive.drive_outputs), the tool's error against its set-point 
 grasp's, and the link, tool and grasped-object poses. No Exudyn call: the chain's frames are computed here
 once and serve every part of the row.
 
-The columns are `mesh.columns.run_columns`'; this kernel writes their values in that order.
+The columns are `mesh.protocol.columns.run_columns`'; this kernel writes their values in that order.
 """
 
 from __future__ import annotations

@@ -12,7 +12,7 @@ import math
 from collections.abc import Mapping, Sequence
 
 import numpy as np
-from simecs.mesh.environment import Obstacle
+from simecs.mesh.protocol.environment import Obstacle
 
 from . import contact, contact_geometry, grasp
 from . import drive as dr

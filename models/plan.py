@@ -16,8 +16,8 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from simecs.mesh import messages as m
-from simecs.mesh.environment import Obstacle
+from simecs.mesh.protocol import messages as m
+from simecs.mesh.protocol.environment import Obstacle
 
 from . import grasp, references, signals
 

@@ -28,14 +28,14 @@ from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
-from simecs.mesh import messages as m
-from simecs.mesh import scene_state
-from simecs.mesh.codec import DecodeError
-from simecs.mesh.environment import Obstacle, grasp_problem
-from simecs.mesh.kinematics import rot_rpy, rpy_of
-from simecs.mesh.limits import limit
-from simecs.mesh.model import check_joints
-from simecs.mesh.robot_commands import ACTION_ARGS, NAME_ARG
+from simecs.mesh.protocol import messages as m
+from simecs.mesh.protocol.codec import DecodeError
+from simecs.mesh.protocol.environment import Obstacle, grasp_problem
+from simecs.mesh.protocol.limits import limit
+from simecs.mesh.protocol.model import check_joints
+from simecs.mesh.protocol.robot_commands import ACTION_ARGS, NAME_ARG
+from simecs.mesh.rules import scene_state
+from simecs.mesh.rules.kinematics import rot_rpy, rpy_of
 
 from . import contact_geometry, grasp, references, signals
 from .chain_dynamics import chain_frames

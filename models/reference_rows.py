@@ -12,7 +12,7 @@ from collections.abc import Sequence
 
 import numpy as np
 from numba import njit
-from simecs.mesh.environment import Obstacle
+from simecs.mesh.protocol.environment import Obstacle
 
 from . import references
 from .errors import CommandError

@@ -7,8 +7,8 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 
 import numpy as np
-from simecs.mesh import scene_state
-from simecs.mesh.environment import Obstacle, check_obstacles
+from simecs.mesh.protocol.environment import Obstacle, check_obstacles
+from simecs.mesh.rules import scene_state
 
 from . import grasp
 from .contact import pair_width

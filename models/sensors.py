@@ -1,6 +1,6 @@
 """What an external controller reads each control period: the drives' sensors, compiled like them.
 
-The row layout is the protocol's (simecs.mesh.hil.SENSOR_FIELDS): the time, then per joint the load
+The row layout is the protocol's (simecs.mesh.protocol.hil.SENSOR_FIELDS): the time, then per joint the load
 and motor resolvers (angle and speed, with their modelled errors), the two measured phase currents,
 the command's set points at that time (jog included) and the joint's command mode (references.JM_*).
 """
@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 from numba import njit
-from simecs.mesh.hil import SENSOR_JOINT_FIELDS
+from simecs.mesh.protocol.hil import SENSOR_JOINT_FIELDS
 
 from . import drive as dr
 from . import references

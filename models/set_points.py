@@ -10,7 +10,7 @@ import numbers
 from collections.abc import Sequence
 
 import numpy as np
-from simecs.mesh.model import Link
+from simecs.mesh.protocol.model import Link
 
 from . import drive as dr
 from . import references

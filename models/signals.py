@@ -25,7 +25,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from simecs.mesh.robot_commands import (
+from simecs.mesh.protocol.robot_commands import (
     ChirpSignal,
     DirectInput,
     RampSignal,

@@ -13,9 +13,9 @@ from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
 import numpy as np
-from simecs.mesh.environment import Obstacle
-from simecs.mesh.kinematics import rot_rpy
-from simecs.mesh.model import CONTROL_SYSTEMS
+from simecs.mesh.protocol.environment import Obstacle
+from simecs.mesh.protocol.model import CONTROL_SYSTEMS
+from simecs.mesh.rules.kinematics import rot_rpy
 
 from . import chain_dynamics, drive_integrator, references
 from . import drive as dr
@@ -204,7 +204,7 @@ class Simulation:
         return self.set_points.jog(rates, horizon, self._time)
 
     def set_control(self, system: str, period: float) -> None:
-        """The built-in control system of the runs that follow (mesh.model.CONTROL_SYSTEMS), updated
+        """The built-in control system of the runs that follow (mesh.protocol.model.CONTROL_SYSTEMS), updated
         every `period` s (a whole number of solver steps: checked at start)."""
         if system not in CONTROL_SYSTEMS:
             raise ValueError(
@@ -215,7 +215,7 @@ class Simulation:
         self._control = (system, float(period))
 
     def sensors(self, out: np.ndarray) -> None:
-        """What an external controller reads now into `out` (models/sensors.py, mesh/hil.py)."""
+        """What an external controller reads now into `out` (models/sensors.py, mesh/protocol/hil.py)."""
         sd = self._sd
         ok = sensor_row(
             *self.set_points.arrays(),

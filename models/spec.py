@@ -10,8 +10,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from simecs.mesh.environment import Obstacle
-from simecs.mesh.model import Shape
+from simecs.mesh.protocol.environment import Obstacle
+from simecs.mesh.protocol.model import Shape
 
 from .urdf import Geometry
 

@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from simecs.mesh.kinematics import rot_rpy
+from simecs.mesh.rules.kinematics import rot_rpy
 
 JOINT_TYPES = ("revolute", "continuous", "prismatic", "fixed", "floating", "planar")
 #: How far an axis may be from unit length: URDF asks for a normalised axis, files round it.

@@ -21,7 +21,7 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from simecs.mesh.kinematics import rpy_of
+from simecs.mesh.rules.kinematics import rpy_of
 
 from .urdf import Geometry, UrdfError, UrdfJoint, UrdfRobot
 
@@ -256,7 +256,7 @@ def serial_chain(
     tool_translation = (float(v[0]) - last_length, 0.0, 0.0)
     J1 = joint_pose[0]
 
-    from simecs.mesh.kinematics import rot_rpy
+    from simecs.mesh.rules.kinematics import rot_rpy
 
     links = []
     for i, j in enumerate(moving):

@@ -2,7 +2,7 @@
 in the queue, in order, each told its position and an estimate of its wait.
 
 Whether a host can hold a run, and which host is least loaded, is the simulators' own measured load
-(nodes/placement.py, mesh/load.py): a real-time run needs a fraction of a core, a run as fast as
+(nodes/placement.py, mesh/rules/load.py): a real-time run needs a fraction of a core, a run as fast as
 possible a whole one. A configured `max_running` caps the runs of the whole service besides.
 
 The chosen host gets the `RunRequest` in a thread of its own: a host that is slow to answer (up to the
@@ -22,11 +22,12 @@ from collections.abc import Callable
 from typing import Any
 
 import zenoh
-from simecs.mesh import codec, keys, load, phases
-from simecs.mesh import messages as m
-from simecs.mesh.hublink import HubLink
-from simecs.mesh.runtime import RequestError
-from simecs.mesh.seal import Seal
+from simecs.mesh.process.hublink import HubLink
+from simecs.mesh.process.runtime import RequestError
+from simecs.mesh.process.seal import Seal
+from simecs.mesh.protocol import codec, keys, phases
+from simecs.mesh.protocol import messages as m
+from simecs.mesh.rules import load
 
 from .placement import GoingRun, Hosts
 from .sessions import SessionRecord, SessionStore

@@ -19,9 +19,9 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 import zenoh
-from simecs.mesh import hil, keys
-from simecs.mesh import messages as m
-from simecs.mesh.seal import Seal, SealedPublisher
+from simecs.mesh.process.seal import Seal, SealedPublisher
+from simecs.mesh.protocol import hil, keys
+from simecs.mesh.protocol import messages as m
 
 from .pacing import Pacer
 

@@ -1,4 +1,4 @@
-"""What this simulator host carries, measured: the `SimulatorLoad` in its status (mesh/load.py).
+"""What this simulator host carries, measured: the `SimulatorLoad` in its status (mesh/rules/load.py).
 
 Every second it reads, from /proc, the CPU time of each worker and of the cores the host may use (so
 it knows what other processes on those cores take: a hub, a proxy, a viewer), the memory free and a
@@ -16,8 +16,9 @@ import subprocess
 import time
 from dataclasses import dataclass, field
 
-from simecs.mesh import keys, load
-from simecs.mesh import messages as m
+from simecs.mesh.protocol import keys
+from simecs.mesh.protocol import messages as m
+from simecs.mesh.rules import load
 
 from .worker import COST, PROGRESS
 

@@ -24,9 +24,9 @@ from typing import Any
 
 import numpy as np
 import zenoh
-from simecs.mesh import codec, frames, keys
-from simecs.mesh import messages as m
-from simecs.mesh.runtime import Node, main_for
+from simecs.mesh.process.runtime import Node, main_for
+from simecs.mesh.protocol import codec, frames, keys
+from simecs.mesh.protocol import messages as m
 
 #: Tokens a stream may save up. One: every forwarded frame waits a whole period after the last one,
 #: so the limit holds in every window, the start of a run included. (The simulator's 40 frames per

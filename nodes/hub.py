@@ -8,8 +8,8 @@ from __future__ import annotations
 
 import argparse
 
-from simecs.mesh.config import DEFAULT_HUB, hub_config, load
-from simecs.mesh.runtime import Node, main_for
+from simecs.mesh.process.config import DEFAULT_HUB, hub_config, load
+from simecs.mesh.process.runtime import Node, main_for
 
 
 class Hub(Node):

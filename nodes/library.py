@@ -9,9 +9,9 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
-from simecs.mesh import messages as m
-from simecs.mesh.model import DocPage, ModelDescription, check_values
-from simecs.mesh.runtime import RequestError
+from simecs.mesh.process.runtime import RequestError
+from simecs.mesh.protocol import messages as m
+from simecs.mesh.protocol.model import DocPage, ModelDescription, check_values
 
 log = logging.getLogger("simecs.proxy")
 

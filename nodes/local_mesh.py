@@ -19,9 +19,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from simecs.mesh import seal as seals
 from simecs.mesh.client import MeshClient
-from simecs.mesh.config import MeshConfig, load
+from simecs.mesh.process import seal as seals
+from simecs.mesh.process.config import MeshConfig, load
 
 from .secure import SecureFolder
 
@@ -67,7 +67,7 @@ class LocalMesh:
         self.endpoint = endpoint or f"unixsock-stream/{self.folder}/hub.sock"
         #: How this harness joins the hub (a secured hub: as the service); default a plain client.
         self.client_config: MeshConfig | None = None
-        self.key_file = self.folder / "service.key"  # this mesh's service secret (mesh/seal.py)
+        self.key_file = self.folder / "service.key"  # this mesh's service secret (mesh/process/seal.py)
         self.seal = seals.load(self.key_file, create=True)
         self.procs: dict[str, subprocess.Popen[bytes]] = {}
         self.clients: list[MeshClient] = []

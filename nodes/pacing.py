@@ -8,7 +8,7 @@ import math
 import time
 
 import numpy as np
-from simecs.mesh import load
+from simecs.mesh.rules import load
 
 # Simulated seconds per frame at real-time pacing: 25 ms gives 40 frames per wall second, below the
 # default live rate of 50 Hz: the hot-feedback rate limit then never holds frames back in steady real

@@ -7,8 +7,9 @@ import os
 import time
 from pathlib import Path
 
-from simecs.mesh import files, keys
-from simecs.mesh.runtime import RequestError
+from simecs.mesh.process import files
+from simecs.mesh.process.runtime import RequestError
+from simecs.mesh.protocol import keys
 
 
 class ParamSetStore:

@@ -1,6 +1,6 @@
 """The proxy's view of the simulator hosts: which are up (their liveliness tokens), what each carries
 and can carry (the `SimulatorLoad` of their sealed status), and the runs on their way to each. From it:
-which host takes a run (the least loaded that can hold it, mesh/load.py), and how long a queued run
+which host takes a run (the least loaded that can hold it, mesh/rules/load.py), and how long a queued run
 will wait.
 
 A run handed to a host is *reserved* there until the host's status lists it, so a burst of runs does
@@ -15,8 +15,8 @@ import math
 import time
 from dataclasses import dataclass, field
 
-from simecs.mesh import load
-from simecs.mesh import messages as m
+from simecs.mesh.protocol import messages as m
+from simecs.mesh.rules import load
 
 #: s: a run on its way to a host that never lists it stops counting against the host after this (the
 #: proxy's --reservation-s). A run that ended is released at once, listed or not.

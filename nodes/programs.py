@@ -8,9 +8,10 @@ import os
 import time
 from pathlib import Path
 
-from simecs.mesh import codec, files, keys
-from simecs.mesh import messages as m
-from simecs.mesh.runtime import RequestError
+from simecs.mesh.process import files
+from simecs.mesh.process.runtime import RequestError
+from simecs.mesh.protocol import codec, keys
+from simecs.mesh.protocol import messages as m
 
 KINDS = ("action", "task", "mission")
 

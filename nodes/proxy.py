@@ -1,7 +1,7 @@
 """The proxy node: the paper's Simulation Server + Low Level Proxy, and the one owner of sessions.
 
 It answers every session command (a table from message type to handler, each command allowed only in
-the phases `mesh.phases` lists), validates it against the model and applies nothing partially, keeps
+the phases `mesh.protocol.phases` lists), validates it against the model and applies nothing partially, keeps
 named parameter sets (`paramsets.py`), admits runs (`admission.py`) and follows them to their end
 (`runs.py`), turning simulator-independent requests into `RunRequest`s for simulator hosts, reached
 only over the mesh. A replay is a run like any other, whose source is a recording. Sessions are
@@ -20,13 +20,14 @@ from typing import Any
 
 import msgspec
 import zenoh
-from simecs.mesh import files, keys, limits, phases, session_commands
-from simecs.mesh import messages as m
 from simecs.mesh.client import MeshClient, NoReply, RemoteError
-from simecs.mesh.config import lossless_put
-from simecs.mesh.hublink import HubLink
-from simecs.mesh.model import DocPage, ModelDescription, check_joints
-from simecs.mesh.runtime import Binary, Node, NotMine, Request, RequestError, main_for, mesh_from_args
+from simecs.mesh.process import files
+from simecs.mesh.process.config import lossless_put
+from simecs.mesh.process.hublink import HubLink
+from simecs.mesh.process.runtime import Binary, Node, NotMine, Request, RequestError, main_for, mesh_from_args
+from simecs.mesh.protocol import keys, limits, phases, session_commands
+from simecs.mesh.protocol import messages as m
+from simecs.mesh.protocol.model import DocPage, ModelDescription, check_joints
 
 from .library import ModelLibrary
 from .placement import RESERVATION_S, Hosts

@@ -1,4 +1,4 @@
-"""What one user may hold on the server at once (mesh/limits.py): sessions, runs going, results kept,
+"""What one user may hold on the server at once (mesh/protocol/limits.py): sessions, runs going, results kept,
 parameter sets. The proxy asks before it creates anything; a refusal is `busy` and names the bound,
 what the user holds and how to free some.
 """
@@ -8,10 +8,10 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from simecs.mesh import limits, phases
-from simecs.mesh import messages as m
-from simecs.mesh.limits import RUNS_KEPT
-from simecs.mesh.runtime import RequestError
+from simecs.mesh.process.runtime import RequestError
+from simecs.mesh.protocol import limits, phases
+from simecs.mesh.protocol import messages as m
+from simecs.mesh.protocol.limits import RUNS_KEPT
 
 from .sessions import SessionRecord, SessionStore
 

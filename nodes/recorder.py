@@ -8,12 +8,12 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
-from simecs.mesh import keys, limits
-from simecs.mesh.runtime import Node, Request, main_for, mesh_from_args
+from simecs.mesh.process.runtime import Node, Request, main_for, mesh_from_args
+from simecs.mesh.protocol import keys, limits
 
-from .recording_files import VIZ_RATE_HZ
-from .recording_pipeline import RecordingPipeline
-from .recordings_library import RecordingsLibrary
+from .recording.recording_files import VIZ_RATE_HZ
+from .recording.recording_pipeline import RecordingPipeline
+from .recording.recordings_library import RecordingsLibrary
 
 
 class Recorder(Node):

@@ -13,11 +13,11 @@ import argparse
 import sys
 from pathlib import Path
 
-from simecs.mesh import keys, phases
 from simecs.mesh.client import MeshClient, NoReply, RemoteError
-from simecs.mesh.config import DEFAULT_HUB, load_client
+from simecs.mesh.process.config import DEFAULT_HUB, load_client
+from simecs.mesh.protocol import keys, phases
 
-from . import mcapread
+from .recording import mcapread
 
 
 def put_in_library(client: MeshClient, user: str, path: Path, rec: mcapread.Recording) -> str:

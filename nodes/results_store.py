@@ -17,8 +17,9 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from simecs.mesh import files, keys
-from simecs.mesh.limits import RUNS_KEPT
+from simecs.mesh.process import files
+from simecs.mesh.protocol import keys
+from simecs.mesh.protocol.limits import RUNS_KEPT
 
 
 @dataclass

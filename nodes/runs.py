@@ -1,6 +1,7 @@
 """A session's runs, from `run` to their end: the outcome of handing a run to a simulator, the workers'
 reports, a worker that disappears, pause / resume / seek / abort, and settling runs after a restart of
-the proxy. Every phase change goes through the session store (mesh/phases.py decides what may happen).
+the proxy. Every phase change goes through the session store (mesh/protocol/phases.py decides what may
+happen).
 """
 
 from __future__ import annotations
@@ -13,12 +14,12 @@ from typing import Any
 
 import msgspec
 import zenoh
-from simecs.mesh import codec, keys, phases
-from simecs.mesh import messages as m
 from simecs.mesh.client import MeshClient, NoReply, RemoteError
-from simecs.mesh.hublink import HubLink
-from simecs.mesh.runtime import RequestError
-from simecs.mesh.seal import Seal
+from simecs.mesh.process.hublink import HubLink
+from simecs.mesh.process.runtime import RequestError
+from simecs.mesh.process.seal import Seal
+from simecs.mesh.protocol import codec, keys, phases
+from simecs.mesh.protocol import messages as m
 
 from .admission import Admission
 from .placement import Hosts

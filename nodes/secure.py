@@ -7,7 +7,7 @@ Everything lives in one folder on the server (`.simecs/secure` by default), read
 - `ca.pem` / `ca.key`: a certificate authority of this server; `hub.pem` / `hub.key`: the hub's TLS
   certificate, signed by it, for the addresses the hub listens on (remade when they change);
 - `hub-users.txt`, `hub.json5`, `node.json5`: generated on every start: the hub's password file and
-  configuration (TLS, users, access rules from mesh/access.py), and the service nodes' configuration.
+  configuration (TLS, users, access rules from mesh/process/access.py), and the service nodes' configuration.
 
 Users join with their name and password over TLS, checking the hub against `ca.pem`
 (`simecs users config NAME` prints their configuration). The hub reads the users when it starts.
@@ -24,7 +24,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from simecs.mesh import access, keys
+from simecs.mesh.process import access
+from simecs.mesh.protocol import keys
 
 DEFAULT_DIR = ".simecs/secure"
 SERVICE_USER = "simecs-service"
@@ -197,7 +198,7 @@ class SecureFolder:
 
     def write_local_client(self, path: Path, hub: str, service_key_file: str, tls: bool) -> tuple[str, str]:
         """The local user's client configuration at `path` (owner-only), which the CLI, the Python
-        client and the examples read when told nothing else (mesh/config.py `load_client`); with the
+        client and the examples read when told nothing else (mesh/process/config.py `load_client`); with the
         service key, so that those clients check the service's seal. Returns (name, password)."""
         name, password = self.local_user()
         config = self.client_config(name, password, hub)

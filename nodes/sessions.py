@@ -1,6 +1,6 @@
 """The proxy's sessions: who they belong to, their values, pose, command, settings, runs and state;
 kept in memory, written to disk on every change (one JSON file each, atomically), and published on
-the session's latched `state` and `params` keys. Phases move only as `mesh.phases` allows.
+the session's latched `state` and `params` keys. Phases move only as `mesh.protocol.phases` allows.
 """
 
 from __future__ import annotations
@@ -13,12 +13,13 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from simecs.mesh import codec, files, keys, phases
-from simecs.mesh import messages as m
-from simecs.mesh.environment import Obstacle
-from simecs.mesh.limits import RUNS_KEPT
-from simecs.mesh.model import ModelDescription
-from simecs.mesh.runtime import RequestError
+from simecs.mesh.process import files
+from simecs.mesh.process.runtime import RequestError
+from simecs.mesh.protocol import codec, keys, phases
+from simecs.mesh.protocol import messages as m
+from simecs.mesh.protocol.environment import Obstacle
+from simecs.mesh.protocol.limits import RUNS_KEPT
+from simecs.mesh.protocol.model import ModelDescription
 
 log = logging.getLogger("simecs.proxy")
 
@@ -226,7 +227,7 @@ class SessionStore:
         rec.pubs["command"].put(codec.dumps(msg))
 
     def move(self, rec: SessionRecord, event: str, persist: bool = True, **fields: Any) -> None:
-        """Apply a lifecycle event (mesh.phases) and publish the new state."""
+        """Apply a lifecycle event (mesh.protocol.phases) and publish the new state."""
         rec.state.phase = phases.after(rec.phase, event)  # type: ignore[assignment]
         for name, value in fields.items():
             setattr(rec.state, name, value)

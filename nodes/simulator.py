@@ -19,11 +19,11 @@ import time
 from pathlib import Path
 from typing import Any
 
-from simecs.mesh import codec, keys
-from simecs.mesh import messages as m
-from simecs.mesh import seal as seals
-from simecs.mesh.results import results_reply
-from simecs.mesh.runtime import Binary, Node, NotMine, Request, RequestError, main_for, mesh_from_args
+from simecs.mesh.process import seal as seals
+from simecs.mesh.process.runtime import Binary, Node, NotMine, Request, RequestError, main_for, mesh_from_args
+from simecs.mesh.protocol import codec, keys
+from simecs.mesh.protocol import messages as m
+from simecs.mesh.rules.results import results_reply
 
 from .host_load import HostLoad
 from .results_store import ResultsStore
@@ -111,7 +111,7 @@ class Simulator(Node):
         self.serve(keys.simulator_run(self.node_id), self._on_run)
         self.serve(keys.ALL_RESULTS, self._on_results, threaded=True)
         self.serve(keys.simulator_models(self.node_id), self._on_model_bundle, threaded=True)
-        # A closed session (by its user, or expired) takes its results with it (mesh/limits.py).
+        # A closed session (by its user, or expired) takes its results with it (mesh/protocol/limits.py).
         self.subscribe_messages(keys.ALL_STATE, m.SessionState, self._on_state, maxlen=1024, sealed=True)
         self._refill()
         if self.warm_target:
@@ -123,7 +123,7 @@ class Simulator(Node):
         cmd += ["--simulator", self.node_id]
         for ep in self.mesh.connect:
             cmd += ["--connect", ep]
-        cmd += ["--cpu", self.cpu_choice]  # where its zenoh threads go (mesh.affinity)
+        cmd += ["--cpu", self.cpu_choice]  # where its zenoh threads go (mesh.process.affinity)
         env = dict(os.environ)  # BLAS on one thread, as every node's (nodes/__init__.py)
         env["SIMECS_SERVICE_KEY_FILE"] = str(seals.key_file(self.mesh.service_key_file))
         if self.mesh_config_path:

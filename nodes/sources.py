@@ -9,12 +9,12 @@ from __future__ import annotations
 from typing import Any, Protocol
 
 import numpy as np
-from simecs.mesh import columns
-from simecs.mesh import messages as m
 from simecs.mesh.client import MeshClient, NoReply, RemoteError
-from simecs.mesh.seal import Seal
+from simecs.mesh.process.seal import Seal
+from simecs.mesh.protocol import columns
+from simecs.mesh.protocol import messages as m
 
-from . import mcapread
+from .recording import mcapread
 
 
 class RunSource(Protocol):

@@ -17,8 +17,8 @@ import time
 from dataclasses import dataclass, field
 from typing import Any
 
-from simecs.mesh import keys
-from simecs.mesh.config import MeshConfig, open_session
+from simecs.mesh.process.config import MeshConfig, open_session
+from simecs.mesh.protocol import keys
 
 GRACE_S = 3.0
 READY_TIMEOUT_S = 600.0  # the banner waits this long for every node (a cold compile included)

@@ -8,9 +8,9 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from simecs.mesh import codec
-from simecs.mesh import messages as m
-from simecs.mesh.runtime import RequestError
+from simecs.mesh.process.runtime import RequestError
+from simecs.mesh.protocol import codec
+from simecs.mesh.protocol import messages as m
 
 from .library import ModelLibrary
 from .paramsets import ParamSetStore

@@ -24,13 +24,15 @@ from typing import Any
 import numpy as np
 import zenoh
 import zenoh.ext
-from simecs.mesh import affinity, codec, columns, frames, keys, load
-from simecs.mesh import messages as m
-from simecs.mesh import seal as seals
-from simecs.mesh.config import lossless_put, open_session
-from simecs.mesh.logs import setup_logging
-from simecs.mesh.runtime import mesh_from_args, node_arguments
-from simecs.mesh.seal import Seal, SealedPublisher
+from simecs.mesh.process import affinity
+from simecs.mesh.process import seal as seals
+from simecs.mesh.process.config import lossless_put, open_session
+from simecs.mesh.process.logs import setup_logging
+from simecs.mesh.process.runtime import mesh_from_args, node_arguments
+from simecs.mesh.process.seal import Seal, SealedPublisher
+from simecs.mesh.protocol import codec, columns, frames, keys
+from simecs.mesh.protocol import messages as m
+from simecs.mesh.rules import load
 
 from .hil import Lockstep
 from .pacing import FRAMES_PER_SOLVE, Pacer, PaceWatch, frame_length, frame_parts
@@ -507,7 +509,7 @@ def main(argv: list[str] | None = None) -> None:
                 req = codec.loads(m.RunRequest, line)
                 if req.settings.controller == "external":
                     # Lockstep: every period wakes this thread from a zenoh thread, and a wake-up
-                    # across CPUs costs most of a period on a VM (mesh/affinity.py): all on one core.
+                    # across CPUs costs most of a period on a VM (mesh/process/affinity.py): all on one core.
                     affinity.place_on_mesh_core(args.cpu)
                 elif req.settings.pacing == "fast":
                     # Throughput, not latency: on the mesh core its frames would take CPU time

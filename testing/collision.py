@@ -29,7 +29,7 @@ def fold_target(pkg: Any, steps: int = 41, depth: float = 0.005) -> tuple[list[f
     """The pose nearest the model's home, one joint turned, where two of its links overlap by more than
     `depth` (m), reached by a path the drives hold and that touches no obstacle; with the refusal the
     planner gives for it. None when no single joint folds the arm into itself."""
-    from simecs.mesh import messages as m
+    from simecs.mesh.protocol import messages as m
     from simecs.models.planner import Planner
 
     values = pkg.describe().default_values()

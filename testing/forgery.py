@@ -13,8 +13,8 @@ from typing import Any
 
 import numpy as np
 import zenoh
-from simecs.mesh import codec, frames, keys
-from simecs.mesh import messages as m
+from simecs.mesh.protocol import codec, frames, keys
+from simecs.mesh.protocol import messages as m
 
 FAKE_SIMULATOR = "evil-simulator"
 

@@ -30,9 +30,9 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import zenoh
-from simecs.mesh import codec, keys
-from simecs.mesh import messages as m
-from simecs.mesh.model import ModelDescription
+from simecs.mesh.protocol import codec, keys
+from simecs.mesh.protocol import messages as m
+from simecs.mesh.protocol.model import ModelDescription
 from simecs.testing.fuzz_commands import SessionCommands
 from simecs.testing.fuzz_draws import Draws
 from simecs.testing.fuzz_keys import LivelinessTokens, ServiceKeyPuts

@@ -9,8 +9,8 @@ from __future__ import annotations
 
 from typing import Any
 
-from simecs.mesh import codec, keys
-from simecs.mesh import messages as m
+from simecs.mesh.protocol import codec, keys
+from simecs.mesh.protocol import messages as m
 from simecs.testing.fuzz_draws import Draws
 from simecs.testing.fuzz_targets import FuzzTargets, Message
 from simecs.testing.fuzz_values import UPLOAD_NAMES, to_json

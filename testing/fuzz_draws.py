@@ -11,7 +11,7 @@ import json
 import random
 from typing import Any
 
-from simecs.mesh import keys
+from simecs.mesh.protocol import keys
 from simecs.testing.fuzz_targets import ModelFacts
 from simecs.testing.fuzz_values import (
     BIG,

@@ -11,7 +11,7 @@ from __future__ import annotations
 import json
 import struct
 
-from simecs.mesh import frames, keys
+from simecs.mesh.protocol import frames, keys
 from simecs.testing import forgery
 from simecs.testing.fuzz_draws import Draws
 from simecs.testing.fuzz_targets import FuzzTargets, Message, Victim, next_runs

@@ -9,8 +9,8 @@ from __future__ import annotations
 
 import json
 
-from simecs.mesh import codec, keys
-from simecs.mesh import messages as m
+from simecs.mesh.protocol import codec, keys
+from simecs.mesh.protocol import messages as m
 from simecs.testing import forgery
 from simecs.testing.fuzz_draws import Draws
 from simecs.testing.fuzz_recordings import HostileRecordings

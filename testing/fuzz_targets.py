@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from simecs.mesh.model import ModelDescription
+from simecs.mesh.protocol.model import ModelDescription
 
 
 @dataclass(frozen=True)

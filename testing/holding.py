@@ -32,7 +32,7 @@ def loaded_pose(sim: Any, seed: int = 1, tries: int = 400) -> tuple[np.ndarray, 
     """Of `tries` random poses within the joint ranges of the simulation `sim` (a fixed seed: the same
     pose every time), the one whose most loaded drive comes closest to LOAD_SHARE of its capacity from
     below: (pose, share)."""
-    from simecs.mesh import messages as m
+    from simecs.mesh.protocol import messages as m
     from simecs.models.mechanics import holding_capacity
     from simecs.models.planner import Planner
 

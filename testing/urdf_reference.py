@@ -11,7 +11,7 @@ from typing import Any
 import json5
 import numpy as np
 from simecs import models
-from simecs.mesh.kinematics import link_frames
+from simecs.mesh.rules.kinematics import link_frames
 from simecs.models.urdf import resolve_uri
 
 

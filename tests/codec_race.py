@@ -10,7 +10,7 @@ import threading
 import types
 
 import msgspec
-from simecs.mesh import codec
+from simecs.mesh.protocol import codec
 
 TYPES = """
 from __future__ import annotations

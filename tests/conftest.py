@@ -19,7 +19,7 @@ from typing import Any
 
 import pytest
 from simecs.mesh.client import MeshClient, NoReply, RemoteError, SessionClient
-from simecs.mesh.config import open_session
+from simecs.mesh.process.config import open_session
 from simecs.nodes.local_mesh import LocalMesh, clean_env
 from simecs.nodes.local_mesh import wait_until as wait_until  # the tests import it from here
 from simecs.nodes.secure import SecureFolder

@@ -1,5 +1,5 @@
 """The live path's placement: hub, hot-feedback (and viewer) share the mesh core, simulator workers
-put only their zenoh threads there, everything else is left to the OS (`simecs.mesh.affinity`)."""
+put only their zenoh threads there, everything else is left to the OS (`simecs.mesh.process.affinity`)."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import subprocess
 import sys
 
 import pytest
-from simecs.mesh import affinity
+from simecs.mesh.process import affinity
 from simecs.nodes.local_mesh import LocalMesh, clean_env
 
 from .conftest import Mesh, Service, wait_until

@@ -10,9 +10,10 @@ import sys
 from pathlib import Path
 
 import numpy as np
-from simecs.mesh import batch, keys
-from simecs.mesh import messages as m
-from simecs.nodes import mcapread
+from simecs.mesh import batch
+from simecs.mesh.protocol import keys
+from simecs.mesh.protocol import messages as m
+from simecs.nodes.recording import mcapread
 
 from tests.conftest import Service, mesh_env
 from tests.test_recorder_support import wait_file_closed
@@ -23,7 +24,7 @@ PATH = m.JointPath([m.PathNode([0.3, 0.4, 0.0, 0.3, 0.0, 0.2, 0.0], 100.0, 100.0
 
 def simecs(*args: str, timeout: float = 180.0) -> subprocess.CompletedProcess[str]:
     return subprocess.run(
-        [sys.executable, "-m", "simecs.nodes.cli", *args],
+        [sys.executable, "-m", "simecs.nodes.tools.cli", *args],
         capture_output=True,
         text=True,
         timeout=timeout,

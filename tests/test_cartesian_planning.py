@@ -15,9 +15,9 @@ import math
 import msgspec
 import numpy as np
 import pytest
-from simecs.mesh import messages as m
-from simecs.mesh.kinematics import rpy_of
-from simecs.mesh.limits import limit
+from simecs.mesh.protocol import messages as m
+from simecs.mesh.protocol.limits import limit
+from simecs.mesh.rules.kinematics import rpy_of
 from simecs.models import CommandError, get_model
 from simecs.models.ik import ArmKinematics, orientation_error
 from simecs.models.line_walk import LINE_OK

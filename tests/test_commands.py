@@ -11,12 +11,12 @@ from typing import Any
 import numpy as np
 import pytest
 from simecs import models
-from simecs.mesh import keys
-from simecs.mesh import messages as m
 from simecs.mesh.client import RemoteError, SessionClient
-from simecs.mesh.kinematics import matrix_from_quat, rot_rpy, rpy_of
+from simecs.mesh.protocol import keys
+from simecs.mesh.protocol import messages as m
+from simecs.mesh.rules.kinematics import matrix_from_quat, rot_rpy, rpy_of
 from simecs.models.ik import ArmKinematics
-from simecs.nodes import mcapread
+from simecs.nodes.recording import mcapread
 
 from tests.conftest import Mesh, Service, restart_every_node, start_service, wait_until
 from tests.test_recorder_support import wait_file_closed
@@ -336,7 +336,7 @@ def test_every_refusal_names_its_field_and_changes_nothing(service: Service) -> 
 def test_a_level_the_model_does_not_list_is_unsupported() -> None:
     """Both shipped models take every level; a model that lists fewer is refused before planning."""
     import msgspec
-    from simecs.mesh.runtime import RequestError
+    from simecs.mesh.process.runtime import RequestError
     from simecs.nodes.library import ModelLibrary
 
     library = ModelLibrary()

@@ -17,10 +17,11 @@ import math
 import numpy as np
 import pytest
 from simecs import models
-from simecs.mesh import keys, scene_state
-from simecs.mesh import messages as m
 from simecs.mesh.client import RemoteError
-from simecs.mesh.kinematics import rpy_of
+from simecs.mesh.protocol import keys
+from simecs.mesh.protocol import messages as m
+from simecs.mesh.rules import scene_state
+from simecs.mesh.rules.kinematics import rpy_of
 from simecs.models.contact_geometry import TOOL_RADIUS
 from simecs.models.ik import ArmKinematics
 

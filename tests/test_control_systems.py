@@ -15,11 +15,11 @@ import json
 import numpy as np
 import pytest
 from simecs import models
-from simecs.mesh import keys
-from simecs.mesh import messages as m
 from simecs.mesh.client import RemoteError, SessionClient
-from simecs.mesh.kinematics import matrix_from_quat, rot_rpy, rpy_of
-from simecs.mesh.primitives import FieldProblem
+from simecs.mesh.protocol import keys
+from simecs.mesh.protocol import messages as m
+from simecs.mesh.protocol.primitives import FieldProblem
+from simecs.mesh.rules.kinematics import matrix_from_quat, rot_rpy, rpy_of
 from simecs.models.contact_geometry import TOOL_RADIUS
 from simecs.models.planner import Planner
 

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from simecs.mesh import messages as m
+from simecs.mesh.protocol import messages as m
 from simecs.models import get_model
 from simecs.models.planner import Planner
 

@@ -8,10 +8,10 @@ import time
 
 import numpy as np
 import pytest
-from simecs.mesh import codec, keys
-from simecs.mesh import messages as m
 from simecs.mesh.client import MeshClient, RemoteError
-from simecs.mesh.config import MeshConfig
+from simecs.mesh.process.config import MeshConfig
+from simecs.mesh.protocol import codec, keys
+from simecs.mesh.protocol import messages as m
 from simecs.testing import forgery
 
 from .conftest import Mesh, start_service, wait_until

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from simecs.mesh import frames
+from simecs.mesh.protocol import frames
 
 
 def test_round_trip() -> None:

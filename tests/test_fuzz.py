@@ -16,11 +16,11 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from simecs.mesh import keys
-from simecs.mesh import messages as m
 from simecs.mesh.client import MeshClient, SessionClient
-from simecs.mesh.config import MeshConfig
-from simecs.nodes import mcapread
+from simecs.mesh.process.config import MeshConfig
+from simecs.mesh.protocol import keys
+from simecs.mesh.protocol import messages as m
+from simecs.nodes.recording import mcapread
 from simecs.testing.fuzz import FuzzReport, FuzzTargets, Victim, fuzz
 
 from .conftest import Mesh, start_service

@@ -19,11 +19,11 @@ import msgspec
 import numpy as np
 import pytest
 from simecs import models
-from simecs.mesh import columns, keys
-from simecs.mesh import messages as m
 from simecs.mesh.client import RemoteError, SessionClient
-from simecs.mesh.kinematics import rpy_of
-from simecs.nodes import mcapfmt, mcapread, mcapscene
+from simecs.mesh.protocol import columns, keys
+from simecs.mesh.protocol import messages as m
+from simecs.mesh.rules.kinematics import rpy_of
+from simecs.nodes.recording import mcapfmt, mcapread, mcapscene
 
 from tests.conftest import Service
 from tests.test_commands import SPIDER_Q0, kinematics, run_to_end

@@ -7,7 +7,7 @@ import re
 
 import numpy as np
 import pytest
-from simecs.mesh import messages as m
+from simecs.mesh.protocol import messages as m
 from simecs.models import drive as dr
 from simecs.models import get_model
 from simecs.models.mechanics import drive_array, holding_capacity

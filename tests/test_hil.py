@@ -12,9 +12,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from simecs.mesh import frames, hil, keys
-from simecs.mesh import messages as m
 from simecs.mesh.client import RemoteError, SessionClient
+from simecs.mesh.protocol import frames, hil, keys
+from simecs.mesh.protocol import messages as m
 from simecs.nodes.local_mesh import LocalMesh, clean_env
 from simecs.testing import netns
 

@@ -10,10 +10,10 @@ from typing import Any
 
 import numpy as np
 import pytest
-from simecs.mesh import codec, columns, frames, keys
-from simecs.mesh import messages as m
-from simecs.mesh.config import MeshConfig
-from simecs.mesh.seal import Seal
+from simecs.mesh.process.config import MeshConfig
+from simecs.mesh.process.seal import Seal
+from simecs.mesh.protocol import codec, columns, frames, keys
+from simecs.mesh.protocol import messages as m
 from simecs.nodes.hotfeedback import MATCHING_SETTLE_NS, HotFeedback
 
 SID = keys.new_session_id()

@@ -10,7 +10,7 @@ import math
 import numpy as np
 import pytest
 from scipy.optimize import minimize
-from simecs.mesh.kinematics import link_frames, quat_from_matrix, rot_rpy, rpy_of
+from simecs.mesh.rules.kinematics import link_frames, quat_from_matrix, rot_rpy, rpy_of
 from simecs.models import ModelPackage, chain_dynamics, chain_kinematics, get_model
 from simecs.models.ik import ArmKinematics, IKResult, orientation_error, turned
 from simecs.models.mechanics import chain_arrays, tool_point

@@ -9,9 +9,9 @@ import time
 
 import numpy as np
 import pytest
-from simecs.mesh import codec, frames, keys, session_commands
-from simecs.mesh import messages as m
 from simecs.mesh.client import RemoteError, SessionClient
+from simecs.mesh.protocol import codec, frames, keys, session_commands
+from simecs.mesh.protocol import messages as m
 
 from tests.conftest import Service, wait_until
 from tests.test_commands import SPIDER_Q0, kinematics

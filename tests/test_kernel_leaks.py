@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 from numba.core.runtime import _nrt_python, rtsys
 from simecs import models
-from simecs.mesh import messages as m
+from simecs.mesh.protocol import messages as m
 from simecs.models.contact_geometry import TOOL_RADIUS
 from simecs.models.ik import ArmKinematics
 

@@ -3,7 +3,8 @@
 from __future__ import annotations
 
 import pytest
-from simecs.mesh import config, keys
+from simecs.mesh.process import config
+from simecs.mesh.protocol import keys
 
 
 def test_session_ids_are_unguessable_and_valid() -> None:

@@ -1,6 +1,7 @@
-"""Bounded resources (mesh/limits.py, PROTOCOL.md §4.1): one user's sessions, runs, results, parameter
-sets and recordings are bounded and refused `busy` naming the bound; idle sessions expire and take their
-results along; uploads are read in full, bombs and trailing bytes included, before anything is stored."""
+"""Bounded resources (mesh/protocol/limits.py, PROTOCOL.md §4.1): one user's sessions, runs, results,
+parameter sets and recordings are bounded and refused `busy` naming the bound; idle sessions expire and
+take their results along; uploads are read in full, bombs and trailing bytes included, before anything
+is stored."""
 
 from __future__ import annotations
 
@@ -9,9 +10,9 @@ import io
 
 import pytest
 from mcap.writer import CompressionType, Writer
-from simecs.mesh import keys, limits
 from simecs.mesh.client import RemoteError
-from simecs.nodes import mcapread
+from simecs.mesh.protocol import keys, limits
+from simecs.nodes.recording import mcapread
 
 from .conftest import Mesh, wait_until
 from .test_service import prepare

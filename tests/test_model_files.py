@@ -14,10 +14,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 from simecs import models
-from simecs.mesh import codec
-from simecs.mesh import messages as m
 from simecs.mesh.client import RemoteError
-from simecs.mesh.kinematics import link_frames, rot_rpy
+from simecs.mesh.protocol import codec
+from simecs.mesh.protocol import messages as m
+from simecs.mesh.rules.kinematics import link_frames, rot_rpy
 from simecs.models.model_file import ModelFileError, load_model_dir
 from simecs.models.urdf import UrdfError, read_urdf
 from simecs.testing.urdf_reference import UrdfReference, urdf_models
@@ -210,7 +210,7 @@ def test_a_model_file_of_another_format_is_refused(tmp_path: Path) -> None:
 # -- the command line ------------------------------------------------------------------------------
 def simecs(*args: str) -> subprocess.CompletedProcess[str]:
     return subprocess.run(
-        [sys.executable, "-m", "simecs.nodes.cli", *args], capture_output=True, text=True, timeout=300
+        [sys.executable, "-m", "simecs.nodes.tools.cli", *args], capture_output=True, text=True, timeout=300
     )
 
 
@@ -243,7 +243,7 @@ def test_the_shipped_models_check(tmp_path: Path) -> None:
 
 
 def test_rpy_round_trip() -> None:
-    from simecs.mesh.kinematics import rpy_of
+    from simecs.mesh.rules.kinematics import rpy_of
 
     rng = np.random.default_rng(0)
     for rpy in [*rng.uniform(-3, 3, (50, 3)), (0.3, math.pi / 2, 0.2), (0.1, -math.pi / 2, 0.4)]:

@@ -1,7 +1,7 @@
 """The drawn arm holds together (issue 32, item 7): for every model of the library, in several
 postures, each link's solids touch or overlap the solids of the link before it (the first link's, the
 solids fixed to the world), as the viewer and the recordings draw them: the geometry of
-`simecs.mesh.shapes` on the link frames of `simecs.mesh.kinematics`.
+`simecs.mesh.rules.shapes` on the link frames of `simecs.mesh.rules.kinematics`.
 
 The gap between two groups of solids is the least distance from points on the surface of one group
 (every 2 mm) to the solids of the other, exact for cylinders, pipes (as solid cylinders), boxes and
@@ -21,9 +21,9 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 from simecs import models
-from simecs.mesh import shapes
-from simecs.mesh.kinematics import link_frames, matrix_from_quat
-from simecs.mesh.model import ModelDescription
+from simecs.mesh.protocol.model import ModelDescription
+from simecs.mesh.rules import shapes
+from simecs.mesh.rules.kinematics import link_frames, matrix_from_quat
 
 #: m: the widest gap allowed between consecutive links' solids (surface sampling adds about 1.5 mm).
 MAX_GAP = 5e-3

@@ -9,8 +9,8 @@ import math
 
 import numpy as np
 import pytest
-from simecs.mesh.columns import POSE_FIELDS
-from simecs.mesh.kinematics import link_poses
+from simecs.mesh.protocol.columns import POSE_FIELDS
+from simecs.mesh.rules.kinematics import link_poses
 from simecs.models import SimulationError, chain_dynamics, get_model, references
 from simecs.models import drive as dr
 

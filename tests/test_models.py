@@ -7,8 +7,8 @@ import re
 
 import numpy as np
 import pytest
-from simecs.mesh.columns import GRASPED_FRAME, POSE_FIELDS, pose_column
-from simecs.mesh.kinematics import link_poses
+from simecs.mesh.protocol.columns import GRASPED_FRAME, POSE_FIELDS, pose_column
+from simecs.mesh.rules.kinematics import link_poses
 from simecs.models import ParameterError, SimulationError, get_model, list_models
 from simecs.models import drive as dr
 

@@ -6,7 +6,7 @@ from __future__ import annotations
 import math
 
 import pytest
-from simecs.mesh import messages as m
+from simecs.mesh.protocol import messages as m
 from simecs.nodes.host_load import COST_SMOOTHING, HostLoad
 from simecs.nodes.placement import GoingRun, Hosts
 

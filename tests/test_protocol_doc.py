@@ -11,8 +11,8 @@ from pathlib import Path
 
 import jsonschema
 import pytest
-from simecs.mesh import codec, frames, keys, phases, protocol_doc, schema, session_commands
-from simecs.mesh import messages as m
+from simecs.mesh.protocol import codec, frames, keys, phases, protocol_doc, schema, session_commands
+from simecs.mesh.protocol import messages as m
 
 ROOT = Path(__file__).resolve().parent.parent
 DOC = (ROOT / "docs" / "PROTOCOL.md").read_text()
@@ -21,7 +21,9 @@ CODE = ("mesh", "models", "nodes", "viewer", "testing", "benchmarks")
 
 
 def test_schema_and_document_are_generated_from_mesh_and_current() -> None:
-    assert protocol_doc.main(["--check", "--root", str(ROOT)]) == 0, "run: python -m simecs.mesh.protocol_doc"
+    assert protocol_doc.main(["--check", "--root", str(ROOT)]) == 0, (
+        "run: python -m simecs.mesh.protocol.protocol_doc"
+    )
     assert json.loads(schema.schema_text()) == SCHEMA
 
 
@@ -67,13 +69,15 @@ def lines_matching(pattern: re.Pattern[str], owner: Path) -> list[str]:
 
 
 def test_keys_are_taken_apart_only_in_mesh_keys() -> None:
-    offenders = lines_matching(re.compile(r"""\.r?split\(\s*["']/["']"""), ROOT / "mesh" / "keys.py")
+    offenders = lines_matching(
+        re.compile(r"""\.r?split\(\s*["']/["']"""), ROOT / "mesh" / "protocol" / "keys.py"
+    )
     assert not offenders, f"keys split by hand (use keys.parse): {offenders}"
 
 
 def test_frame_headers_are_read_only_in_mesh_frames() -> None:
     by_offset = re.compile(r"HEADER\.unpack|unpack_from\([^)]*,\s*(8|16|24|32|36)\)")
-    offenders = lines_matching(by_offset, ROOT / "mesh" / "frames.py")
+    offenders = lines_matching(by_offset, ROOT / "mesh" / "protocol" / "frames.py")
     assert not offenders, f"frame header read by byte offset (use frames.peek): {offenders}"
 
 

@@ -1,4 +1,4 @@
-"""The recorder's bookkeeping of the runs it writes (nodes/recording_files.py), driven by injected
+"""The recorder's bookkeeping of the runs it writes (nodes/recording/recording_files.py), driven by injected
 messages in the order a mesh may deliver them, without a mesh: what a recording says of its run's end
 when the stream lost it. (The recorder node on a real mesh is tested in test_recorder_node and
 test_resilience.)"""
@@ -13,11 +13,11 @@ from pathlib import Path
 
 import msgspec
 import numpy as np
-from simecs.mesh import codec, frames, keys
-from simecs.mesh import messages as m
-from simecs.nodes import mcapread
-from simecs.nodes.recording_files import ENDED_GRACE_S, MODEL_WAIT_S, Fill, Gap, Owner, RunFiles
-from simecs.nodes.recordings_library import RecordingsLibrary
+from simecs.mesh.protocol import codec, frames, keys
+from simecs.mesh.protocol import messages as m
+from simecs.nodes.recording import mcapread
+from simecs.nodes.recording.recording_files import ENDED_GRACE_S, MODEL_WAIT_S, Fill, Gap, Owner, RunFiles
+from simecs.nodes.recording.recordings_library import RecordingsLibrary
 
 from .test_recorder_support import USER, arm_model, layout_for, make_rows
 

@@ -15,11 +15,12 @@ import jsonschema
 import numpy as np
 import pytest
 from mcap.writer import Writer
-from simecs.mesh import columns, frames
-from simecs.mesh import messages as m
-from simecs.nodes import export, mcapread, mcaprepair, mcapscene
-from simecs.nodes import mcapfmt as fmt
-from simecs.nodes.mcapwriter import RunWriter
+from simecs.mesh.protocol import columns, frames
+from simecs.mesh.protocol import messages as m
+from simecs.nodes.recording import mcapfmt as fmt
+from simecs.nodes.recording import mcapread, mcaprepair, mcapscene
+from simecs.nodes.recording.mcapwriter import RunWriter
+from simecs.nodes.tools import export
 
 from .test_recorder_support import arm_model, check_file, layout_for, make_rows
 
@@ -94,9 +95,9 @@ def test_scene_uses_link_frames_and_resized_lengths() -> None:
     ids=["defaults", "lengths", "radii", "payload"],
 )
 def test_foxglove_scene_draws_the_shape_geometry_the_viewer_draws(changes: dict[str, float]) -> None:
-    """One rule (mesh.shapes) for both: every Foxglove primitive sits and measures as its solid."""
+    """One rule (mesh.rules.shapes) for both: every Foxglove primitive sits and measures as its solid."""
     from simecs import models
-    from simecs.mesh import shapes
+    from simecs.mesh.rules import shapes
 
     model = models.get_model("spider").describe()
     values = {**model.default_values(), **changes}
@@ -227,9 +228,9 @@ def test_torn_file_is_recovered_up_to_the_last_flush(tmp_path: Path) -> None:
 import os, signal, time, sys
 sys.path.insert(0, {str(Path(__file__).parent.parent)!r})
 from tests.test_recorder_support import layout_for, make_rows, arm_model
-from simecs.mesh import frames
-from simecs.nodes import mcapfmt as fmt
-from simecs.nodes.mcapwriter import RunWriter
+from simecs.mesh.protocol import frames
+from simecs.nodes.recording import mcapfmt as fmt
+from simecs.nodes.recording.mcapwriter import RunWriter
 w = RunWriter({str(path)!r}, layout_for({SID!r}))
 rows = make_rows(arm_model(), 400)
 for s in range(40):
@@ -316,7 +317,7 @@ def test_the_mcap_records_read_back_with_the_mcap_packages_reader() -> None:
     from mcap.reader import make_reader
     from mcap.records import DataEnd
     from mcap.stream_reader import StreamReader
-    from simecs.nodes.mcaprecords import zstd_file
+    from simecs.nodes.recording.mcaprecords import zstd_file
 
     out = io.BytesIO()
     w = zstd_file(out, 4096)

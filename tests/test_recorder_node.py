@@ -14,11 +14,11 @@ import numpy as np
 import pytest
 import zenoh
 import zenoh.ext
-from simecs.mesh import codec, keys
-from simecs.mesh import messages as m
 from simecs.mesh.client import RemoteError
-from simecs.nodes import mcapfmt as fmt
-from simecs.nodes import mcapread
+from simecs.mesh.protocol import codec, keys
+from simecs.mesh.protocol import messages as m
+from simecs.nodes.recording import mcapfmt as fmt
+from simecs.nodes.recording import mcapread
 from simecs.testing.fuzz_recordings import McapTemplate
 
 from .conftest import Mesh, start_service, wait_until

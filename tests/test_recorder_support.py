@@ -21,12 +21,13 @@ from mcap.data_stream import ReadDataStream
 from mcap.reader import SeekingReader
 from mcap.records import Chunk, MessageIndex
 from mcap.stream_reader import StreamReader, get_chunk_data_stream
-from simecs.mesh import codec, frames, keys, kinematics
-from simecs.mesh import messages as m
-from simecs.mesh.model import Link, ModelDescription, Parameter, Shape, Variable
-from simecs.mesh.seal import Seal, SealedPublisher
-from simecs.nodes import mcapfmt as fmt
-from simecs.nodes import mcapread
+from simecs.mesh.process.seal import Seal, SealedPublisher
+from simecs.mesh.protocol import codec, frames, keys
+from simecs.mesh.protocol import messages as m
+from simecs.mesh.protocol.model import Link, ModelDescription, Parameter, Shape, Variable
+from simecs.mesh.rules import kinematics
+from simecs.nodes.recording import mcapfmt as fmt
+from simecs.nodes.recording import mcapread
 
 MODEL_ID = "testarm"
 USER = "ann"  # whose sessions the fake runs are (the recorder files them under recordings/ann/)

@@ -12,10 +12,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from simecs.mesh import frames, keys
-from simecs.mesh import messages as m
 from simecs.mesh.client import MeshClient, RemoteError, SessionClient
-from simecs.nodes import mcapread
+from simecs.mesh.protocol import frames, keys
+from simecs.mesh.protocol import messages as m
+from simecs.nodes.recording import mcapread
 
 from .conftest import Mesh, mesh_env, start_service, wait_until
 from .test_recorder_support import wait_file_closed

@@ -9,10 +9,10 @@ import time
 
 import numpy as np
 import zenoh
-from simecs.mesh import keys
 from simecs.mesh.client import MeshClient, SessionClient
-from simecs.mesh.config import DROPPED_FOR_SLOW_LINKS
-from simecs.nodes import mcapread
+from simecs.mesh.process.config import DROPPED_FOR_SLOW_LINKS
+from simecs.mesh.protocol import keys
+from simecs.nodes.recording import mcapread
 
 from .conftest import Mesh, start_service, wait_until
 from .test_recorder_support import wait_file_closed

@@ -6,8 +6,8 @@ import threading
 from concurrent.futures import ThreadPoolExecutor
 
 import zenoh.ext
-from simecs.mesh import codec, keys
-from simecs.mesh import messages as m
+from simecs.mesh.protocol import codec, keys
+from simecs.mesh.protocol import messages as m
 
 from .conftest import Service, wait_until
 

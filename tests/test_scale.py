@@ -16,9 +16,9 @@ import numpy as np
 import pytest
 import zenoh
 import zenoh.ext
-from simecs.mesh import codec, keys
-from simecs.mesh import messages as m
 from simecs.mesh.client import SessionClient
+from simecs.mesh.protocol import codec, keys
+from simecs.mesh.protocol import messages as m
 from simecs.nodes.local_mesh import LocalMesh, clean_env, wait_until
 from simecs.testing import netns
 
@@ -117,7 +117,7 @@ def run_on_client_host(
     command.write_text(
         json.dumps({"kind": "joint_path", "nodes": [{"q": q, "speed_pct": speed, "acc_pct": acc}]})
     )
-    argv = [*lan.prefix(host), sys.executable, "-m", "simecs.nodes.cli", "run", "--model", "spider"]
+    argv = [*lan.prefix(host), sys.executable, "-m", "simecs.nodes.tools.cli", "run", "--model", "spider"]
     argv += [
         "--command",
         str(command),

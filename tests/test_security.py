@@ -10,10 +10,10 @@ import time
 
 import pytest
 import zenoh
-from simecs.mesh import codec, keys
-from simecs.mesh import messages as m
 from simecs.mesh.client import NoReply
-from simecs.mesh.config import MeshConfig, open_session
+from simecs.mesh.process.config import MeshConfig, open_session
+from simecs.mesh.protocol import codec, keys
+from simecs.mesh.protocol import messages as m
 from simecs.nodes.secure import SERVICE_USER
 
 from .conftest import Secured, wait_until

@@ -13,8 +13,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from simecs import models
-from simecs.mesh import messages as m
 from simecs.mesh.client import RemoteError
+from simecs.mesh.protocol import messages as m
 from simecs.models.collision_spheres import MAX_BULGE, coverage, solid_hull, solid_spheres
 from simecs.models.planner import Planner
 from simecs.models.self_collision import SAMPLE_POSES

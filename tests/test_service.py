@@ -9,10 +9,10 @@ import time
 import numpy as np
 import pytest
 import zenoh
-from simecs.mesh import codec, frames, keys
-from simecs.mesh import messages as m
 from simecs.mesh.client import NoReply, RemoteError, SessionClient
-from simecs.mesh.config import MeshConfig
+from simecs.mesh.process.config import MeshConfig
+from simecs.mesh.protocol import codec, frames, keys
+from simecs.mesh.protocol import messages as m
 
 from .conftest import Mesh, Service, restart_every_node, start_service, wait_until
 

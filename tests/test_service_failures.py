@@ -12,9 +12,9 @@ import time
 
 import numpy as np
 import pytest
-from simecs.mesh import codec, keys
-from simecs.mesh import messages as m
 from simecs.mesh.client import NoReply, RemoteError, SessionClient
+from simecs.mesh.protocol import codec, keys
+from simecs.mesh.protocol import messages as m
 from simecs.nodes.runs import WORKER_REPORTS_S
 
 from .conftest import Mesh, Service, start_service, wait_until

@@ -10,7 +10,7 @@ import math
 
 import numpy as np
 import pytest
-from simecs.mesh.robot_commands import (
+from simecs.mesh.protocol.robot_commands import (
     ChirpSignal,
     DirectInput,
     RampSignal,

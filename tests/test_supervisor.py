@@ -14,11 +14,11 @@ from pathlib import Path
 
 import pytest
 from simecs.mesh.client import MeshClient, NoReply
-from simecs.mesh.config import MeshConfig, load, open_session
+from simecs.mesh.process.config import MeshConfig, load, open_session
 
 from .conftest import mesh_env, wait_until
 
-SIMECS = [sys.executable, "-m", "simecs.nodes.cli"]
+SIMECS = [sys.executable, "-m", "simecs.nodes.tools.cli"]
 
 
 def descendants(pid: int) -> set[int]:
@@ -185,7 +185,7 @@ def test_help_everywhere(args: list[str]) -> None:
 def test_up_listens_with_tls_on_the_port_hub_names(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """`simecs up --hub tcp/127.0.0.1:7500` (private, the default) listens with TLS on 7500, not on 7447,
     and this machine's user's client file says so."""
-    from simecs.nodes import cli
+    from simecs.nodes.tools import cli
 
     monkeypatch.setenv("SIMECS_SERVICE_KEY_FILE", str(tmp_path / "service.key"))
     args = cli.build_parser().parse_args(["up", "--hub", "tcp/127.0.0.1:7500", "--data-dir", str(tmp_path)])

@@ -68,8 +68,9 @@ def test_the_controller_knows_nothing_of_viser_and_nothing_imports_the_app() -> 
 
 
 def test_the_viewer_builds_no_column_names_keys_or_phase_sets_of_its_own() -> None:
-    """Columns come from mesh.columns, keys from mesh.keys, phases from mesh.phases, shape geometry
-    from mesh.shapes; a replay is a run of the session (no parallel replay session)."""
+    """Columns come from mesh.protocol.columns, keys from mesh.protocol.keys, phases from
+    mesh.protocol.phases, shape geometry from mesh.rules.shapes; a replay is a run of the session (no
+    parallel replay session)."""
     source = "\n".join(p.read_text() for p in VIEWER.glob("*.py"))
     for banned in ('.q"', '"pose.', "pose.{", 'split("/")', "replay_id", "ACTIVE =", "def shape_geometry"):
         assert banned not in source, banned

@@ -16,8 +16,8 @@ from contextlib import contextmanager
 from typing import Any
 
 import pytest
-from simecs.mesh import keys
 from simecs.mesh.client import MeshClient, SessionClient
+from simecs.mesh.protocol import keys
 from simecs.testing import browser as chromium
 
 from .conftest import ARTIFACTS, Mesh, Secured, Service, free_port, start_service, wait_until

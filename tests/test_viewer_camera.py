@@ -4,8 +4,8 @@ for the Spider and the PUMA 560.
 
 The share is measured with the camera the browser itself reports to the server (viser's
 `ViewerCameraMessage`: pose, vertical field of view, picture size), caught as the page hands it to
-viser's websocket worker; the arm is the boxes around its solids as `simecs.mesh.shapes` places them
-on the link frames `simecs.mesh.kinematics` computes for the session's pose, independently of the
+viser's websocket worker; the arm is the boxes around its solids as `simecs.mesh.rules.shapes` places them
+on the link frames `simecs.mesh.rules.kinematics` computes for the session's pose, independently of the
 viewer's own framing. Screenshots go to `artifacts/viewer/camera_*.png`.
 """
 
@@ -16,9 +16,9 @@ from typing import Any
 
 import numpy as np
 import pytest
-from simecs.mesh import shapes
-from simecs.mesh.kinematics import link_frames, matrix_from_quat, quat_from_matrix
-from simecs.mesh.model import ModelDescription
+from simecs.mesh.protocol.model import ModelDescription
+from simecs.mesh.rules import shapes
+from simecs.mesh.rules.kinematics import link_frames, matrix_from_quat, quat_from_matrix
 from simecs.viewer import camera
 
 from .conftest import Mesh, wait_until

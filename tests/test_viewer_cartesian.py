@@ -11,10 +11,10 @@ from typing import Any
 import msgspec
 import numpy as np
 import pytest
-from simecs.mesh import codec
-from simecs.mesh import messages as m
 from simecs.mesh.client import RemoteError
-from simecs.mesh.kinematics import link_frames, quat_from_matrix, rot_rpy
+from simecs.mesh.protocol import codec
+from simecs.mesh.protocol import messages as m
+from simecs.mesh.rules.kinematics import link_frames, quat_from_matrix, rot_rpy
 from simecs.viewer import cartesian
 from simecs.viewer.path import PathError
 

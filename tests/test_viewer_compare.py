@@ -13,7 +13,7 @@ from __future__ import annotations
 import math
 from typing import Any
 
-from simecs.mesh import keys
+from simecs.mesh.protocol import keys
 from simecs.testing import browser as chromium
 from simecs.viewer import compare
 

@@ -12,8 +12,8 @@ from typing import Any
 import msgspec
 import numpy as np
 import pytest
-from simecs.mesh import keys
-from simecs.mesh import messages as m
+from simecs.mesh.protocol import keys
+from simecs.mesh.protocol import messages as m
 from simecs.viewer import (
     compare,
     compare_panel,

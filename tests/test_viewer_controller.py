@@ -9,10 +9,10 @@ import time
 import msgspec
 import numpy as np
 import pytest
-from simecs.mesh import frames, keys, session_commands
-from simecs.mesh import messages as m
 from simecs.mesh.client import RemoteError
-from simecs.mesh.kinematics import link_poses
+from simecs.mesh.protocol import frames, keys, session_commands
+from simecs.mesh.protocol import messages as m
+from simecs.mesh.rules.kinematics import link_poses
 from simecs.viewer import (
     compare,
     events,

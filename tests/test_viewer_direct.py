@@ -15,8 +15,8 @@ from typing import Any
 
 import numpy as np
 import pytest
-from simecs.mesh import codec
-from simecs.mesh import messages as m
+from simecs.mesh.protocol import codec
+from simecs.mesh.protocol import messages as m
 from simecs.testing import browser as chromium
 from simecs.viewer import direct
 from simecs.viewer.direct_pendant import refusal_text

@@ -13,7 +13,7 @@ import math
 from typing import Any
 
 import numpy as np
-from simecs.mesh import messages as m
+from simecs.mesh.protocol import messages as m
 
 from .conftest import Mesh, wait_until
 from .test_viewer_browser import SHOTS, dismiss_notifications, logs_on_failure, sized_spider_tab, text_appears

@@ -159,7 +159,7 @@ def test_a_tab_on_its_own_thread_applies_events_from_many_threads_without_a_lock
 def test_preview_plays_the_planned_motion_on_the_ghost_and_the_arm_stays(server: Any) -> None:
     """Issue 32 (MoveIt's Plan before Execute): Preview poses the goal ghost along the server's
     planned set points at their own pace, on the tab's loop; the arm itself does not move."""
-    from simecs.mesh import messages as m
+    from simecs.mesh.protocol import messages as m
 
     tab, client, page, _sc = loaded_tab(server, arm())
     try:

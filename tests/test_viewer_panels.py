@@ -10,10 +10,11 @@ from typing import Any
 
 import numpy as np
 import pytest
-from simecs.mesh import codec, columns, shapes
-from simecs.mesh import messages as m
-from simecs.mesh.kinematics import link_poses
-from simecs.mesh.model import Parameter, Shape
+from simecs.mesh.protocol import codec, columns
+from simecs.mesh.protocol import messages as m
+from simecs.mesh.protocol.model import Parameter, Shape
+from simecs.mesh.rules import shapes
+from simecs.mesh.rules.kinematics import link_poses
 from simecs.viewer import (
     joints,
     params,
@@ -77,7 +78,7 @@ def test_real_spider_description_builds_trees_and_shapes() -> None:
     assert len(desc.joint_position_columns()) == len(desc.links)
 
 
-# -- scene: geometry from mesh.shapes, drawn by ArmScene ------------------------------------------------
+# -- scene: geometry from mesh.rules.shapes, drawn by ArmScene ---------------------------------------------
 def test_shape_geometry_follows_the_shape_convention() -> None:
     cyl = shapes.shape_geometry(Shape("cylinder", 0, [0.0, 0.0, -0.05], "z", length=0.1, radius=0.06))
     assert (

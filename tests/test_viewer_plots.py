@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 import pytest
-from simecs.mesh.model import DocPage
+from simecs.mesh.protocol.model import DocPage
 from simecs.viewer import (
     docs,
     plot_dock,

@@ -16,9 +16,9 @@ import math
 from typing import Any
 
 import pytest
-from simecs.mesh import codec
-from simecs.mesh import messages as m
-from simecs.mesh.robot_commands import ACTION_ARGS
+from simecs.mesh.protocol import codec
+from simecs.mesh.protocol import messages as m
+from simecs.mesh.protocol.robot_commands import ACTION_ARGS
 from simecs.testing import browser as chromium
 from simecs.viewer import program
 from simecs.viewer.path import PathError

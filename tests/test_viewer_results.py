@@ -9,11 +9,12 @@ import msgspec
 import numpy as np
 import pytest
 from simecs.benchmarks.viewer import viewer_latency
-from simecs.mesh import keys, shapes, table_csv
-from simecs.mesh import messages as m
 from simecs.mesh.client import NoReply, RemoteError
-from simecs.mesh.codec import DecodeError
-from simecs.mesh.model import InitEquation
+from simecs.mesh.protocol import keys
+from simecs.mesh.protocol import messages as m
+from simecs.mesh.protocol.codec import DecodeError
+from simecs.mesh.protocol.model import InitEquation
+from simecs.mesh.rules import shapes, table_csv
 from simecs.viewer import (
     export,
     identity,

@@ -12,10 +12,11 @@ from typing import Any
 import msgspec
 import numpy as np
 import pytest
-from simecs.mesh import columns, shapes
-from simecs.mesh import messages as m
 from simecs.mesh.client import RemoteError
-from simecs.mesh.kinematics import link_poses
+from simecs.mesh.protocol import columns
+from simecs.mesh.protocol import messages as m
+from simecs.mesh.rules import shapes
+from simecs.mesh.rules.kinematics import link_poses
 from simecs.nodes.local_mesh import wait_until
 from simecs.viewer import (
     browser,
@@ -102,7 +103,7 @@ def test_the_browser_and_the_recordings_scene_draw_every_solid_alike(
     """The 3D arm and Foxglove's /scene come from one rule: after a change of link lengths, radii or
     the payload's size, every solid sits and measures the same in both."""
     from simecs.models import get_model
-    from simecs.nodes import mcapscene
+    from simecs.nodes.recording import mcapscene
 
     desc = get_model("spider").describe()
     values = {**desc.default_values(), **changes}
@@ -230,7 +231,7 @@ def test_an_imported_models_meshes_are_drawn_where_its_description_puts_them(ser
 
     import jsonschema
     from simecs.models import get_model
-    from simecs.nodes import mcapfmt, mcapscene
+    from simecs.nodes.recording import mcapfmt, mcapscene
 
     pkg = get_model("ur5")
     desc = pkg.describe()

@@ -8,7 +8,7 @@ from typing import Any
 
 import numpy as np
 import pytest
-from simecs.mesh.kinematics import link_poses
+from simecs.mesh.rules.kinematics import link_poses
 from simecs.viewer import trace
 
 from .viewer_fakes import arm, layout, live_frame, loaded_tab, state

@@ -12,11 +12,19 @@ from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
-from simecs.mesh import columns, frames, keys
-from simecs.mesh import messages as m
 from simecs.mesh.client import NoReply, RemoteError
-from simecs.mesh.kinematics import link_poses
-from simecs.mesh.model import DocPage, InitEquation, Link, ModelDescription, Parameter, Shape, Variable
+from simecs.mesh.protocol import columns, frames, keys
+from simecs.mesh.protocol import messages as m
+from simecs.mesh.protocol.model import (
+    DocPage,
+    InitEquation,
+    Link,
+    ModelDescription,
+    Parameter,
+    Shape,
+    Variable,
+)
+from simecs.mesh.rules.kinematics import link_poses
 from simecs.viewer import (
     session,
 )

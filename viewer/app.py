@@ -16,9 +16,9 @@ from typing import Any
 
 import viser
 from simecs.mesh.client import MeshClient, NoReply, RemoteError
-from simecs.mesh.config import open_session
-from simecs.mesh.model import ModelDescription
-from simecs.mesh.runtime import Node, main_for, mesh_from_args
+from simecs.mesh.process.config import open_session
+from simecs.mesh.process.runtime import Node, main_for, mesh_from_args
+from simecs.mesh.protocol.model import ModelDescription
 
 from .host import Claimant, Claims
 from .tab import TICKS_PER_S, Tab

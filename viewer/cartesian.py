@@ -15,10 +15,10 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
-from simecs.mesh import codec
-from simecs.mesh import messages as m
-from simecs.mesh.kinematics import link_frames, matrix_from_quat, quat_from_matrix, rot_rpy, rpy_of
-from simecs.mesh.model import ModelDescription
+from simecs.mesh.protocol import codec
+from simecs.mesh.protocol import messages as m
+from simecs.mesh.protocol.model import ModelDescription
+from simecs.mesh.rules.kinematics import link_frames, matrix_from_quat, quat_from_matrix, rot_rpy, rpy_of
 
 from .path import DEG, NodeList, PathError, refused_text
 from .tree import fmt

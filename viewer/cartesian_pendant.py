@@ -12,7 +12,7 @@ import math
 from collections.abc import Callable
 from typing import Any
 
-from simecs.mesh import messages as m
+from simecs.mesh.protocol import messages as m
 
 from .cartesian import (
     CartesianPathEditor,

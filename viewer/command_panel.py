@@ -13,7 +13,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any
 
-from simecs.mesh import messages as m
+from simecs.mesh.protocol import messages as m
 
 from . import events as ev
 from .cartesian_pendant import CartesianPendant

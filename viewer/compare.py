@@ -12,9 +12,9 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from simecs.mesh import columns
-from simecs.mesh import messages as m
-from simecs.mesh.model import ModelDescription
+from simecs.mesh.protocol import columns
+from simecs.mesh.protocol import messages as m
+from simecs.mesh.protocol.model import ModelDescription
 
 from .markup import escape_html
 from .series import value_at

@@ -15,8 +15,8 @@ from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
-from simecs.mesh import messages as m
-from simecs.mesh import phases
+from simecs.mesh.protocol import messages as m
+from simecs.mesh.protocol import phases
 
 from . import events as ev
 from .compare import RunTrack, differences, recording_key, recording_label, values_table

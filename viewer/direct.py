@@ -2,7 +2,7 @@
 points or a generator (step, ramp, sine, chirp), all in one mode (motor currents in open loop, or
 position or speed set points in closed loop), edited as the signal-editor pendant edits it.
 
-The signals' shapes, bounds and defaults are the protocol's (`mesh.robot_commands`): a signal is
+The signals' shapes, bounds and defaults are the protocol's (`mesh.protocol.robot_commands`): a signal is
 built by decoding it, so what this editor takes is what the server takes before its own checks
 against the model (ranges, i_max, max_speed), which come back as a refusal naming the field. What
 the run will follow is drawn from the server's expansion (`CommandPlan.signals`), never recomputed.
@@ -19,9 +19,9 @@ from dataclasses import dataclass
 from typing import Any
 
 import msgspec
-from simecs.mesh import codec
-from simecs.mesh import messages as m
-from simecs.mesh.robot_commands import SIGNAL_TYPES, SignalUnit
+from simecs.mesh.protocol import codec
+from simecs.mesh.protocol import messages as m
+from simecs.mesh.protocol.robot_commands import SIGNAL_TYPES, SignalUnit
 
 from .path import PathError
 from .tree import fmt, numbers_text, parse_numbers

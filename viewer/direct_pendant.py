@@ -15,7 +15,7 @@ from collections.abc import Callable
 from typing import Any
 
 import numpy as np
-from simecs.mesh import messages as m
+from simecs.mesh.protocol import messages as m
 
 from .direct import GENERATORS, MODES, NO_SIGNAL, SIGNAL_TYPES, TABLE, DirectInputEditor, signal_fields
 from .markup import escape_text

@@ -18,7 +18,7 @@ from dataclasses import dataclass
 from typing import Any
 from urllib.parse import quote
 
-from simecs.mesh.model import DocPage
+from simecs.mesh.protocol.model import DocPage
 
 from .markup import escape_html
 

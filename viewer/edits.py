@@ -19,10 +19,10 @@ from functools import partial
 from typing import Any
 
 import msgspec
-from simecs.mesh import codec
-from simecs.mesh import messages as m
 from simecs.mesh.client import NoReply, RemoteError
-from simecs.mesh.shapes import appearance_parameters
+from simecs.mesh.protocol import codec
+from simecs.mesh.protocol import messages as m
+from simecs.mesh.rules.shapes import appearance_parameters
 
 from . import events as ev
 from .program import pendant_level

@@ -9,7 +9,7 @@ from __future__ import annotations
 import re
 
 from simecs.mesh.client import NoReply, RemoteError
-from simecs.mesh.codec import DecodeError
+from simecs.mesh.protocol.codec import DecodeError
 
 #: Failures a user causes or the server explains: shown, not logged with a traceback.
 EXPECTED = (RemoteError, NoReply, TimeoutError, DecodeError, ValueError)

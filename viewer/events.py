@@ -12,8 +12,8 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
-from simecs.mesh import messages as m
-from simecs.mesh.model import DocPage, ModelDescription, ModelSummary
+from simecs.mesh.protocol import messages as m
+from simecs.mesh.protocol.model import DocPage, ModelDescription, ModelSummary
 
 from .compare import RunTrack
 from .series import Transient

@@ -1,10 +1,10 @@
-"""The names files get on their way out of the viewer (a CSV download: mesh/table_csv.py writes it) and
+"""The names files get on their way out of the viewer (a CSV download: mesh/rules/table_csv.py writes it) and
 in (an uploaded recording).
 """
 
 from __future__ import annotations
 
-from simecs.mesh import keys
+from simecs.mesh.protocol import keys
 
 
 def csv_name(model_id: str, session: str, run_id: str) -> str:
@@ -12,5 +12,5 @@ def csv_name(model_id: str, session: str, run_id: str) -> str:
 
 
 def upload_name(filename: str) -> str:
-    """The recording name an uploaded file is stored under (mesh.keys decides)."""
+    """The recording name an uploaded file is stored under (mesh.protocol.keys decides)."""
     return keys.name_from_file(filename)

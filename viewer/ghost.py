@@ -1,6 +1,6 @@
 """The goal ghost (issue 32, as MoveIt users know it): the arm drawn translucent where the selected
 node or action puts it, beside the arm itself, which stays where the run will start (or where a run
-or a jog left it: what Teach records). The same geometry as the arm (`mesh.shapes`), on its own
+or a jog left it: what Teach records). The same geometry as the arm (`mesh.rules.shapes`), on its own
 frames under `/ghost`; a mesh link is drawn as the box around it (viser draws glTF opaque).
 
 The ghost also plays the planned motion (`CommandPlan.motion`: joint set points over time, from the
@@ -14,9 +14,9 @@ from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
 import numpy as np
-from simecs.mesh import shapes
-from simecs.mesh.kinematics import link_poses
-from simecs.mesh.model import ModelDescription
+from simecs.mesh.protocol.model import ModelDescription
+from simecs.mesh.rules import shapes
+from simecs.mesh.rules.kinematics import link_poses
 
 GHOST_ROOT = "/ghost"
 GHOST_COLOR = (70, 150, 255)

@@ -14,7 +14,7 @@ from collections.abc import Callable
 from typing import Protocol
 
 from simecs.mesh.client import MeshClient
-from simecs.mesh.model import ModelDescription
+from simecs.mesh.protocol.model import ModelDescription
 
 
 class Claimant(Protocol):

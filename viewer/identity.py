@@ -12,8 +12,8 @@ from __future__ import annotations
 import secrets
 import threading
 
-from simecs.mesh import keys
 from simecs.mesh.client import MeshClient
+from simecs.mesh.protocol import keys
 
 from .host import Host
 

@@ -19,8 +19,8 @@ import time
 from collections.abc import Callable
 
 import msgspec
-from simecs.mesh import messages as m
-from simecs.mesh import phases
+from simecs.mesh.protocol import messages as m
+from simecs.mesh.protocol import phases
 
 from .tab_state import TabState
 

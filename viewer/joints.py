@@ -9,7 +9,7 @@ import math
 from collections.abc import Callable, Sequence
 from typing import Any
 
-from simecs.mesh.model import InitEquation, Link
+from simecs.mesh.protocol.model import InitEquation, Link
 
 from .markup import escape_html
 from .path import DEG, clamp_to_limits

@@ -7,8 +7,8 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 from typing import Any
 
-from simecs.mesh import messages as m
-from simecs.mesh.model import CONTROL_SYSTEM_TITLES, ModelSummary
+from simecs.mesh.protocol import messages as m
+from simecs.mesh.protocol.model import CONTROL_SYSTEM_TITLES, ModelSummary
 
 from .markup import escape_html
 

@@ -9,11 +9,11 @@ import json
 from collections.abc import Callable, Sequence
 from typing import Any
 
-from simecs.mesh import codec
-from simecs.mesh import messages as m
-from simecs.mesh.codec import DecodeError
-from simecs.mesh.environment import MAX_OBSTACLES, OBSTACLE_KINDS, check_obstacles
-from simecs.mesh.primitives import FieldProblem
+from simecs.mesh.protocol import codec
+from simecs.mesh.protocol import messages as m
+from simecs.mesh.protocol.codec import DecodeError
+from simecs.mesh.protocol.environment import MAX_OBSTACLES, OBSTACLE_KINDS, check_obstacles
+from simecs.mesh.protocol.primitives import FieldProblem
 
 NEW = "(new obstacle)"
 

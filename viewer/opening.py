@@ -7,8 +7,8 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
-from simecs.mesh import messages as m
 from simecs.mesh.client import NoReply, RemoteError
+from simecs.mesh.protocol import messages as m
 
 from . import events as ev
 from .host import Claimant, Host

@@ -12,8 +12,8 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any
 
-from simecs.mesh import shapes
-from simecs.mesh.codec import DecodeError
+from simecs.mesh.protocol.codec import DecodeError
+from simecs.mesh.rules import shapes
 
 from . import browser, camera
 from . import events as ev

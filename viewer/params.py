@@ -19,8 +19,8 @@ import math
 from collections.abc import Callable, Sequence
 from typing import Any
 
-from simecs.mesh.codec import DecodeError
-from simecs.mesh.model import ModelDescription, Parameter, Variable, check_values
+from simecs.mesh.protocol.codec import DecodeError
+from simecs.mesh.protocol.model import ModelDescription, Parameter, Variable, check_values
 
 from . import tree as tr
 from .component_tree import ComponentTree

@@ -13,9 +13,9 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any, Generic, Protocol, TypeVar
 
-from simecs.mesh import messages as m
-from simecs.mesh.model import Link
-from simecs.mesh.robot_commands import MAX_ITEMS
+from simecs.mesh.protocol import messages as m
+from simecs.mesh.protocol.model import Link
+from simecs.mesh.protocol.robot_commands import MAX_ITEMS
 
 from .markup import escape_text
 from .tree import fmt

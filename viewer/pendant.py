@@ -8,7 +8,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any
 
-from simecs.mesh import messages as m
+from simecs.mesh.protocol import messages as m
 
 from .cartesian import NODE_FIELD
 from .joints import JointSliders

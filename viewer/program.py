@@ -16,9 +16,9 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
-from simecs.mesh import codec, keys
-from simecs.mesh import messages as m
-from simecs.mesh.robot_commands import ACTION_ARGS, MAX_ITEMS, NAME_ARG, ArgSpec
+from simecs.mesh.protocol import codec, keys
+from simecs.mesh.protocol import messages as m
+from simecs.mesh.protocol.robot_commands import ACTION_ARGS, MAX_ITEMS, NAME_ARG, ArgSpec
 
 from .path import PathError
 from .tree import fmt, numbers_text, parse_numbers

@@ -18,8 +18,8 @@ import re
 from collections.abc import Callable
 from typing import Any
 
-from simecs.mesh import messages as m
-from simecs.mesh.robot_commands import ACTION_ARGS, ACTION_DOC
+from simecs.mesh.protocol import messages as m
+from simecs.mesh.protocol.robot_commands import ACTION_ARGS, ACTION_DOC
 
 from .cartesian import Pose
 from .params import APPLY_GRACE_S

@@ -8,7 +8,7 @@ from __future__ import annotations
 from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
-from simecs.mesh import messages as m
+from simecs.mesh.protocol import messages as m
 
 from .compare import run_summary
 

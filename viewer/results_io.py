@@ -13,10 +13,11 @@ import functools
 from collections.abc import Callable, Sequence
 
 import numpy as np
-from simecs.mesh import messages as m
-from simecs.mesh import phases, table_csv
 from simecs.mesh.client import NoReply, RemoteError
-from simecs.mesh.limits import RUNS_KEPT
+from simecs.mesh.protocol import messages as m
+from simecs.mesh.protocol import phases
+from simecs.mesh.protocol.limits import RUNS_KEPT
+from simecs.mesh.rules import table_csv
 
 from . import events as ev
 from .compare import recording_of_key, track_columns, track_every, track_of

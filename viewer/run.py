@@ -8,10 +8,10 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 from typing import Any
 
-from simecs.mesh import codec, phases, session_commands
-from simecs.mesh import messages as m
-from simecs.mesh.codec import DecodeError
-from simecs.mesh.model import CONTROL_SYSTEM_TITLES
+from simecs.mesh.protocol import codec, phases, session_commands
+from simecs.mesh.protocol import messages as m
+from simecs.mesh.protocol.codec import DecodeError
+from simecs.mesh.protocol.model import CONTROL_SYSTEM_TITLES
 
 from .camera import VIEWS
 from .markup import escape_html, escape_text

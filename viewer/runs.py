@@ -1,7 +1,7 @@
 """Starting and steering the runs of a tab's session (paper §2.2 steps 7-8, 11): run, pause, resume,
 abort, and replay, which plays a recording of the session's model back as a new run of the same
 session. A button that does not apply in the session's phase is refused here with the reason of the
-phase table (`simecs.mesh.phases`), before any request.
+phase table (`simecs.mesh.protocol.phases`), before any request.
 
 It also times the click on Run to the first live frame shown: the viewer's share of the latency
 `simecs bench viewer` reports, read from the log line written here. Part of the session controller:
@@ -15,7 +15,7 @@ import time
 from collections.abc import Callable
 from functools import partial
 
-from simecs.mesh import messages as m
+from simecs.mesh.protocol import messages as m
 
 from . import events as ev
 from .edits import Edits

@@ -1,9 +1,9 @@
 """The 3D virtual prototype (paper §2.2, §5.1): solid shapes on link frames, in an environment.
 
 Everything comes from the `ModelDescription` the server sends, and every solid's geometry from
-`simecs.mesh.shapes` (the same geometry the recordings' Foxglove /scene gets): link frames follow
+`simecs.mesh.rules.shapes` (the same geometry the recordings' Foxglove /scene gets): link frames follow
 the paper's Link convention and are posed either by the kinematic simulation of the sliders
-(`mesh.kinematics`) or by the pose columns of the live stream; parameter values reshape the solids
+(`mesh.rules.kinematics`) or by the pose columns of the live stream; parameter values reshape the solids
 (link lengths, `scales_with`, `anchor`), so an edited length reshapes the arm at once.
 """
 
@@ -13,11 +13,11 @@ from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
-from simecs.mesh import shapes
-from simecs.mesh.environment import Obstacle
-from simecs.mesh.kinematics import link_poses, matrix_from_quat
-from simecs.mesh.model import ModelDescription, Shape
-from simecs.mesh.shapes import ShapeGeometry
+from simecs.mesh.protocol.environment import Obstacle
+from simecs.mesh.protocol.model import ModelDescription, Shape
+from simecs.mesh.rules import shapes
+from simecs.mesh.rules.kinematics import link_poses, matrix_from_quat
+from simecs.mesh.rules.shapes import ShapeGeometry
 
 TOOL_PATH_COLOR = (255, 150, 0)
 
@@ -258,7 +258,7 @@ class ArmScene:
 
     def show_contacts(self, arrows: np.ndarray) -> None:
         """The contact forces as red arrows ((k, 2, 3): from where a link is pushed, along the force;
-        mesh/scene_state.py); sent only when they change."""
+        mesh/rules/scene_state.py); sent only when they change."""
         if arrows.shape == self._arrows.shape and np.array_equal(arrows, self._arrows):
             return
         self._arrows = arrows.copy()

@@ -14,8 +14,8 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
-from simecs.mesh.columns import TIME
-from simecs.mesh.messages import RunContext
+from simecs.mesh.protocol.columns import TIME
+from simecs.mesh.protocol.messages import RunContext
 
 LIVE_CAPACITY = 3000  # samples per live column kept for plots (60 s at 50 Hz)
 MAX_POINTS = 20_000  # rows per full-resolution load

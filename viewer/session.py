@@ -27,10 +27,10 @@ from collections import deque
 from functools import partial
 
 import numpy as np
-from simecs.mesh import frames, keys, phases
-from simecs.mesh import messages as m
 from simecs.mesh.client import MeshClient, NoReply, RemoteError, SessionClient, Watch
-from simecs.mesh.model import DocPage, ModelDescription
+from simecs.mesh.protocol import frames, keys, phases
+from simecs.mesh.protocol import messages as m
+from simecs.mesh.protocol.model import DocPage, ModelDescription
 
 from . import events as ev
 from .cartesian import CartesianPathEditor

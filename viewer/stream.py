@@ -1,7 +1,7 @@
 """The run a tab shows, as its frames arrive: what the columns are (from the run's layout), where the
 link poses and joint positions sit in them, and the bounded live window the plots draw.
 
-Column names come from `simecs.mesh.columns` only; frames of another run (an older run index) or of
+Column names come from `simecs.mesh.protocol.columns` only; frames of another run (an older run index) or of
 another width are dropped here.
 """
 
@@ -10,10 +10,10 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from simecs.mesh import columns, frames
-from simecs.mesh import messages as m
-from simecs.mesh.model import ModelDescription
-from simecs.mesh.scene_state import WorldColumns
+from simecs.mesh.protocol import columns, frames
+from simecs.mesh.protocol import messages as m
+from simecs.mesh.protocol.model import ModelDescription
+from simecs.mesh.rules.scene_state import WorldColumns
 
 from .series import LiveBuffer
 

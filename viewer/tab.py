@@ -18,7 +18,7 @@ import logging
 from collections.abc import Callable
 from typing import Any
 
-from simecs.mesh import phases
+from simecs.mesh.protocol import phases
 
 from . import browser
 from . import events as ev

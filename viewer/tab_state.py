@@ -10,10 +10,10 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
-from simecs.mesh import keys, session_commands
-from simecs.mesh import messages as m
 from simecs.mesh.client import SessionClient
-from simecs.mesh.model import ModelDescription
+from simecs.mesh.protocol import keys, session_commands
+from simecs.mesh.protocol import messages as m
+from simecs.mesh.protocol.model import ModelDescription
 
 from .cartesian import CartesianPathEditor, Pose, tool_pose
 from .direct import DirectInputEditor

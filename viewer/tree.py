@@ -11,7 +11,7 @@ from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
-from simecs.mesh.model import Parameter, Variable
+from simecs.mesh.protocol.model import Parameter, Variable
 
 from .units import labelled
 

@@ -13,9 +13,9 @@ from __future__ import annotations
 import sys
 
 from simecs.mesh import batch
-from simecs.mesh import messages as m
 from simecs.mesh.client import MeshClient
-from simecs.mesh.config import MeshConfig, load_client
+from simecs.mesh.process.config import MeshConfig, load_client
+from simecs.mesh.protocol import messages as m
 
 
 def main(endpoint: str | None) -> int:

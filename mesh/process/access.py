@@ -21,7 +21,7 @@ from __future__ import annotations
 
 from typing import Any, Literal
 
-from .keys import KEYS, NODE_TOKENS, ROOT, RUN_TOKENS, USERS, KeySpec, check_name, wildcard
+from ..protocol.keys import KEYS, NODE_TOKENS, ROOT, RUN_TOKENS, USERS, KeySpec, check_name, wildcard
 
 Role = Literal["user", "watcher"]
 

@@ -46,7 +46,7 @@ class MeshConfig:
     users_file: str = ""  # router only: "user:password" lines accepted by the hub
     tls: TlsConfig | None = None
     access_control: dict[str, Any] | None = None  # router only: zenoh `access_control` section
-    service_key_file: str = ""  # the service nodes' shared secret (mesh/seal.py); "" = the default
+    service_key_file: str = ""  # the service nodes' shared secret (mesh/process/seal.py); "" = the default
     extra: dict[str, Any] = field(default_factory=dict)  # any other zenoh key -> JSON value
 
     def with_overrides(self, **changes: Any) -> MeshConfig:
@@ -203,7 +203,7 @@ def router_entries() -> dict[str, Any]:
     that publisher for up to 5 s, and every other key with it. The hub instead drops them on their way
     out to a link that cannot take them within 20 ms; the recorder fills such gaps from the run's
     results, and a state is read again from its cache."""
-    from . import keys
+    from ..protocol import keys
 
     streams = [keys.wildcard(name) for name in DROPPED_FOR_SLOW_LINKS]
     return {

@@ -8,7 +8,7 @@ import tempfile
 from pathlib import Path
 from typing import Any
 
-from . import codec
+from ..protocol import codec
 
 
 def atomic_write(path: str | os.PathLike[str], data: bytes) -> None:

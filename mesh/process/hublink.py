@@ -16,7 +16,7 @@ from typing import Any
 import zenoh
 
 #: After the hub comes back, how long every node gets to reconnect and declare its tokens again
-#: (clients retry every 0.1 s, backing off to 1 s: mesh/config.py HUB_RETRY).
+#: (clients retry every 0.1 s, backing off to 1 s: mesh/process/config.py HUB_RETRY).
 REGRACE_S = 2.5
 
 log = logging.getLogger("simecs.hublink")

@@ -31,12 +31,13 @@ from typing import Any
 import zenoh
 import zenoh.ext
 
-from . import affinity, codec, keys
+from ..protocol import codec, keys
+from ..protocol.messages import Error, NodeStatus, Ok
+from . import affinity
 from . import seal as seals
 from .config import MeshConfig, open_session
 from .config import load as load_config
 from .logs import setup_logging
-from .messages import Error, NodeStatus, Ok
 from .workers import BoundedWorker
 
 log = logging.getLogger("simecs")
@@ -102,7 +103,7 @@ class Request:
     key: str
     payload: bytes | None
     parameters: dict[str, str]
-    sealed: bool = False  # sent by a service node (mesh/seal.py)
+    sealed: bool = False  # sent by a service node (mesh/process/seal.py)
 
     def from_service(self, what: str) -> None:
         """Refuse the request unless a service node sent it."""
@@ -177,7 +178,7 @@ class Node:
 
     @property
     def seal(self) -> seals.Seal:
-        """The service's seal (mesh/seal.py), from the service key file (made if missing)."""
+        """The service's seal (mesh/process/seal.py), from the service key file (made if missing)."""
         if self._seal is None:
             self._seal = seals.load(seals.key_file(self.mesh.service_key_file), create=True)
         return self._seal

@@ -58,7 +58,7 @@ def is_pose(column: str) -> bool:
 
 def is_scene(column: str) -> bool:
     """Whether the 3D scene draws from `column`: poses, the grasp, the contact forces' vectors and
-    points (mesh/scene_state.py)."""
+    points (mesh/rules/scene_state.py)."""
     if is_pose(column) or column in (GRASP_OBJECT, GRASP_HELD):
         return True
     head, _, field = column.rpartition(".")

@@ -38,7 +38,7 @@ class Obstacle(Record):
     its frame's x-y plane (its normal is the frame's z, pointing out of the solid). The contact law:
     normal force `stiffness` x penetration + `damping` x penetration rate (never pulling), friction
     up to `friction` x normal force against the sliding velocity. An obstacle with a `mass` can be
-    grasped: the tool carries it from a `grasp` action to a `release` (mesh/robot_commands.py)."""
+    grasped: the tool carries it from a `grasp` action to a `release` (mesh/protocol/robot_commands.py)."""
 
     name: Annotated[Name, Meta(description="unique in the session; notices and refusals name it")]
     kind: ObstacleKind

@@ -23,11 +23,10 @@ class KeySpec:
 
     `writer` is the role that puts it, sends the query, or declares the token; `answerer` the role that
     answers a query. Roles: client, proxy, simulator, worker (a simulator's run process), hotfeedback,
-    recorder, any node. `payload` and `reply` name what travels: a message type named in
-    mesh/messages.py or mesh/model.py (replies are `Ok{data: <type>}` or an `Error`), `frame` (a binary
-    frame, §6), `mcap` (the bytes of an MCAP file), `glb` (binary glTF 2.0), `bundle` (a model directory
-    as a gzip-compressed tar, models/bundle.py), or `per command` (each command's `reply`,
-    session_commands.py);
+    recorder, any node. `payload` and `reply` name what travels: a message type named in messages.py or
+    model.py (replies are `Ok{data: <type>}` or an `Error`), `frame` (a binary frame, §6), `mcap` (the
+    bytes of an MCAP file), `glb` (binary glTF 2.0), `bundle` (a model directory as a gzip-compressed
+    tar, models/bundle.py), or `per command` (each command's `reply`, session_commands.py);
     `|` separates choices.
     """
 

@@ -4,8 +4,8 @@ PROTOCOL.md explains; its tables of keys, commands, phases, message fields and f
 generated here between `<!-- generated:NAME -->` and `<!-- end generated:NAME -->` markers, so the
 document and the nodes cannot drift apart (tests check the document is up to date).
 
-    python -m simecs.mesh.protocol_doc          # rewrite docs/protocol.schema.json and PROTOCOL.md's tables
-    python -m simecs.mesh.protocol_doc --check  # exit 1 if either is out of date (`make lint` does)
+    python -m simecs.mesh.protocol.protocol_doc          # rewrite the schema and PROTOCOL.md's tables
+    python -m simecs.mesh.protocol.protocol_doc --check  # exit 1 if either is out of date (`make lint`)
 """
 
 from __future__ import annotations
@@ -271,11 +271,11 @@ def update_document(text: str) -> str:
 
 
 def _repo() -> Path:
-    return Path(__file__).resolve().parent.parent
+    return Path(__file__).resolve().parent.parent.parent
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m simecs.mesh.protocol_doc", description=__doc__)
+    parser = argparse.ArgumentParser(prog="python -m simecs.mesh.protocol.protocol_doc", description=__doc__)
     parser.add_argument("--check", action="store_true", help="only check that the files are up to date")
     parser.add_argument("--root", default=str(_repo()), help="the repository (default: this checkout)")
     args = parser.parse_args(argv)
@@ -287,7 +287,7 @@ def main(argv: list[str] | None = None) -> int:
     stale = [path for path, text in targets.items() if not path.exists() or path.read_text() != text]
     if args.check:
         for path in stale:
-            print(f"{path} is out of date: run python -m simecs.mesh.protocol_doc", file=sys.stderr)
+            print(f"{path} is out of date: run python -m simecs.mesh.protocol.protocol_doc", file=sys.stderr)
         return 1 if stale else 0
     for path in stale:
         path.write_text(targets[path])

@@ -2,8 +2,8 @@
 messages.py and model.py, the key table of key_table.py, the phase table of phases.py, the commands of
 session_commands.py and the frame header of frames.py, so it can never say something the nodes do not do.
 
-    python -m simecs.mesh.protocol_doc          # rewrite docs/protocol.schema.json and PROTOCOL.md's tables
-    python -m simecs.mesh.protocol_doc --check  # exit 1 if either is out of date (the tests do the same)
+    python -m simecs.mesh.protocol.protocol_doc          # rewrite the schema and PROTOCOL.md's tables
+    python -m simecs.mesh.protocol.protocol_doc --check  # exit 1 if either is out of date (the tests too)
 
 A client validates a message it sends or receives against `$defs/<Type>`; the key table says which
 type travels on which key (`x-simecs-keys`), and `x-simecs-commands` gives each command's reply.
@@ -175,7 +175,8 @@ def protocol_schema() -> dict[str, Any]:
             "primitives' arguments (x-simecs-actions), the binary "
             "frame header (x-simecs-frame) and the controller-in-the-loop rows (x-simecs-hil). "
             "Refusals are Zenoh error replies carrying $defs/Error. "
-            "Generated from mesh/ by `python -m simecs.mesh.protocol_doc`; docs/PROTOCOL.md explains it."
+            "Generated from mesh/protocol/ by `python -m simecs.mesh.protocol.protocol_doc`; "
+            "docs/PROTOCOL.md explains it."
         ),
         "x-simecs-version": m.VERSION,
         "x-simecs-keys": key_table,

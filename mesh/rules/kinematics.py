@@ -12,7 +12,7 @@ from collections.abc import Mapping, Sequence
 
 import numpy as np
 
-from .model import ModelDescription
+from ..protocol.model import ModelDescription
 
 
 def rot_z(angle: float) -> np.ndarray:

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import math
 
-from . import messages as m
+from ..protocol import messages as m
 
 #: Share of a host's cores offered to runs: the rest absorbs the frames' routing and bursts.
 HEADROOM = 0.95

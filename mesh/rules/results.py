@@ -12,9 +12,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import frames
-from .messages import ResultsAttachment, RunContext, RunInfo
-from .runtime import Binary, RequestError
+from ..process.runtime import Binary, RequestError
+from ..protocol import frames
+from ..protocol.messages import ResultsAttachment, RunContext, RunInfo
 
 #: The selector parameters a results query may carry (anything else is refused).
 SELECTOR_PARAMETERS = ("vars", "t0", "t1", "every")

@@ -2,7 +2,7 @@
 grasped moves with it, and stays where it was released) and the contact forces as arrows.
 
 The viewer's 3D scene and the recordings' Foxglove /scene both draw from here, so they agree with each
-other and with the columns the simulator writes (mesh/columns.py).
+other and with the columns the simulator writes (mesh/protocol/columns.py).
 """
 
 from __future__ import annotations
@@ -12,8 +12,8 @@ from collections.abc import Mapping, Sequence
 import msgspec
 import numpy as np
 
-from . import columns
-from .environment import Obstacle
+from ..protocol import columns
+from ..protocol.environment import Obstacle
 from .kinematics import matrix_from_quat, rpy_of
 
 #: m per N of a contact arrow's length, and its bounds (a 1 N touch stays visible, 1 kN stays in view).

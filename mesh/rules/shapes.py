@@ -20,9 +20,9 @@ from typing import Any
 import msgspec
 import numpy as np
 
-from .environment import Obstacle
+from ..protocol.environment import Obstacle
+from ..protocol.model import ModelDescription, Shape
 from .kinematics import matrix_from_quat, quat_from_matrix, rot_rpy
-from .model import ModelDescription, Shape
 
 WORLD = "world"
 _S = math.sqrt(0.5)

@@ -31,7 +31,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from simecs.mesh import columns, shapes
+from simecs.mesh.protocol import columns
+from simecs.mesh.rules import shapes
 
 #: 2: the layout in `simecs.run` carries the run's context (user, values, pose, command, settings).
 FORMAT_VERSION = "2"

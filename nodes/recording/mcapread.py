@@ -36,8 +36,8 @@ from mcap.records import (
     Statistics,
 )
 from mcap.stream_reader import StreamReader, breakup_chunk
-from simecs.mesh import codec, limits
-from simecs.mesh import messages as m
+from simecs.mesh.protocol import codec, limits
+from simecs.mesh.protocol import messages as m
 
 from . import mcapfmt as fmt
 
@@ -96,8 +96,8 @@ class Scan:
     bad_chunks: int = 0
     problem: str = ""  # why reading stopped before the footer ("" when it did not)
     size: int = 0
-    unpacked: int = 0  # bytes of chunks decompressed so far (bounded: mesh/limits.py)
-    records: int = 0  # records read so far, those inside chunks too (bounded: mesh/limits.py)
+    unpacked: int = 0  # bytes of chunks decompressed so far (bounded: mesh/protocol/limits.py)
+    records: int = 0  # records read so far, those inside chunks too (bounded: mesh/protocol/limits.py)
 
 
 class _KnownRecordsReader(StreamReader):
@@ -198,8 +198,8 @@ def _json(text: str | bytes) -> Any:
 
 
 def _chunk_records(chunk: Chunk, out: Scan) -> list[Any]:
-    """A chunk's records, decompressed within the bounds of mesh/limits.py (a few KB of zstd can claim
-    gigabytes): the chunk's size as declared and as it comes out, and the whole file's so far."""
+    """A chunk's records, decompressed within the bounds of mesh/protocol/limits.py (a few KB of zstd
+    can claim gigabytes): the chunk's size as declared and as it comes out, and the whole file's so far."""
     per_chunk, per_file = limits.LIMITS["upload_chunk_bytes"], limits.LIMITS["upload_decompressed_bytes"]
     if chunk.uncompressed_size > per_chunk.value:
         raise BoundExceeded(

@@ -1,5 +1,5 @@
 """The recordings' Foxglove `/scene` (mcapfmt.py has the rest of the format): the model's solids as
-frame-locked entities once per run (`scene_update`, the geometry the viewer draws, mesh/shapes.py),
+frame-locked entities once per run (`scene_update`, the geometry the viewer draws, mesh/rules/shapes.py),
 then the world around the arm as the run's rows move it (`WorldScene`: obstacles a grasp carries or
 a release puts down, contact arrows).
 """
@@ -12,9 +12,10 @@ from collections.abc import Iterable, Mapping, Sequence
 from typing import Any
 
 import numpy as np
-from simecs.mesh import columns, scene_state, shapes
-from simecs.mesh.environment import Obstacle
-from simecs.mesh.model import ModelDescription
+from simecs.mesh.protocol import columns
+from simecs.mesh.protocol.environment import Obstacle
+from simecs.mesh.protocol.model import ModelDescription
+from simecs.mesh.rules import scene_state, shapes
 
 from .mcapfmt import WORLD_FRAME, FormatError, stamp
 
@@ -125,7 +126,7 @@ CONTACT_COLOR = {"r": 0.86, "g": 0.12, "b": 0.12, "a": 1.0}
 
 
 class WorldScene:
-    """The /scene updates that follow a run's rows (mesh/scene_state.py): obstacles moved by a grasp
+    """The /scene updates that follow a run's rows (mesh/rules/scene_state.py): obstacles moved by a grasp
     or a release, and the contact arrows at the /tf rate. The first /scene (scene_update) drew the
     obstacles where the run's list puts them.
 

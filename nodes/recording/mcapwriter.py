@@ -17,10 +17,10 @@ from pathlib import Path
 from typing import IO, Any
 
 import numpy as np
-from simecs.mesh import codec, frames
-from simecs.mesh import messages as m
-from simecs.mesh.environment import Obstacle
-from simecs.mesh.model import ModelDescription
+from simecs.mesh.protocol import codec, frames
+from simecs.mesh.protocol import messages as m
+from simecs.mesh.protocol.environment import Obstacle
+from simecs.mesh.protocol.model import ModelDescription
 
 from .mcapfmt import (
     CHUNK_SIZE,

@@ -19,10 +19,10 @@ from dataclasses import dataclass, field
 from typing import Any, Protocol
 
 import numpy as np
-from simecs.mesh import codec, frames, keys, phases
-from simecs.mesh import messages as m
-from simecs.mesh.model import ModelDescription
-from simecs.mesh.runtime import RequestError
+from simecs.mesh.process.runtime import RequestError
+from simecs.mesh.protocol import codec, frames, keys, phases
+from simecs.mesh.protocol import messages as m
+from simecs.mesh.protocol.model import ModelDescription
 
 from . import mcapfmt as fmt
 from . import mcapread, mcaprepair

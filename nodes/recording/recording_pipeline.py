@@ -24,11 +24,11 @@ from typing import Any
 import numpy as np
 import zenoh
 import zenoh.ext
-from simecs.mesh import codec, frames, keys, phases
-from simecs.mesh import messages as m
 from simecs.mesh.client import MeshClient, NoReply, RemoteError
-from simecs.mesh.model import ModelDescription
-from simecs.mesh.seal import Seal
+from simecs.mesh.process.seal import Seal
+from simecs.mesh.protocol import codec, frames, keys, phases
+from simecs.mesh.protocol import messages as m
+from simecs.mesh.protocol.model import ModelDescription
 
 from .recording_files import VIZ_RATE_HZ, Fill, Gap, Owner, RunFiles
 from .recordings_library import RecordingsLibrary

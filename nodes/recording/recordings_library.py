@@ -17,10 +17,11 @@ from collections.abc import Mapping
 from pathlib import Path
 
 import msgspec
-from simecs.mesh import files, keys, limits, phases
-from simecs.mesh import messages as m
-from simecs.mesh.results import results_reply
-from simecs.mesh.runtime import Binary, RequestError
+from simecs.mesh.process import files
+from simecs.mesh.process.runtime import Binary, RequestError
+from simecs.mesh.protocol import keys, limits, phases
+from simecs.mesh.protocol import messages as m
+from simecs.mesh.rules.results import results_reply
 
 from . import mcapfmt as fmt
 from . import mcapread, mcaprepair
@@ -216,7 +217,7 @@ class RecordingsLibrary:
         return Binary(path.read_bytes(), attachment=info)
 
     def results(self, user: str, name: str, parameters: Mapping[str, str]) -> Binary:
-        """The recorded run's samples as a run's results (mesh/results.py: the same selector and
+        """The recorded run's samples as a run's results (mesh/rules/results.py: the same selector and
         reply), so runs are compared with recordings without replaying them."""
         path = self._closed(user, name, "compare")
         rec = self._loaded(path, name)

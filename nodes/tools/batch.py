@@ -23,10 +23,12 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
-from simecs.mesh import batch, codec, keys, table_csv
-from simecs.mesh import messages as m
+from simecs.mesh import batch
 from simecs.mesh.client import MeshClient, NoReply, RemoteError
-from simecs.mesh.config import load_client
+from simecs.mesh.process.config import load_client
+from simecs.mesh.protocol import codec, keys
+from simecs.mesh.protocol import messages as m
+from simecs.mesh.rules import table_csv
 
 EXIT_OK, EXIT_RUN_FAILED, EXIT_BAD_INPUT, EXIT_NO_SERVICE = 0, 1, 2, 3
 

@@ -12,7 +12,7 @@ import sys
 import time
 from pathlib import Path
 
-from simecs.mesh.config import CLIENT_FILE, DEFAULT_HUB, MeshConfig, load, load_client
+from simecs.mesh.process.config import CLIENT_FILE, DEFAULT_HUB, MeshConfig, load, load_client
 
 SECURE_DIR = os.path.join(os.environ.get("SIMECS_DATA", ".simecs"), "secure")
 UNIX_SOCKET = "unixsock-stream/"
@@ -59,7 +59,7 @@ def secure_setup(args: argparse.Namespace) -> tuple[str, list[str], list[str], s
     here, and this machine's user with its client configuration (`client.json5` in the data folder).
     A TCP or TLS `--hub` gives its port to TLS on `--hub-host`; a unix socket stays one (no TLS: only
     accounts that may open the socket reach it, and they need a password too)."""
-    from simecs.mesh import seal
+    from simecs.mesh.process import seal
     from simecs.nodes.secure import SecureFolder
 
     folder = SecureFolder(args.secure_dir or os.path.join(args.data_dir, "secure"))
@@ -178,17 +178,17 @@ def cmd_node(args: argparse.Namespace, rest: list[str]) -> int:
 
 def cmd_ls(args: argparse.Namespace) -> int:
     import zenoh.ext
-    from simecs.mesh import codec, keys
-    from simecs.mesh import messages as m
-    from simecs.mesh import seal as seals
-    from simecs.mesh.config import open_session
+    from simecs.mesh.process import seal as seals
+    from simecs.mesh.process.config import open_session
+    from simecs.mesh.protocol import codec, keys
+    from simecs.mesh.protocol import messages as m
 
     cfg = load_client(args.mesh_config).with_overrides(connect=[args.connect] if args.connect else None)
     z = open_session(cfg, deadline_s=3.0)
     try:
         statuses: dict[str, m.NodeStatus] = {}
         states: dict[str, m.SessionState] = {}
-        # On a machine of the service, show only what service nodes said (mesh/seal.py).
+        # On a machine of the service, show only what service nodes said (mesh/process/seal.py).
         key_path = seals.key_file(cfg.service_key_file)
         seal = seals.load(key_path) if key_path.exists() else None
 
@@ -403,7 +403,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="import: auto (sized from the URDF's limits) or a JSON5 drive table {drives, joints}",
     )
 
-    from simecs.nodes import batch
+    from simecs.nodes.tools import batch
 
     run = sub.add_parser("run", help="one simulation from files, to a recording or CSV (no browser)")
     batch.add_arguments(run, sweep=False)
@@ -446,7 +446,7 @@ def main(argv: list[str] | None = None) -> None:
     if args.command == "model":
         sys.exit(cmd_model(args, parser))
     if args.command in ("run", "sweep"):
-        from simecs.nodes import batch
+        from simecs.nodes.tools import batch
 
         sys.exit(batch.cmd_run(args) if args.command == "run" else batch.cmd_sweep(args))
     parser.error(f"unknown command {args.command}")

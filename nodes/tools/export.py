@@ -1,6 +1,6 @@
 """`simecs export FILE --csv [--vars ...]`: a recording's samples as CSV, for spreadsheets and scripts.
 
-The CSV is the one format of mesh/table_csv.py (the viewer's download is the same file): reading it
+The CSV is the one format of mesh/rules/table_csv.py (the viewer's download is the same file): reading it
 back gives the recorded float64 values exactly. `--vars` takes column names or shell patterns (`joint1.*`);
 `time` is always the first column.
 """
@@ -14,9 +14,9 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from simecs.mesh.table_csv import write_table
+from simecs.mesh.rules.table_csv import write_table
 
-from . import mcapread
+from ..recording import mcapread
 
 
 class ExportError(ValueError):
