@@ -36,6 +36,9 @@ HANDOVER_TIMEOUT_S = 10.0
 HUB_WAIT_S = 60.0  # a hand-over that met a hub restart waits this long for the hub, then tries again
 BUSY = '"code":"busy"'
 QUEUE_WAITS_AFTER_HUB_S = 10.0  # queued runs wait this long after a hub restart for the simulators to be back
+#: ... and this long after the last simulator host left: a host restarted, or whose link to the hub was
+#: cut for longer than the lease (a host starved of CPU), comes back in a moment.
+QUEUE_WAITS_FOR_HOST_S = 10.0
 #: A queued run's wait estimate is published again when it moved by this much (and this fraction).
 WAIT_CHANGE_S = 1.0
 
@@ -121,6 +124,8 @@ class Admission:
             if not self.hosts.live:
                 if self.hub is not None and self.hub.lost_since(time.monotonic() - QUEUE_WAITS_AFTER_HUB_S):
                     break  # the hub went away lately: its simulators come back with it
+                if self.hosts.left_lately(QUEUE_WAITS_FOR_HOST_S):
+                    break  # the proxy's tick asks again until it is back or the wait is over
                 self._fail_head(request, "no simulator node is on the mesh")
                 continue
             if not self.hosts.offers(request.model_id) and not request.recording:

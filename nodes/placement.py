@@ -51,6 +51,7 @@ class Hosts:
         self.views: dict[str, HostView] = {}
         self.live: set[str] = set()
         self.reservation_s = reservation_s  # the proxy's --reservation-s
+        self._last_left = -math.inf  # monotonic s: when a host last left the mesh
 
     # -- what the mesh says ---------------------------------------------------------------------------
     def joined(self, node_id: str) -> None:
@@ -60,6 +61,11 @@ class Hosts:
     def left(self, node_id: str) -> None:
         self.live.discard(node_id)
         self.views.pop(node_id, None)
+        self._last_left = time.monotonic()
+
+    def left_lately(self, within_s: float) -> bool:
+        """No host is live, and the last one left less than `within_s` ago (it may be coming back)."""
+        return not self.live and time.monotonic() - self._last_left < within_s
 
     def status(self, node_id: str, status: m.SimulatorLoad) -> None:
         view = self.views.setdefault(node_id, HostView(node_id))

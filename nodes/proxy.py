@@ -455,7 +455,12 @@ class Proxy(Node):
         return rec.id
 
     def tick(self) -> None:
-        """Close every session idle for longer than `session_idle_s` (its results go with it)."""
+        """Runs queued while no simulator host is live: started when one is back, failed once the wait
+        is over (admission.QUEUE_WAITS_FOR_HOST_S). Close every session idle for longer than
+        `session_idle_s` (its results go with it)."""
+        with self.lock:
+            if self.admission.queue and not self.admission.hosts.live:
+                self.admission.update()
         now = time.monotonic()
         if now - self._expiry_checked < min(60.0, self.session_idle_s / 4):
             return

@@ -15,6 +15,7 @@ import pytest
 from simecs.mesh.client import NoReply, RemoteError, SessionClient
 from simecs.mesh.protocol import codec, keys
 from simecs.mesh.protocol import messages as m
+from simecs.nodes.admission import QUEUE_WAITS_FOR_HOST_S
 from simecs.nodes.runs import WORKER_REPORTS_S
 
 from .conftest import Mesh, Service, start_service, wait_until
@@ -240,3 +241,27 @@ def test_a_simulator_node_killed_alone_costs_no_run(service: Service) -> None:
     _columns, rows = wait_until(lambda: results_or_none(s, run_id), timeout=30, what="its results")
     assert rows.shape[0] == 1001 and rows[-1, 0] == pytest.approx(2.0)  # whole: 0..2 s every 2 ms
     wait_until(lambda: not running(worker), timeout=10, what="the worker ended")
+
+
+def test_a_run_asked_for_while_the_simulator_node_is_away_waits_for_it(service: Service) -> None:
+    """A run asked for while no simulator host is on the mesh (its node restarting, or its link cut
+    for longer than the lease by a starved CPU) waits for one and runs; only when none comes back
+    within the wait does it fail, saying why."""
+    c = service.client
+    s = c.create_session("ann", "spider")
+    prepare(s)
+    lost = "simulator host simulator-t left"
+    service.mesh.stop("simulator", signal.SIGKILL)
+    wait_until(lambda: service.mesh.log("proxy").count(lost) == 1, 10, what="the node's loss seen")
+    run_id = s.run()
+    assert s.snapshot().state.phase == "queued"
+    time.sleep(2.0)
+    assert s.snapshot().state.phase == "queued"  # not failed: the host may be back in a moment
+    service.mesh.start("simulator", "--results-dir", str(service.data_dir / "results"))
+    end = s.wait_for(["finished", "failed", "aborted"], 60, run_id)
+    assert end.phase == "finished", end.reason
+    service.mesh.stop("simulator", signal.SIGKILL)
+    wait_until(lambda: service.mesh.log("proxy").count(lost) == 2, 10, what="the node's second loss seen")
+    run_id = s.run()
+    end = s.wait_for(["failed"], QUEUE_WAITS_FOR_HOST_S + 10, run_id)
+    assert end.reason == "no simulator node is on the mesh", end.reason
