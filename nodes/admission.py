@@ -36,9 +36,10 @@ HANDOVER_TIMEOUT_S = 10.0
 HUB_WAIT_S = 60.0  # a hand-over that met a hub restart waits this long for the hub, then tries again
 BUSY = '"code":"busy"'
 QUEUE_WAITS_AFTER_HUB_S = 10.0  # queued runs wait this long after a hub restart for the simulators to be back
-#: ... and this long after the last simulator host left: a host restarted, or whose link to the hub was
-#: cut for longer than the lease (a host starved of CPU), comes back in a moment.
-QUEUE_WAITS_FOR_HOST_S = 10.0
+#: ... and this long after the last simulator host left: a node restarted (its start, its first worker
+#: warmed: up to ~10 s on a loaded 2-core machine), or whose link to the hub was cut for longer than
+#: the lease (a host starved of CPU), comes back within it. PROTOCOL.md §5.2 says it.
+QUEUE_WAITS_FOR_HOST_S = 30.0
 #: A queued run's wait estimate is published again when it moved by this much (and this fraction).
 WAIT_CHANGE_S = 1.0
 
