@@ -51,6 +51,7 @@ def simulator_loads(mesh: LocalMesh, listen_s: float = 1.5) -> dict[str, m.Simul
     return out
 
 
+@pytest.mark.timeout(480)  # the starts below may take minutes on a loaded 2-core machine
 def test_realtime_runs_share_a_small_machine_and_fast_runs_queue_per_core(mesh: LocalMesh) -> None:
     """No --max-running: eight real-time runs go at once on this (CI: 2-core) machine, where the old
     core-count default held two; runs as fast as possible take a core each and wait for one."""
@@ -58,8 +59,14 @@ def test_realtime_runs_share_a_small_machine_and_fast_runs_queue_per_core(mesh: 
     mesh.start("proxy", "--data-dir", str(data))
     mesh.start("simulator", "--results-dir", str(data / "results"))
     realtime = [new_session(mesh, f"rt{i}", stop_time=300.0, output_interval=0.01) for i in range(8)]
-    for s in realtime:
-        s.wait_for(["running"], 60, s.run())
+    # All asked for at once; each starts when a worker is warm (two start at a time, the others wait
+    # for the pool's refill, warmed at nice 10). How long that takes is a speed figure (`bench scale`,
+    # SimulatorLoad.cold_start_s), not this test's: on a 2-core machine whose other test worker drives
+    # a browser, one warm-up took more than 60 s. The bound here only keeps a broken start from hanging.
+    runs = [s.run() for s in realtime]
+    deadline = time.monotonic() + 300.0
+    for s, run_id in zip(realtime, runs, strict=True):
+        s.wait_for(["running"], max(deadline - time.monotonic(), 1.0), run_id)
     states = [s.snapshot().state for s in realtime]
     assert [st.phase for st in states] == ["running"] * 8, [st.reason for st in states]
     assert {st.host for st in states} == {"simulator-t"}

@@ -161,12 +161,22 @@ def poses_since(page: Any, t_ms: float, link: str | None = None) -> int:
 
 
 def dismiss_notifications(page: Any) -> None:
-    """Close the notifications stacked top left (they cover what is under them, as for a user)."""
-    for button in page.locator(".mantine-Notification-closeButton").all():
+    """Close the notifications stacked top left (they cover what is under them, as for a user), and
+    wait until they are gone: a closing one slides out to the left over the panel's top buttons for a
+    moment, and a click meanwhile lands on it (the Documentation button's click once did)."""
+    notices = page.locator(".mantine-Notification-root")
+    end = time.monotonic() + 15.0
+    while notices.count() and time.monotonic() < end:
+        for button in page.locator(".mantine-Notification-closeButton").all():
+            try:
+                button.click(timeout=2000)
+            except Exception:
+                pass  # gone meanwhile
         try:
-            button.click(timeout=2000)
+            notices.first.wait_for(state="detached", timeout=3000)
         except Exception:
-            pass
+            pass  # still there: closed again above
+    assert not notices.count(), f"notifications not closed: {notices.all_inner_texts()}"
 
 
 open_components = chromium.open_components
