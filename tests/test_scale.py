@@ -53,23 +53,29 @@ def simulator_loads(mesh: LocalMesh, listen_s: float = 1.5) -> dict[str, m.Simul
 
 @pytest.mark.timeout(480)  # the starts below may take minutes on a loaded 2-core machine
 def test_realtime_runs_share_a_small_machine_and_fast_runs_queue_per_core(mesh: LocalMesh) -> None:
-    """No --max-running: eight real-time runs go at once on this (CI: 2-core) machine, where the old
-    core-count default held two; runs as fast as possible take a core each and wait for one."""
+    """No --max-running: real-time runs go at once as far as the host's measured capacity holds them
+    (on an idle 2-core machine all eight), where the old core-count default held two, the others wait
+    queued, none is refused; runs as fast as possible take a core each and wait for one."""
     data = mesh.folder / "data"
     mesh.start("proxy", "--data-dir", str(data))
     mesh.start("simulator", "--results-dir", str(data / "results"))
     realtime = [new_session(mesh, f"rt{i}", stop_time=300.0, output_interval=0.01) for i in range(8)]
     # All asked for at once; each starts when a worker is warm (two start at a time, the others wait
-    # for the pool's refill, warmed at nice 10). How long that takes is a speed figure (`bench scale`,
-    # SimulatorLoad.cold_start_s), not this test's: on a 2-core machine whose other test worker drives
-    # a browser, one warm-up took more than 60 s. The bound here only keeps a broken start from hanging.
-    runs = [s.run() for s in realtime]
-    deadline = time.monotonic() + 300.0
-    for s, run_id in zip(realtime, runs, strict=True):
-        s.wait_for(["running"], max(deadline - time.monotonic(), 1.0), run_id)
-    states = [s.snapshot().state for s in realtime]
-    assert [st.phase for st in states] == ["running"] * 8, [st.reason for st in states]
-    assert {st.host for st in states} == {"simulator-t"}
+    # for the pool's refill, warmed at nice 10), and only while the host's capacity holds it: beside
+    # another test's browser the host measures less room (cores x headroom - other processes' use),
+    # and fewer than eight fit. How long starts take is a speed figure (`bench scale`), not this test's.
+    for s in realtime:
+        s.run()
+
+    def going() -> list[m.SessionState] | None:
+        states = [s.snapshot().state for s in realtime]
+        assert all(st.phase in ("queued", "running") for st in states), [st.reason for st in states]
+        starting = any(st.phase == "queued" and st.queue_position == 0 for st in states)
+        running = [st for st in states if st.phase == "running"]
+        return running if len(running) >= 3 and not starting else None
+
+    running = wait_until(going, timeout=300, interval=1.0, what="three real-time runs or more at once")
+    assert {st.host for st in running} == {"simulator-t"}
     load = wait_until(lambda: simulator_loads(mesh).get("simulator-t"), 10, what="the simulator's load")
     assert load.cores >= 1, load
     # the cost is smoothed over the runs' reports: the first ones carry the workers' start on a busy
@@ -80,13 +86,13 @@ def test_realtime_runs_share_a_small_machine_and_fast_runs_queue_per_core(mesh: 
         interval=0.5,
         what=f"a settled real-time run cost (first read {load.cost})",
     )
-    assert settled.runs and len(settled.runs) == 8, settled
+    assert settled.runs and len(settled.runs) >= 3, settled
     for s in realtime:
         s.abort()
 
     fast = [new_session(mesh, f"fast{i}", stop_time=20.0, pacing="fast") for i in range(3)]
     for s in realtime:
-        s.wait_for(["aborted"], 30)
+        s.wait_for(["aborted"], 60)
     seen: dict[str, list[m.SessionState]] = {s.id: [] for s in fast}
     watches = [s.watch(on_state=lambda st, sid=s.id: seen[sid].append(st)) for s in fast]
     try:
