@@ -242,10 +242,6 @@ class RunRef(NamedTuple):
         chunks = parse("run_token", key)
         return cls(chunks["user"], chunks["session"], chunks["run"])
 
-    @property
-    def token(self) -> str:
-        return run_token(self.user, self.session, self.run_id)
-
     def __str__(self) -> str:
         return f"{self.session}/{self.run_id}"
 
