@@ -57,7 +57,12 @@ class Recorder(Node):
             default=VIZ_RATE_HZ,
             help=f"max /tf and /joint_states samples per simulated second (default {VIZ_RATE_HZ:g})",
         )
-        parser.add_argument("--queue-frames", type=int, default=4096, help="frames buffered before dropping")
+        parser.add_argument(
+            "--queue-frames",
+            type=int,
+            default=4096,
+            help="frames buffered before dropping (0: none; each run is then written from its results)",
+        )
         parser.add_argument(
             "--queue-mb",
             type=float,
