@@ -50,28 +50,28 @@ def chain_frames(pre_R, pre_p, q, R_out, p_out):
 
 
 @njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
-def chain_state(pre_R, pre_p, masses, coms, inertias, gravity, q, qd):
+def chain_state(chain, gravity, q, qd):
     """What a step's kernels start from at the chain state (q, qd): (R_all, p_all, M, bias), the joint
-    frames, the mass matrix and the bias forces."""
+    frames, the mass matrix and the bias forces. `chain`: the link data (mechanics.ChainArrays)."""
     n = q.shape[0]
     R_all = np.empty((n, 3, 3))
     p_all = np.empty((n, 3))
     M = np.empty((n, n))
     bias = np.empty(n)
-    chain_frames(pre_R, pre_p, q, R_all, p_all)
-    mass_matrix_at(R_all, p_all, masses, coms, inertias, M)
-    bias_forces_at(R_all, p_all, masses, coms, inertias, gravity, qd, bias)
+    chain_frames(chain.pre_R, chain.pre_p, q, R_all, p_all)
+    mass_matrix_at(R_all, p_all, chain.masses, chain.coms, chain.inertias, M)
+    bias_forces_at(R_all, p_all, chain.masses, chain.coms, chain.inertias, gravity, qd, bias)
     return R_all, p_all, M, bias
 
 
 @njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
-def mass_matrix(pre_R, pre_p, masses, coms, inertias, q, M):
+def mass_matrix(chain, q, M):
     """M(q) = sum_k m_k Jv_k^T Jv_k + Jw_k^T I_k Jw_k, for a serial chain of revolute z joints."""
     n = q.shape[0]
     R_all = np.empty((n, 3, 3))
     p_all = np.empty((n, 3))
-    chain_frames(pre_R, pre_p, q, R_all, p_all)
-    mass_matrix_at(R_all, p_all, masses, coms, inertias, M)
+    chain_frames(chain.pre_R, chain.pre_p, q, R_all, p_all)
+    mass_matrix_at(R_all, p_all, chain.masses, chain.coms, chain.inertias, M)
 
 
 @njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
@@ -131,22 +131,22 @@ def _cross(a, b, out):
 
 
 @njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
-def bias_forces(pre_R, pre_p, masses, coms, inertias, gravity, q, qd, out):
+def bias_forces(chain, gravity, q, qd, out):
     """out = C(q, qd) qd + g(q): the joint torques that hold the chain at zero acceleration (recursive
     Newton-Euler in world axes, the base accelerated by -gravity). With the mass matrix they give the
     chain's forward dynamics: M qdd = tau - out."""
     n = q.shape[0]
     R_all = np.empty((n, 3, 3))
     p_all = np.empty((n, 3))
-    chain_frames(pre_R, pre_p, q, R_all, p_all)
-    bias_forces_at(R_all, p_all, masses, coms, inertias, gravity, qd, out)
+    chain_frames(chain.pre_R, chain.pre_p, q, R_all, p_all)
+    bias_forces_at(R_all, p_all, chain.masses, chain.coms, chain.inertias, gravity, qd, out)
 
 
 @njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
-def gravity_torques(pre_R, pre_p, masses, coms, inertias, gravity, q, out):
+def gravity_torques(chain, gravity, q, out):
     """out = g(q): the joint torques that hold the chain still at q against gravity (the bias forces
     at rest); what a controller feeds forward and what the drives must give to hold a pose."""
-    bias_forces(pre_R, pre_p, masses, coms, inertias, gravity, q, np.zeros(q.shape[0]), out)
+    bias_forces(chain, gravity, q, np.zeros(q.shape[0]), out)
 
 
 @njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)

@@ -19,6 +19,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
@@ -63,6 +64,19 @@ PR_J = 6
 
 def pair_width(n: int) -> int:
     return PR_J + 3 * n
+
+
+class ContactTables(NamedTuple):
+    """What the kernels read of the contacts (run_world.RunWorld builds it): the tables, then the work
+    arrays a step fills."""
+
+    spheres: np.ndarray  # the arm's and a held object's contact spheres (rows per sphere)
+    bounds: np.ndarray  # each link's bounding sphere of its spheres (link_bounds)
+    obs: np.ndarray  # the obstacles
+    pairs: np.ndarray  # work: a step's close sphere-obstacle pairs (rows PR_*)
+    caps: np.ndarray  # the contact friction's viscous caps per (sphere, obstacle), set each step
+    cw: np.ndarray  # work: 4 x n (rows 2, 3: the stage's contact torques and impulses)
+    scratch: np.ndarray  # work: 4 x 3
 
 
 #: Output columns of the contact model (`contact.*` variables), after the per-link ones.
@@ -343,13 +357,13 @@ def _link_outputs(spheres, bound, obs, caps, R_all, p_all, qd, near, weight, bes
 
 
 @njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
-def contact_prestep(pre_R, pre_p, masses, coms, inertias, gravity, tables, q, qd, h, nsub, tau_out):
+def contact_prestep(chain, gravity, tables, q, qd, h, nsub, tau_out):
     """The step's mean contact torque into tau_out when the drives are off (nothing else acts on the
-    joints): the load side predicted over RK4 substeps as in drive_integrator.drive_step. `tables`:
-    as there."""
+    joints): the load side predicted over RK4 substeps as in drive_integrator.drive_step. `chain`:
+    mechanics.ChainArrays; `tables`: ContactTables."""
     spheres, bounds, obs, pairs, caps, _cw, scratch = tables
     n = q.shape[0]
-    R_all, p_all, M, bias = chain_state(pre_R, pre_p, masses, coms, inertias, gravity, q, qd)
+    R_all, p_all, M, bias = chain_state(chain, gravity, q, qd)
     Minv = spd_inverse(M)
     for j in range(n):
         tau_out[j] = 0.0

@@ -346,15 +346,17 @@ def joint_signals(P, j, X, ql, qdl, qr, qdr, mode, i_ff, out):
 
 
 @njit(cache=_CACHE, inline="always", error_model="numpy", fastmath=_FAST)
-def controlled_signals(P, j, X, ql, qdl, qr, qdr, jmode, live, out):
+def controlled_signals(P, j, X, ql, qdl, qr, qdr, sp, out):
     """`joint_signals` of joint j under whichever controller has it: the built-in cascade in the
     command's mode, or an external controller's current set point (live[j, LV_IREF]), in which
-    case out[2], out[3] keep the command's set points (what the controller was sent)."""
+    case out[2], out[3] keep the command's set points (what the controller was sent). `sp`: the
+    set points (references.SetPointArrays)."""
+    live = sp.live
     external = live[j, LV_EXTERNAL] > 0.5
     if external:
         a, b, mode = live[j, LV_IREF], 0.0, JM_CURRENT
     else:
-        a, b, mode = qr, qdr, jmode[j]
+        a, b, mode = qr, qdr, sp.jmode[j]
     # one call: its body is inlined here, and compiling it twice doubled the kernels' compile time
     joint_signals(P, j, X, ql, qdl, a, b, mode, live[j, LV_GRAVITY], out)
     if external:
@@ -363,15 +365,15 @@ def controlled_signals(P, j, X, ql, qdl, qr, qdr, jmode, live, out):
 
 
 @njit(cache=_CACHE, inline="always", error_model="numpy", fastmath=_FAST)
-def drive_rhs(P, seg, hold, tab, jmode, live, Minv, bias, tc, t, X, dX, sig, qr, qdr, tau, new_t=True):
+def drive_rhs(P, sp, Minv, bias, tc, t, X, dX, sig, qr, qdr, tau, new_t=True):
     """dX = f(t, X), the load accelerating with M^-1 (tau_gear + tc - bias), tc the contacts' torques
     at X (`contact_stage`); the set points qr, qdr are evaluated at t unless `new_t` is False (same t
     as the previous call: RK4 stages 2 and 3)."""
     n = X.shape[0]
     if new_t:
-        ref_eval(seg, hold, tab, jmode, live, t, qr, qdr)
+        ref_eval(sp, t, qr, qdr)
     for j in range(n):  # X[j, k], not a row view X[j]: a view costs reference counting in a hot loop
-        controlled_signals(P, j, X, X[j, S_QL], X[j, S_QDL], qr[j], qdr[j], jmode, live, sig)
+        controlled_signals(P, j, X, X[j, S_QL], X[j, S_QDL], qr[j], qdr[j], sp, sig)
         om = X[j, S_OM]
         dX[j, S_TH] = om
         jm = P[j, P_JR] + P[j, P_JG]
@@ -399,19 +401,19 @@ def drive_rhs(P, seg, hold, tab, jmode, live, Minv, bias, tc, t, X, dX, sig, qr,
 
 
 @njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
-def drive_outputs(P, seg, hold, tab, jmode, live, X, q, qd, t, out):
+def drive_outputs(P, sp, X, q, qd, t, out):
     """Variables of every joint at time t from the drive states and the chain state: out[j, :NO]."""
     n = q.shape[0]
     qr = np.empty(n)
     qdr = np.empty(n)
-    ref_eval(seg, hold, tab, jmode, live, t, qr, qdr)
+    ref_eval(sp, t, qr, qdr)
     sig = np.empty(NO + 10)
     for j in range(n):
-        controlled_signals(P, j, X, q[j], qd[j], qr[j], qdr[j], jmode, live, sig)
+        controlled_signals(P, j, X, q[j], qd[j], qr[j], qdr[j], sp, sig)
         for k in range(NO):
             out[j, k] = sig[k]
         if (
-            jmode[j] == JM_CURRENT and live[j, LV_EXTERNAL] <= 0.5
+            sp.jmode[j] == JM_CURRENT and sp.live[j, LV_EXTERNAL] <= 0.5
         ):  # q_ref, qd_ref: the position set point the current replaced
-            out[j, 2] = hold[j]
+            out[j, 2] = sp.hold[j]
             out[j, 3] = 0.0

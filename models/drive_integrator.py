@@ -10,6 +10,7 @@ vector. See docs/MODELS.md, "Coupling".
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
@@ -34,6 +35,16 @@ FRICTION_BOUND_MARGIN = 1.05
 STEP_OK, STEP_NOT_FINITE, STEP_FRICTION = 0, 1, 2
 RK4_AT = (0.0, 0.5, 0.5, 1.0)  # the stages' times within a substep, in substeps
 RK4_WEIGHT = (1.0, 2.0, 2.0, 1.0)
+
+
+class DriveArrays(NamedTuple):
+    """The drives as a step reads and writes them (simulation.Simulation owns the arrays)."""
+
+    P: np.ndarray  # (n, NP): the parameters (drive.P_*)
+    X: np.ndarray  # (n, NS + ...): the states (drive.S_*), advanced in place
+    Xbak: np.ndarray  # X before the step, restored when the solver takes the same step again
+    tau: np.ndarray  # (n,): out, the step's mean gear + contact torque (Exudyn's joint torques)
+    work: np.ndarray  # (5, n, NL): scratch, the RK4 stages' derivatives and the stage state
 
 
 @njit(cache=_CACHE, inline="always", error_model="numpy", fastmath=_FAST)
@@ -89,11 +100,7 @@ def substeps_for(P, X, h, nsub):
 @njit(cache=_CACHE, error_model="numpy", fastmath=_FAST, **_NO_REFCOUNTS)
 def rk4_substeps(
     P,
-    seg,
-    hold,
-    tab,
-    jmode,
-    live,
+    sp,
     Minv,
     bias,
     X,
@@ -112,7 +119,7 @@ def rk4_substeps(
     """drive_step's nsub RK4 substeps of hs from t, X advanced in place: STEP_OK, or STEP_FRICTION.
     `work`: the 4 stages' derivatives and the stage state; `cw`, `cimp`: contact_stage's; `sig`: the
     joint signals; `rows`: the set points and gear torques (qr, qdr, tau) of drive_rhs; `refs`: some
-    joint reads the set points."""
+    joint reads the set points; `sp`: references.SetPointArrays."""
     n = X.shape[0]
     Xt = work[4]
     tc, qr, qdr, tau = cw[2], rows[0], rows[1], rows[2]
@@ -131,11 +138,7 @@ def rk4_substeps(
             ref_due = refs and stage != 2  # stage 2 has stage 1's time
             drive_rhs(
                 P,
-                seg,
-                hold,
-                tab,
-                jmode,
-                live,
+                sp,
                 Minv,
                 bias,
                 tc,
@@ -158,37 +161,15 @@ def rk4_substeps(
 
 
 @njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
-def drive_step(
-    P,
-    seg,
-    hold,
-    tab,
-    jmode,
-    live,
-    R_all,
-    p_all,
-    Minv,
-    bias,
-    X,
-    Xbak,
-    repeat,
-    q,
-    qd,
-    t,
-    h,
-    nsub,
-    tau_out,
-    work,
-    tables,
-):
-    """Integrate all drives over [t, t+h] with RK4 substeps (nsub, more where friction or a contact is
-    stiff); tau_out = mean gear + contact torque. STEP_OK, or STEP_NOT_FINITE / STEP_FRICTION when the
-    states broke down. R_all, p_all, Minv, bias: the chain's joint frames, inverse mass matrix and bias
-    forces at the step start (step.py computes them once for every kernel of the step). `tables` =
-    contact.py's (spheres, link bounds, obstacles) and its work arrays (pairs, caps, cw: 4 x n,
-    scratch: 4 x 3).
+def drive_step(drives, sp, R_all, p_all, Minv, bias, tables, repeat, q, qd, t, h, nsub):
+    """Integrate all drives (DriveArrays) over [t, t+h] with RK4 substeps (nsub, more where friction or
+    a contact is stiff) following the set points `sp` (references.SetPointArrays); drives.tau = mean
+    gear + contact torque. STEP_OK, or STEP_NOT_FINITE / STEP_FRICTION when the states broke down.
+    R_all, p_all, Minv, bias: the chain's joint frames, inverse mass matrix and bias forces at the step
+    start (step.py computes them once for every kernel of the step); `tables`: contact.ContactTables.
     The drive state is kept for a repeated step: `repeat` (the solver takes the same step again)
     restores X from Xbak, else Xbak saves X before the step."""
+    P, X, Xbak, tau_out, work = drives
     if repeat:
         X[:, :] = Xbak
     else:
@@ -216,30 +197,9 @@ def drive_step(
     # Joints all under an external controller read no set point: the reference is not evaluated.
     refs = False
     for j in range(n):
-        if live[j, LV_EXTERNAL] <= 0.5:
+        if sp.live[j, LV_EXTERNAL] <= 0.5:
             refs = True
-    status = rk4_substeps(
-        P,
-        seg,
-        hold,
-        tab,
-        jmode,
-        live,
-        Minv,
-        bias,
-        X,
-        work,
-        contact,
-        npairs,
-        cw,
-        cimp,
-        sig,
-        rows,
-        refs,
-        t,
-        hs,
-        nsub,
-    )
+    status = rk4_substeps(P, sp, Minv, bias, X, work, contact, npairs, cw, cimp, sig, rows, refs, t, hs, nsub)
     if status != STEP_OK:
         return status
     for j in range(n):

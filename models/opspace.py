@@ -39,6 +39,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
@@ -122,6 +123,20 @@ FP_T, FP_AXIS, FP_F = 0, 1, 4
 FRICTION_BAND = 0.5  # rad/s of motor speed over which the Coulomb feed-forward changes sign (tanh)
 
 
+class ControllerArrays(NamedTuple):
+    """What the controller reads and keeps from one period to the next (`OpspaceController.arrays`)."""
+
+    R_last: np.ndarray  # (3, 3): the last joint frame's fixed rotation (the tool hangs on it)
+    tool_local: np.ndarray  # (3,): the tool point in the last joint's frame
+    gains: np.ndarray  # the gains, in the order of GAINS
+    period: float  # s
+    forces: np.ndarray  # the force profile (FP_* rows; none: motion control only)
+    f_tool: np.ndarray  # (3,) out: the contact force on the tool (N, world), when there is a profile
+    integ: np.ndarray  # (7,): the integral state (tool position and orientation errors, force error)
+    memo: np.ndarray  # MEMO_*: the next period's reference pose, computed this period
+    i_ref: np.ndarray  # (n,) out: the current set points (A)
+
+
 @njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
 def _tool_velocity(pre_R, pre_p, R_last, tool_local, q, qd, R_all, p_all, p, R, J, v):
     """Tool pose (p, R) at q and its twist v = J(q) qd (linear, angular; world)."""
@@ -188,39 +203,23 @@ def _recall(memo, qr, qdr, p, R, v):
 
 
 @njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
-def opspace_currents(
-    P,
-    pre_R,
-    pre_p,
-    R_all,
-    p_all,
-    M_chain,
-    b,
-    R_last,
-    tool_local,
-    gains,
-    q,
-    qd,
-    qr,
-    qdr,
-    qr_next,
-    qdr_next,
-    period,
-    force,
-    integ,
-    memo,
-    i_ref,
-):
-    """The current set point of every joint (i_ref, A) for this control period; integ (7: the tool's
-    position and orientation errors, the force error) is the controller's integral state, advanced
-    here; memo (MEMO_*) carries the next period's reference pose over to it. Returns True when a set
-    point saturated. `force` (F_*): the hybrid controller's force input; with force[F_WANT] = 0 the
-    law is pure motion control. q, qd: what the load resolvers read; R_all,
-    p_all, M_chain, b: the joint frames, the chain's mass matrix and its bias forces there.
+def opspace_currents(P, chain, R_all, p_all, M_chain, b, ctl, q, qd, refs, force):
+    """The current set point of every joint (ctl.i_ref, A) for this control period; ctl.integ (7: the
+    tool's position and orientation errors, the force error) is the controller's integral state,
+    advanced here; ctl.memo (MEMO_*) carries the next period's reference pose over to it. Returns True
+    when a set point saturated. `force` (F_*): the hybrid controller's force input; with
+    force[F_WANT] = 0 the law is pure motion control. q, qd: what the load resolvers read; R_all,
+    p_all, M_chain, b: the joint frames, the chain's mass matrix and its bias forces there; `chain`:
+    mechanics.ChainArrays; `ctl`: ControllerArrays; refs: the set points (qr, qdr) now and at the
+    next period's start (rows).
 
     With y the posture acceleration, the law of the module docstring is
     tau = J^T Lambda (a - Jdot qd - J y) + M y + b: one Cholesky factor of M, one of J M^-1 J^T."""
     n = q.shape[0]
+    pre_R, pre_p = chain.pre_R, chain.pre_p
+    R_last, tool_local, gains, period = ctl.R_last, ctl.tool_local, ctl.gains, ctl.period
+    integ, memo, i_ref = ctl.integ, ctl.memo, ctl.i_ref
+    qr, qdr, qr_next, qdr_next = refs[0], refs[1], refs[2], refs[3]
     # the period's small arrays, one allocation per shape (each costs about 80 ns, at every period)
     threes = np.empty((4, 3))
     p, pw, p_r, erot = threes[0], threes[1], threes[2], threes[3]
@@ -331,51 +330,20 @@ def opspace_currents(
 
 
 @njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
-def control_update(
-    P,
-    seg,
-    hold,
-    tab,
-    jmode,
-    live,
-    X,
-    pre_R,
-    pre_p,
-    masses,
-    coms,
-    inertias,
-    gravity,
-    R_all,
-    p_all,
-    M,
-    bias,
-    R_last,
-    tool_local,
-    gains,
-    q,
-    qd,
-    t,
-    t_next,
-    period,
-    forces,
-    contact,
-    f_tool,
-    integ,
-    memo,
-    i_ref,
-):
-    """One control period from t: the set points now and at the next period's start t_next (on the
-    step grid: its t then, to the bit) (references.ref_eval), the current set points into i_ref and
-    live[:, LV_IREF] (held until the next period). True when one saturated.
-    R_all, p_all, M, bias: the chain's joint frames, mass matrix and bias forces at the true q, qd
-    (step.py); the controller sees them through its load resolvers.
-    `forces`: the force profile (rows FP_*; none: motion control); with one, f_tool gets the contact
-    force on the tool now (N, world: what a force sensor at the tool reads) from `contact` = (spheres,
-    link bounds, obstacles, caps) of contact.py."""
+def control_update(P, X, sp, chain, gravity, state, ctl, tables, q, qd, t, t_next):
+    """One control period from t: the set points `sp` (references.SetPointArrays) now and at the next
+    period's start t_next (on the step grid: its t then, to the bit), the current set points into
+    ctl.i_ref and live[:, LV_IREF] (held until the next period). True when one saturated.
+    `state` = (R_all, p_all, M, bias): the chain's (mechanics.ChainArrays) joint frames, mass matrix
+    and bias forces at the true q, qd (chain_state); the controller sees them through its load
+    resolvers. `ctl`: ControllerArrays. With a force profile (ctl.forces, rows FP_*; none: motion
+    control), ctl.f_tool gets the contact force on the tool now (N, world: what a force sensor at the
+    tool reads) from `tables` (contact.ContactTables)."""
     n = q.shape[0]
+    R_all, p_all, M, bias = state
+    forces, f_tool = ctl.forces, ctl.f_tool
     if forces.shape[0]:
-        spheres, bounds, obs, caps = contact
-        tool_force_at(spheres, bounds, obs, caps, R_all, p_all, qd, f_tool)
+        tool_force_at(tables.spheres, tables.bounds, tables.obs, tables.caps, R_all, p_all, qd, f_tool)
     force = np.zeros(NFORCE)
     for k in range(forces.shape[0]):  # the profile's row in force at t (a few rows: one per node)
         if forces[k, FP_T] <= t + 1e-12:
@@ -388,8 +356,8 @@ def control_update(
     )
     refs = np.empty((4, n))
     qr, qdr, qr2, qdr2 = refs[0], refs[1], refs[2], refs[3]
-    references.ref_eval(seg, hold, tab, jmode, live, t, qr, qdr)
-    references.ref_eval(seg, hold, tab, jmode, live, t_next, qr2, qdr2)
+    references.ref_eval(sp, t, qr, qdr)
+    references.ref_eval(sp, t_next, qr2, qdr2)
     # what the load resolvers read; with an error the chain's quantities are those of that reading
     q_m = q
     qd_m = qd
@@ -403,43 +371,21 @@ def control_update(
             qd_m = np.empty(n)
             for i in range(n):
                 q_m[i], qd_m[i] = dr.load_resolver(P, i, q[i], qd[i])
-            Rm_all, pm_all, M_m, b_m = chain_state(pre_R, pre_p, masses, coms, inertias, gravity, q_m, qd_m)
+            Rm_all, pm_all, M_m, b_m = chain_state(chain, gravity, q_m, qd_m)
             break
     # the law compensates gravity through b, each joint's share by its ctrl.ff_gravity
     for j in range(n):
         if P[j, dr.P_FFG] != 1.0 and (gravity[0] != 0.0 or gravity[1] != 0.0 or gravity[2] != 0.0):
             g = np.empty(n)
-            gravity_torques(pre_R, pre_p, masses, coms, inertias, gravity, q_m, g)
+            gravity_torques(chain, gravity, q_m, g)
             b_m = b_m.copy()
             for i in range(n):
                 b_m[i] -= (1.0 - P[i, dr.P_FFG]) * g[i]
             break
-    saturated = opspace_currents(
-        P,
-        pre_R,
-        pre_p,
-        Rm_all,
-        pm_all,
-        M_m,
-        b_m,
-        R_last,
-        tool_local,
-        gains,
-        q_m,
-        qd_m,
-        qr,
-        qdr,
-        qr2,
-        qdr2,
-        period,
-        force,
-        integ,
-        memo,
-        i_ref,
-    )
-    twist_damping(P, X, qd_m, i_ref)
+    saturated = opspace_currents(P, chain, Rm_all, pm_all, M_m, b_m, ctl, q_m, qd_m, refs, force)
+    twist_damping(P, X, qd_m, ctl.i_ref)
     for j in range(n):
-        live[j, references.LV_IREF] = i_ref[j]
+        sp.live[j, references.LV_IREF] = ctl.i_ref[j]
     return saturated
 
 
@@ -473,6 +419,21 @@ class OpspaceController:
         self.integ = np.zeros(7)
         self.memo = np.zeros(memo_size(n))
         self.i_ref = np.zeros(n)
+
+    def arrays(self, R_last: np.ndarray, tool_local: np.ndarray, f_tool: np.ndarray) -> ControllerArrays:
+        """What the step kernel hands `control_update`, with the tool's geometry (R_last, tool_local) and
+        the array the tool's measured contact force goes to."""
+        return ControllerArrays(
+            R_last,
+            tool_local,
+            self.gains,
+            self.period,
+            self.forces,
+            f_tool,
+            self.integ,
+            self.memo,
+            self.i_ref,
+        )
 
     def forget(self) -> None:
         """Drop the remembered reference pose: the chain it was computed on changed."""

@@ -23,12 +23,10 @@ from .jit import FAST as _FAST
 
 
 @njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
-def output_row(
-    P, seg, hold, tab, jmode, live, X, q, qd, t, pre_R, pre_p, Rrpy, tool_local, contact, grasp, rows, k
-):
+def output_row(P, sp, X, q, qd, t, pre_R, pre_p, Rrpy, tool_local, contact, grasp, rows, k):
     """One result row into rows[k]: time, the variables of every joint, the tool's, the contacts', the
-    grasp's, the link and tool poses and the grasped object's. `contact` = (spheres, link bounds,
-    obstacles, caps) of contact.py; `grasp` the grasp state of grasp.py.
+    grasp's, the link and tool poses and the grasped object's. `sp`: the set points
+    (references.SetPointArrays); `contact`: contact.ContactTables; `grasp` the grasp state of grasp.py.
 
     Returns 0, or 1 when the chain coordinates are not finite (row untouched), 2 when an output is not.
     """
@@ -39,7 +37,7 @@ def output_row(
     row = rows[k]
     row[0] = t
     out = np.empty((n, NO))
-    drive_outputs(P, seg, hold, tab, jmode, live, X, q, qd, t, out)
+    drive_outputs(P, sp, X, q, qd, t, out)
     for j in range(n):
         for c in range(NO):
             row[1 + j * NO + c] = out[j, c]
@@ -60,7 +58,7 @@ def output_row(
     row[k0 + 3] = math.sqrt((p_r[0] - p[0]) ** 2 + (p_r[1] - p[1]) ** 2 + (p_r[2] - p[2]) ** 2)
     row[k0 + 4] = rotation_vector(R, R_r, erot)
     k0 += NT
-    spheres, bounds, obs, caps = contact
+    spheres, bounds, obs, caps = contact.spheres, contact.bounds, contact.obs, contact.caps
     touch = np.empty(output_count(n))
     contact_outputs(spheres, bounds, obs, caps, R_all, p_all, qd, touch)
     for c in range(touch.shape[0]):

@@ -141,7 +141,7 @@ class PathChecks:
                 body = grasp.held_body(carried, world.held)
                 arrays = chain_arrays(self.model.spec, self.values, body)
             for k in np.flatnonzero((times >= world.t - 1e-12) & (times < end - 1e-12)):
-                gravity_torques(*arrays, gravity, np.ascontiguousarray(qs[k]), g)
+                gravity_torques(arrays, gravity, np.ascontiguousarray(qs[k]), g)
                 over = np.flatnonzero(np.abs(g) > capacity)
                 if over.size:
                     return self._unholdable(plan, float(times[k]), k == 0, g, capacity, P, over, carried)

@@ -7,6 +7,7 @@ controller and the planner's checks evaluate them alike.
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
@@ -49,15 +50,26 @@ NLIVE = 6
 LV_OFFSET, LV_RATE, LV_T0, LV_EXTERNAL, LV_IREF, LV_GRAVITY = range(NLIVE)
 
 
+class SetPointArrays(NamedTuple):
+    """The set points of a run as every kernel reads them (set_points.SetPoints owns the arrays)."""
+
+    seg: np.ndarray  # (segments, 3 + 2n): a joint path's trapezoid segments (rows as in traj_eval)
+    hold: np.ndarray  # (n,): the held positions (before a path, and of joints in JM_HOLD)
+    tab: np.ndarray  # (rows, 1 + 2n): a sampled reference [t, r, rd]; empty: the segments hold
+    jmode: np.ndarray  # (n,) int64: what the table holds per joint (JM_*)
+    live: np.ndarray  # (n, NLIVE): the live inputs (LV_*)
+
+
 @njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
-def ref_eval(seg, hold, tab, jmode, live, t, qr, qdr):
+def ref_eval(sp, t, qr, qdr):
     """The set points at t: the trapezoid segments when the table is empty, else the table; plus the
     jog offset of each joint not in current mode (live[j, LV_OFFSET..LV_T0]: offset at t0, rate, t0).
 
     Table rows are [t, r[0..n-1], rd[0..n-1]], linear between the rightmost row at or before t and the
     next (so two rows at one time make a jump); held before the first row and after the last. A joint
     in JM_HOLD keeps its initial set point `hold`."""
-    ref_nominal(seg, hold, tab, jmode, t, qr, qdr)
+    ref_nominal(sp, t, qr, qdr)
+    jmode, live = sp.jmode, sp.live
     for j in range(qr.shape[0]):
         if jmode[j] != JM_CURRENT:
             qr[j] += live[j, LV_OFFSET] + live[j, LV_RATE] * (t - live[j, LV_T0])
@@ -65,11 +77,12 @@ def ref_eval(seg, hold, tab, jmode, live, t, qr, qdr):
 
 
 @njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
-def ref_nominal(seg, hold, tab, jmode, t, qr, qdr):
+def ref_nominal(sp, t, qr, qdr):
     """The command's set points at t, without the jog (what a jog's range check starts from)."""
+    tab, hold, jmode = sp.tab, sp.hold, sp.jmode
     K = tab.shape[0]
     if K == 0:
-        traj_eval(seg, hold, t, qr, qdr)
+        traj_eval(sp.seg, hold, t, qr, qdr)
         return
     n = qr.shape[0]
     if t < tab[0, 0]:

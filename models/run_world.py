@@ -11,7 +11,7 @@ from simecs.mesh.protocol.environment import Obstacle, check_obstacles
 from simecs.mesh.rules import scene_state
 
 from . import grasp
-from .contact import pair_width
+from .contact import ContactTables, pair_width
 from .contact_geometry import link_bounds, sphere_table
 from .spec import ArmSpec
 
@@ -31,10 +31,6 @@ class RunWorld:
         self._notices: list[str] = []
         self.obstacle_table = np.zeros((0, 0))
         self.caps = np.zeros((0, 0))
-        #: what the step kernel reads: the tables, then their work arrays (step.chain_step)
-        self.contact: tuple[np.ndarray, ...] = ()
-        #: what the output rows read: the tables and the contact forces' caps
-        self.contact_rows: tuple[np.ndarray, ...] = ()
 
     @property
     def obstacles(self) -> list[Obstacle]:
@@ -70,9 +66,10 @@ class RunWorld:
         held = self.held
         return None if held is None else grasp.held_body(self._objects[held.index], held)
 
-    def build_tables(self, values: Mapping[str, float]) -> None:
+    def build_tables(self, values: Mapping[str, float]) -> ContactTables:
         """The arm's contact spheres at `values` (with the object it holds), the obstacles' table
-        (grasp states marked) and the kernels' work arrays."""
+        (grasp states marked) and the kernels' work arrays: what the kernels read of the contacts
+        (step.chain_step, output_row), valid until the next call."""
         n = self._last_link + 1
         arm = sphere_table(self._spec, dict(values))
         spheres, obs = grasp.world_tables(arm, self._objects, self._taken, self.held, self._last_link)
@@ -81,9 +78,7 @@ class RunWorld:
         self.caps = np.zeros((ns, no))
         pairs = np.zeros((ns * no, pair_width(n)))
         bounds = link_bounds(spheres)
-        work = (pairs, self.caps, np.zeros((4, n)), np.zeros((4, 3)))
-        self.contact = (spheres, bounds, obs, *work)
-        self.contact_rows = (spheres, bounds, obs, self.caps)
+        return ContactTables(spheres, bounds, obs, pairs, self.caps, np.zeros((4, n)), np.zeros((4, 3)))
 
     def grasp(self, name: str, R_last: np.ndarray, p_last: np.ndarray, tool: np.ndarray, t: float) -> None:
         """Take obstacle `name` ('': release what the tool holds) with the last joint frame at (R_last,

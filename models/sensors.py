@@ -19,16 +19,17 @@ assert PER_JOINT == 9
 
 
 @njit(cache=dr._CACHE, error_model="numpy", fastmath=dr._FAST)
-def sensor_row(P, seg, hold, tab, jmode, live, X, q, qd, t, out):
-    """out[0] = t, then PER_JOINT values per joint; False when a value is not finite."""
+def sensor_row(P, sp, X, q, qd, t, out):
+    """out[0] = t, then PER_JOINT values per joint; False when a value is not finite. `sp`: the set
+    points (references.SetPointArrays)."""
     n = q.shape[0]
     qr = np.empty(n)
     qdr = np.empty(n)
-    references.ref_eval(seg, hold, tab, jmode, live, t, qr, qdr)
+    references.ref_eval(sp, t, qr, qdr)
     sig = np.empty(dr.NO + 10)
     out[0] = t
     for j in range(n):
-        dr.controlled_signals(P, j, X, q[j], qd[j], qr[j], qdr[j], jmode, live, sig)
+        dr.controlled_signals(P, j, X, q[j], qd[j], qr[j], qdr[j], sp, sig)
         ql, qdl = dr.load_resolver(P, j, q[j], qd[j])
         th, om = dr.motor_resolver(P, j, X[j, dr.S_TH], X[j, dr.S_OM])
         k = 1 + PER_JOINT * j
@@ -40,7 +41,7 @@ def sensor_row(P, seg, hold, tab, jmode, live, X, q, qd, t, out):
         out[k + 5] = sig[8] + P[j, dr.P_OFFB]
         out[k + 6] = qr[j]
         out[k + 7] = qdr[j]
-        out[k + 8] = jmode[j]
+        out[k + 8] = sp.jmode[j]
     ok = True
     for c in range(out.shape[0]):
         if not np.isfinite(out[c]):

@@ -37,10 +37,10 @@ class SetPoints:
         self.external = np.zeros(n, dtype=bool)  # the joints an external controller drives
         self._nodes: list[Node] = []
 
-    def arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """What every kernel reads the set points from (references.ref_eval): drive parameters, joint-path
-        segments, held positions, sampled reference, joint modes, live inputs."""
-        return self._P, self.seg, self.hold, self.tab, self.jmode, self.live
+    def arrays(self) -> references.SetPointArrays:
+        """What every kernel reads the set points from (references.ref_eval), as they are now (a new
+        command replaces arrays: ask again after one)."""
+        return references.SetPointArrays(self.seg, self.hold, self.tab, self.jmode, self.live)
 
     def follow_path(self, nodes: Sequence[tuple[Sequence[float], float, float]], t0: float | None) -> None:
         """A joint path: every node (destination in rad, speed %, acceleration %) is reached and stopped
@@ -120,7 +120,7 @@ class SetPoints:
         js[:, references.LV_OFFSET] += js[:, references.LV_RATE] * (t - js[:, references.LV_T0])
         js[:, references.LV_T0] = t
         qr, qdr = np.empty(self.n), np.empty(self.n)
-        references.ref_nominal(self.seg, self.hold, self.tab, self.jmode, t, qr, qdr)
+        references.ref_nominal(self.arrays(), t, qr, qdr)
         now = qr + js[:, references.LV_OFFSET]
         applied = np.asarray(rates, dtype=float).copy()
         for j, lk in enumerate(self._links):

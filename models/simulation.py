@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import math
 import time as _time
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Hashable, Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -17,24 +17,57 @@ from simecs.mesh.protocol.environment import Obstacle
 from simecs.mesh.protocol.model import CONTROL_SYSTEMS
 from simecs.mesh.rules.kinematics import rot_rpy
 
-from . import chain_dynamics, drive_integrator, references
+from . import chain_dynamics, drive_integrator, jit, references
 from . import drive as dr
 from .chain_dynamics import gravity_torques
-from .contact import contact_prestep
+from .contact import ContactTables, contact_prestep
 from .description import ArmDescription
+from .drive_integrator import DriveArrays
 from .errors import SimulationError
 from .exudyn_chain import ExudynChain, exudyn
-from .mechanics import MECH_PREFIXES, chain_arrays, drive_array, gravity_of, init_states, tool_point, vec
-from .opspace import OpspaceController
+from .mechanics import (
+    MECH_PREFIXES,
+    ChainArrays,
+    chain_arrays,
+    drive_array,
+    gravity_of,
+    init_states,
+    tool_point,
+    vec,
+)
+from .opspace import ControllerArrays, OpspaceController
 from .output_row import output_row
 from .run_world import RunWorld
 from .sensors import sensor_row
 from .set_points import SetPoints
 from .step import chain_step, gravity_feedforward
 
-#: The step kernel, called with its arguments spread from tuples cached per solver call (the stub's
-#: exact signature cannot follow the star arguments).
-_chain_step: Callable[..., int] = chain_step
+#: What the step kernel reads besides the step's own values, taken once per solver call (nothing
+#: replaces these arrays while the solver runs).
+StepArrays = tuple[
+    DriveArrays, references.SetPointArrays, ChainArrays, np.ndarray, ControllerArrays, ContactTables
+]
+
+#: The step kernel's machine code (jit.compiled_for) as mypy sees it: StepArrays, then q, qd, t, h,
+#: substeps, repeat, control_due.
+StepKernel = Callable[
+    [
+        DriveArrays,
+        references.SetPointArrays,
+        ChainArrays,
+        np.ndarray,
+        ControllerArrays,
+        ContactTables,
+        np.ndarray,
+        np.ndarray,
+        float,
+        float,
+        int,
+        bool,
+        bool,
+    ],
+    int,
+]
 
 
 class Simulation:
@@ -80,6 +113,10 @@ class Simulation:
         self._chain = ExudynChain(self._mech, self._tool_local(), self._gravity, self._prestep)
         self._mbs: Any = self._chain.mbs  # the hot path reads these two on every step
         self._kt = self._chain.kt
+        self._step_args: tuple[StepArrays, int] | None = None
+        self._step_key: Hashable = None
+        self._step_entry: StepKernel | None = None
+        self._step_kernel: StepKernel | None = None  # _step_entry, once checked in a solver call
 
     def _tool_local(self) -> np.ndarray:
         return tool_point(self.package.spec, self.values)
@@ -101,8 +138,7 @@ class Simulation:
 
     def _contact_tables(self) -> None:
         """The world's contact tables at the values now, and what the step reads of them."""
-        self._world.build_tables(self.values)
-        self._contact = self._world.contact
+        self._contact = self._world.build_tables(self.values)
         self._touching = self._world.obstacle_table.shape[0] > 0
 
     def set_obstacles(self, obstacles: Sequence[Obstacle]) -> None:
@@ -218,7 +254,8 @@ class Simulation:
         """What an external controller reads now into `out` (models/sensors.py, mesh/protocol/hil.py)."""
         sd = self._sd
         ok = sensor_row(
-            *self.set_points.arrays(),
+            self.P,
+            self.set_points.arrays(),
             self.X,
             np.asarray(sd.GetODE2Coordinates()),
             np.asarray(sd.GetODE2Coordinates_t()),
@@ -342,36 +379,17 @@ class Simulation:
         m = self._mech_arrays
         if not self._drives_on:  # nothing acts on the joints but the contacts
             if self._touching:
-                contact_prestep(
-                    *m,  # the chain arrays (mechanics.ChainArrays)
-                    self._gravity,
-                    self._contact,
-                    q,
-                    qd,
-                    h,
-                    self.nsub,
-                    self._tau,
-                )
+                contact_prestep(m, self._gravity, self._contact, q, qd, h, self.nsub, self._tau)
                 mbs.SetObjectParameter(self._kt, "jointForceVector", self._tau)
             return True
         k = round(ts / self.h)  # the step index: the drive time comes from the grid, not from a sum
         repeat = k <= self._last_k  # the same step again (a step reduction): restore the drive states
         self._last_k = k
-        head, tail, control_steps = self._step_args
-        status = _chain_step(
-            *head,
-            repeat,
-            q,
-            qd,
-            k * self.h,
-            h,
-            self.nsub,
-            self._tau,
-            self._work,
-            self._contact,
-            control_steps > 0 and not repeat and k % control_steps == 0,  # a control period starts
-            *tail,
-        )
+        assert self._step_args is not None  # taken before each solver call
+        (drives, sp, chain, gravity, ctl, tables), control_steps = self._step_args
+        control_due = control_steps > 0 and not repeat and k % control_steps == 0  # a period starts
+        args = (drives, sp, chain, gravity, ctl, tables, q, qd, k * self.h, h, self.nsub, repeat, control_due)
+        status = (self._step_kernel or self._compiled_step(args))(*args)
         if status == drive_integrator.STEP_NOT_FINITE:
             bad = [j + 1 for j in range(self.n) if not np.all(np.isfinite(self.X[j, : dr.NS]))]
             self._fail = (
@@ -386,24 +404,28 @@ class Simulation:
         self.timing["drive"] += _time.perf_counter() - t0 - (self.timing["output"] - out0)
         return True
 
-    def _step_arguments(self) -> tuple[tuple[Any, ...], tuple[Any, ...], int]:
-        """What `step.chain_step` reads besides the step's own values: the arrays before them and after
-        them, and the solver steps per control period (0: no controller). Taken once per solver call:
-        nothing replaces these arrays while the solver runs, and each step saves the lookups."""
+    def _compiled_step(self, args: tuple[Any, ...]) -> StepKernel:
+        """The step kernel's machine code for the types of a solver call's arguments (its first step):
+        looked up again only when a type changed (a command that replaced an array by another kind)."""
+        key = jit.type_key(args)
+        if self._step_entry is None or key != self._step_key:
+            self._step_key, self._step_entry = key, jit.compiled_for(chain_step, args)
+        self._step_kernel = self._step_entry
+        return self._step_entry
+
+    def _step_arguments(self) -> tuple[StepArrays, int]:
+        """What `step.chain_step` reads besides the step's own values, and the solver steps per control
+        period (0: no controller). Taken once per solver call: each step saves the lookups."""
         ctl = self._opspace or self._no_control
-        head = (*self.set_points.arrays(), *self._mech_arrays, self._gravity, self.X, self._Xbak)
-        tail = (
-            self._Rrpy[-1],
-            self._tool_loc,
-            ctl.gains,
-            ctl.period,
-            ctl.forces,
-            self._f_tool,
-            ctl.integ,
-            ctl.memo,
-            ctl.i_ref,
+        arrays = (
+            DriveArrays(self.P, self.X, self._Xbak, self._tau, self._work),
+            self.set_points.arrays(),
+            self._mech_arrays,
+            self._gravity,
+            ctl.arrays(self._Rrpy[-1], self._tool_loc, self._f_tool),
+            self._contact,
         )
-        return head, tail, ctl.steps if self._opspace is not None else 0
+        return arrays, ctl.steps if self._opspace is not None else 0
 
     def _friction_failure(self, ts: float) -> str:
         """Why a step left the friction model's accuracy: wrong numbers are not returned as results."""
@@ -429,16 +451,17 @@ class Simulation:
             self._rows = np.concatenate([self._rows, np.empty((k + 8, self._rows.shape[1]))])
         m = self._mech_arrays
         status = output_row(
-            *self.set_points.arrays(),
+            self.P,
+            self.set_points.arrays(),
             self.X,
             q,
             qd,
             t,
-            m[0],
-            m[1],
+            m.pre_R,
+            m.pre_p,
             self._Rrpy,
             self._tool_loc,
-            self._world.contact_rows,
+            self._contact,
             self._world.grasp_state,
             self._rows,
             k,
@@ -514,7 +537,7 @@ class Simulation:
         self._nrows = 0
         if self._k_next == 0:
             # the t = 0 row's currents with the feed-forward of the first step
-            gravity_feedforward(*self.set_points.arrays(), *self._mech_arrays, self._gravity, 0.0)
+            gravity_feedforward(self.P, self.set_points.arrays(), self._mech_arrays, self._gravity, 0.0)
             self._row_now()  # t = 0
         # the chunk ends on the last grid point within `until`; at an output sample, exactly on its time
         t_mid = math.floor(until / h + 1e-9) * h
@@ -525,6 +548,7 @@ class Simulation:
             self._it.startTime = self._time
             self._it.endTime = t_stop
             self._step_args = self._step_arguments()
+            self._step_kernel = None  # checked against the types of the new arguments at the first step
             try:
                 self._solver.SolveSteps(self._mbs, self._ss)
             except Exception as e:  # the solver's own errors
@@ -562,14 +586,13 @@ class Simulation:
     def mass_matrix(self, q: Sequence[float]) -> np.ndarray:
         """M(q) of the chain as the drive kernel sees it (energy checks, controller tuning)."""
         M = np.zeros((self.n, self.n))
-        pre_R, pre_p, masses, coms, inertias = self._mech
-        chain_dynamics.mass_matrix(pre_R, pre_p, masses, coms, inertias, vec(q), M)
+        chain_dynamics.mass_matrix(self._mech, vec(q), M)
         return M
 
     def holding_torques(self, q: Sequence[float] | np.ndarray) -> np.ndarray:
         """g(q): the joint torques that hold the arm still at q against gravity (N m)."""
         out = np.zeros(self.n)
-        gravity_torques(*self._mech, self._gravity, vec(q), out)
+        gravity_torques(self._mech, self._gravity, vec(q), out)
         return out
 
     def _finalize(self) -> None:

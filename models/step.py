@@ -22,114 +22,30 @@ from .opspace import control_update
 
 
 @njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
-def chain_step(
-    P,
-    seg,
-    hold,
-    tab,
-    jmode,
-    live,
-    pre_R,
-    pre_p,
-    masses,
-    coms,
-    inertias,
-    gravity,
-    X,
-    Xbak,
-    repeat,
-    q,
-    qd,
-    t,
-    h,
-    nsub,
-    tau_out,
-    work,
-    tables,
-    control_due,
-    R_last,
-    tool_local,
-    gains,
-    period,
-    forces,
-    f_tool,
-    integ,
-    memo,
-    i_ref,
-):
+def chain_step(drives, sp, chain, gravity, ctl, tables, q, qd, t, h, nsub, repeat, control_due):
     """The step from t to t + h at the chain state q, qd: when `control_due`, the operational-space
-    controller's period first (opspace.control_update: gains, period, forces, f_tool, integ, memo,
-    i_ref are its own), then the drives over the step (drive_integrator.drive_step, whose status this returns:
-    STEP_*)."""
-    R_all, p_all, M, bias = chain_state(pre_R, pre_p, masses, coms, inertias, gravity, q, qd)
+    controller's period first (opspace.control_update, with `ctl`: opspace.ControllerArrays), then the
+    drives (drive_integrator.DriveArrays) over the step (drive_integrator.drive_step, whose status this
+    returns: STEP_*; `repeat`: the solver takes the same step again). `sp`: the set points
+    (references.SetPointArrays); `chain`: mechanics.ChainArrays; `tables`: contact.ContactTables."""
+    state = chain_state(chain, gravity, q, qd)
+    R_all, p_all, M, bias = state
     Minv = spd_inverse(M)
-    gravity_feedforward(P, seg, hold, tab, jmode, live, pre_R, pre_p, masses, coms, inertias, gravity, t)
-    spheres, bounds, obs, _pairs, caps, _cw, _scratch = tables
+    P = drives.P
+    gravity_feedforward(P, sp, chain, gravity, t)
     if control_due:
-        control_update(
-            P,
-            seg,
-            hold,
-            tab,
-            jmode,
-            live,
-            X,
-            pre_R,
-            pre_p,
-            masses,
-            coms,
-            inertias,
-            gravity,
-            R_all,
-            p_all,
-            M,
-            bias,
-            R_last,
-            tool_local,
-            gains,
-            q,
-            qd,
-            t,
-            (round(t / h) + round(period / h)) * h,  # the next period's t, as the caller will pass it
-            period,
-            forces,
-            (spheres, bounds, obs, caps),
-            f_tool,
-            integ,
-            memo,
-            i_ref,
-        )
-    return drive_step(
-        P,
-        seg,
-        hold,
-        tab,
-        jmode,
-        live,
-        R_all,
-        p_all,
-        Minv,
-        bias,
-        X,
-        Xbak,
-        repeat,
-        q,
-        qd,
-        t,
-        h,
-        nsub,
-        tau_out,
-        work,
-        tables,
-    )
+        t_next = (round(t / h) + round(ctl.period / h)) * h  # the next period's t, as the caller will pass it
+        control_update(P, drives.X, sp, chain, gravity, state, ctl, tables, q, qd, t, t_next)
+    return drive_step(drives, sp, R_all, p_all, Minv, bias, tables, repeat, q, qd, t, h, nsub)
 
 
 @njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
-def gravity_feedforward(P, seg, hold, tab, jmode, live, pre_R, pre_p, masses, coms, inertias, gravity, t):
+def gravity_feedforward(P, sp, chain, gravity, t):
     """The cascade's gravity feed-forward for the step from t, into live[:, LV_GRAVITY]: the current
     whose motor torque holds the model's gravity torque at the set points (not at the measured pose: a
     model-based feed-forward, as a real controller computes it), weighted per joint by ctrl.ff_gravity.
     Nothing to compute (0 written) in zero gravity or when no joint is under the cascade."""
+    live = sp.live
     n = live.shape[0]
     cascade = False
     for j in range(n):
@@ -140,8 +56,8 @@ def gravity_feedforward(P, seg, hold, tab, jmode, live, pre_R, pre_p, masses, co
         return
     refs = np.empty((3, n))
     qr, qdr, g = refs[0], refs[1], refs[2]
-    references.ref_eval(seg, hold, tab, jmode, live, t, qr, qdr)
-    gravity_torques(pre_R, pre_p, masses, coms, inertias, gravity, qr, g)
+    references.ref_eval(sp, t, qr, qdr)
+    gravity_torques(chain, gravity, qr, g)
     for j in range(n):
         holding = g[j] / P[j, dr.P_N] * dr.resting_gear_factor(P[j, dr.P_ETA])
         live[j, references.LV_GRAVITY] = P[j, dr.P_FFG] * holding / P[j, dr.P_KT]

@@ -143,7 +143,7 @@ def test_spd_inverse_is_the_inverse_of_the_mass_matrix(arm: Arm) -> None:
     rng = np.random.default_rng(4)
     M = np.empty((k.n, k.n))
     for _ in range(10):
-        chain_dynamics.mass_matrix(ch.pre_R, ch.pre_p, ch.masses, ch.coms, ch.inertias, random_q(k, rng), M)
+        chain_dynamics.mass_matrix(ch, random_q(k, rng), M)
         Minv = chain_kinematics.spd_inverse(M)
         assert np.max(np.abs(Minv - np.linalg.inv(M))) < 1e-9 * np.max(np.abs(Minv))
         assert np.max(np.abs(M @ Minv - np.eye(k.n))) < 1e-10

@@ -185,7 +185,8 @@ def test_bias_forces_agree_with_the_mass_matrix_and_the_potential(model):
 
     pkg = get_model(model)
     sim = pkg.build({})
-    pre_R, pre_p, masses, coms, inertias = chain_arrays(pkg.spec, sim.values)
+    chain = chain_arrays(pkg.spec, sim.values)
+    pre_R, pre_p, masses, coms = chain.pre_R, chain.pre_p, chain.masses, chain.coms
     sim.close()
     n = masses.shape[0]
     rng = np.random.default_rng(7)
@@ -193,14 +194,12 @@ def test_bias_forces_agree_with_the_mass_matrix_and_the_potential(model):
 
     def mass(q):
         M = np.empty((n, n))
-        chain_dynamics.mass_matrix(pre_R, pre_p, masses, coms, inertias, q, M)
+        chain_dynamics.mass_matrix(chain, q, M)
         return M
 
     def bias(q, qd, gravity):
         out = np.empty(n)
-        chain_dynamics.bias_forces(
-            pre_R, pre_p, masses, coms, inertias, np.asarray(gravity, float), q, qd, out
-        )
+        chain_dynamics.bias_forces(chain, np.asarray(gravity, float), q, qd, out)
         return out
 
     def potential(q, gravity):
