@@ -12,7 +12,6 @@ from __future__ import annotations
 import json
 import math
 import os
-import subprocess
 import time
 from dataclasses import dataclass, field
 
@@ -21,6 +20,7 @@ from simecs.mesh.protocol import messages as m
 from simecs.mesh.rules import load
 
 from .worker import COST, PROGRESS
+from .worker_forks import WorkerProcess
 
 SAMPLE_S = 1.0
 COST_SMOOTHING = 0.3  # weight of a new measurement of a model's cost
@@ -36,7 +36,7 @@ _PAGE = os.sysconf("SC_PAGE_SIZE")
 class HostedRun:
     """A run handed to one of this host's workers."""
 
-    proc: subprocess.Popen[str]
+    proc: WorkerProcess
     session: str
     run_id: str
     model_id: str
@@ -125,7 +125,7 @@ class HostLoad:
     def refusal(self, request: m.RunRequest) -> str:
         return load.refusal(self.current, request)
 
-    def add(self, key: keys.RunRef, proc: subprocess.Popen[str], request: m.RunRequest, warm: bool) -> None:
+    def add(self, key: keys.RunRef, proc: WorkerProcess, request: m.RunRequest, warm: bool) -> None:
         run = HostedRun(
             proc,
             request.session,
@@ -144,7 +144,7 @@ class HostLoad:
             self._partial.pop(run.proc.pid, None)
             self.current = self._build()
 
-    def lines(self, proc: subprocess.Popen[str]) -> list[str]:
+    def lines(self, proc: WorkerProcess) -> list[str]:
         """The whole lines worker `proc` wrote since the last call (its stdout is non-blocking); its
         `cost` lines are taken here, the others returned."""
         if proc.stdout is None:

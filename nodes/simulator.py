@@ -28,6 +28,7 @@ from simecs.mesh.rules.results import results_reply
 from .host_load import HostLoad
 from .results_store import ResultsStore
 from .worker import READY
+from .worker_forks import WorkerForks, WorkerProcess
 
 CLOSED_KEPT = 4096
 WARM_TIMEOUT_S = 600.0  # a first start compiles the drives (tens of seconds on a cold cache)
@@ -57,12 +58,13 @@ class Simulator(Node):
         self.load = HostLoad([s.id for s in list_models()], max_runs or 0)
         self.warm_target = warm
         self.lock = threading.Lock()
-        self.idle: list[subprocess.Popen[str]] = []
+        self.idle: list[WorkerProcess] = []
         self.ready: set[int] = set()  # pids of idle workers that said they are warm
         self.spawned_at: dict[int, float] = {}  # pids of workers not warm yet: when they were started
         #: Sessions closed lately: an aborted run's worker may store results after the close.
         self.closed: dict[tuple[str, str], None] = {}
-        self.busy: dict[keys.RunRef, subprocess.Popen[str]] = {}
+        self.busy: dict[keys.RunRef, WorkerProcess] = {}
+        self.forks: WorkerForks | None = None  # started with the node (start)
         self.fast: set[keys.RunRef] = set()  # busy runs paced as fast as possible (CPU-bound)
         self.mesh_config_path = ""
         self._bundles: dict[str, bytes] = {}  # model id -> its bundle, made on the first ask
@@ -113,24 +115,45 @@ class Simulator(Node):
         self.serve(keys.simulator_models(self.node_id), self._on_model_bundle, threaded=True)
         # A closed session (by its user, or expired) takes its results with it (mesh/protocol/limits.py).
         self.subscribe_messages(keys.ALL_STATE, m.SessionState, self._on_state, maxlen=1024, sealed=True)
-        self._refill()
         if self.warm_target:
-            self._wait_warm(self.idle[0])
+            # Workers are forked warm from one process that warms up once (nodes/worker_forks.py).
+            self.log.info("warming up the workers (compiling the drives the first time takes a while)")
+            t0 = time.monotonic()
+            self.forks = WorkerForks(self._worker_argv(), self._worker_env(), WARM_TIMEOUT_S)
+            if not self.forks.wait_ready():
+                self.log.warning("the worker fork server is not there: each worker warms up on its own")
+            self._refill()
+            self._wait_warm(self.idle[0], t0)
+        else:
+            self._refill()
 
     # -- worker processes ----------------------------------------------------------------------
-    def _spawn(self) -> subprocess.Popen[str]:
-        cmd = [sys.executable, "-m", "simecs.nodes.worker", "--results-dir", str(self.store.folder)]
-        cmd += ["--simulator", self.node_id]
+    def _worker_argv(self) -> list[str]:
+        argv = ["--results-dir", str(self.store.folder), "--simulator", self.node_id]
         for ep in self.mesh.connect:
-            cmd += ["--connect", ep]
-        cmd += ["--cpu", self.cpu_choice]  # where its zenoh threads go (mesh.process.affinity)
+            argv += ["--connect", ep]
+        return [*argv, "--cpu", self.cpu_choice]  # where its zenoh threads go (mesh.process.affinity)
+
+    def _worker_env(self) -> dict[str, str]:
         env = dict(os.environ)  # BLAS on one thread, as every node's (nodes/__init__.py)
         env["SIMECS_SERVICE_KEY_FILE"] = str(seals.key_file(self.mesh.service_key_file))
         if self.mesh_config_path:
             env["SIMECS_MESH_CONFIG"] = self.mesh_config_path
-        proc = subprocess.Popen(
-            cmd, stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, env=env, bufsize=1
-        )
+        return env
+
+    def _spawn(self) -> WorkerProcess:
+        """A worker: forked warm, or (no fork server) a process of its own that warms up itself."""
+        proc: WorkerProcess | None = self.forks.fork() if self.forks is not None else None
+        if proc is None:
+            cmd = [sys.executable, "-m", "simecs.nodes.worker", *self._worker_argv()]
+            proc = subprocess.Popen(
+                cmd,
+                stdin=subprocess.PIPE,
+                stdout=subprocess.PIPE,
+                text=True,
+                env=self._worker_env(),
+                bufsize=1,
+            )
         assert proc.stdout is not None
         os.set_blocking(proc.stdout.fileno(), False)  # read in tick(), never waited on
         self.spawned_at[proc.pid] = time.monotonic()
@@ -146,12 +169,10 @@ class Simulator(Node):
                 if spawned is not None:
                     self.load.started(time.monotonic() - spawned, warm=False)
 
-    def _wait_warm(self, proc: subprocess.Popen[str]) -> None:
-        """Block until `proc` says it is warm (or dies, or the time is up: then runs still start,
-        only slower)."""
+    def _wait_warm(self, proc: WorkerProcess, t0: float) -> None:
+        """Block until `proc` says it is warm (or dies, or the time is up from t0: then runs still
+        start, only slower)."""
         assert proc.stdout is not None
-        self.log.info("warming up a worker (compiling the drives the first time takes a while)")
-        t0 = time.monotonic()
         end = t0 + WARM_TIMEOUT_S
         while time.monotonic() < end and not self.stop_event.is_set() and proc.poll() is None:
             select.select([proc.stdout], [], [], 0.5)
@@ -266,6 +287,8 @@ class Simulator(Node):
                 p.wait(timeout=3)
             except subprocess.TimeoutExpired:
                 p.kill()
+        if self.forks is not None:
+            self.forks.close()
 
     # -- results -------------------------------------------------------------------------------
     def _on_state(self, state: m.SessionState, key: str) -> None:

@@ -477,24 +477,45 @@ def run_request(
     return 0 if phase != "failed" else 3
 
 
-def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(prog="simecs-worker", description=__doc__)
+def worker_arguments(prog: str, description: str | None) -> argparse.ArgumentParser:
+    """The flags of a worker, and of the process workers are forked from (nodes/worker_forks.py)."""
+    parser = argparse.ArgumentParser(prog=prog, description=description)
     node_arguments(parser)
     parser.add_argument("--results-dir", required=True)
     parser.add_argument("--simulator", default="", help="the node id of the simulator that started it")
-    args = parser.parse_args(argv)
+    return parser
+
+
+def warm_up() -> str:
+    """Import the models and load the drives' machine code (what makes a worker warm); returns the
+    `cost` line: each model's CPU s per simulated s, measured here. Background work, at nice 10: it
+    must not slow the runs going on."""
+    os.nice(10)
+    from simecs import models
+
+    models.warmup()
+    return f"{COST} {json.dumps(models.costs())}"
+
+
+def main(argv: list[str] | None = None) -> None:
+    args = worker_arguments("simecs-worker", __doc__).parse_args(argv)
     setup_logging("worker", args.log_level)
     faulthandler.enable()  # a crash in a native library leaves every thread's stack in the log
+    try:
+        cost = warm_up()
+    except Exception as exc:
+        log.error("worker failed to warm up: %s", exc)
+        os._exit(1)
+    serve(args, cost)
+
+
+def serve(args: argparse.Namespace, cost: str) -> None:
+    """A warm worker's life: say so (with `cost`), take one run from stdin, run it, exit. Once a run
+    is ours we take normal priority back (possible as root or within RLIMIT_NICE)."""
     os.set_blocking(sys.stdout.fileno(), False)  # a simulator that does not read never stalls a run
     code = 0
-    # Warming up (imports, compiling) is background work: it must not slow the runs going on.
-    # Once a run is ours we take normal priority back (possible as root or within RLIMIT_NICE).
-    os.nice(10)
     try:
-        from simecs import models
-
-        models.warmup()
-        tell_simulator(f"{COST} {json.dumps(models.costs())}")
+        tell_simulator(cost)
         cfg = mesh_from_args(args)
         seal = seals.load(seals.key_file(cfg.service_key_file))  # the simulator's, made before us
         z = affinity.open_on_mesh_core(lambda: open_session(cfg), args.cpu)

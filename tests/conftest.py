@@ -11,6 +11,7 @@ import json
 import os
 import shutil
 import socket
+import subprocess
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -308,3 +309,22 @@ def server() -> Iterator[Any]:
         yield srv
     finally:
         srv.stop()
+
+
+def worker_pids(simulator: int) -> list[int]:
+    """The simulator's workers: those its fork server forked (nodes/worker_forks.py), and any it
+    started as processes of their own."""
+
+    def children(parent: int) -> list[tuple[int, str]]:
+        out = subprocess.run(
+            ["ps", "-o", "pid=,args=", "--ppid", str(parent)], capture_output=True, text=True
+        )
+        return [(int(line.split()[0]), line) for line in out.stdout.splitlines()]
+
+    pids = []
+    for pid, args in children(simulator):
+        if "simecs.nodes.worker_forks" in args:
+            pids += [child for child, _ in children(pid)]
+        elif "simecs.nodes.worker" in args:
+            pids.append(pid)
+    return pids

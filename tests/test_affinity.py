@@ -12,7 +12,7 @@ import pytest
 from simecs.mesh.process import affinity
 from simecs.nodes.local_mesh import LocalMesh, clean_env
 
-from .conftest import Mesh, Service, wait_until
+from .conftest import Mesh, Service, wait_until, worker_pids
 from .test_robustness import watch_status
 
 ALLOWED = os.sched_getaffinity(0)
@@ -52,10 +52,7 @@ def test_live_path_shares_the_mesh_core(service: Service) -> None:
     # Nodes off the live path are left to the OS.
     assert all(cpus == ALLOWED for _, cpus in threads(procs["proxy"].pid).values())
     # A warm worker: simulation (main) thread free, zenoh's threads on the mesh core.
-    out = subprocess.run(
-        ["ps", "-o", "pid=,args=", "--ppid", str(procs["simulator"].pid)], capture_output=True, text=True
-    )
-    workers = [int(line.split()[0]) for line in out.stdout.splitlines() if "simecs.nodes.worker" in line]
+    workers = worker_pids(procs["simulator"].pid)
     assert workers
     worker = workers[0]
 

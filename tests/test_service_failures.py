@@ -6,7 +6,6 @@ from __future__ import annotations
 import os
 import re
 import signal
-import subprocess
 import threading
 import time
 
@@ -18,15 +17,10 @@ from simecs.mesh.protocol import messages as m
 from simecs.nodes.admission import QUEUE_WAITS_FOR_HOST_S
 from simecs.nodes.runs import WORKER_REPORTS_S
 
-from .conftest import Mesh, Service, start_service, wait_until
+from .conftest import Mesh, Service, start_service, wait_until, worker_pids
 from .test_service import prepare
 
 TARGET = [0.3, -0.2, 0.2, 0.1, -0.1, 0.1, 0.0]
-
-
-def worker_pids(parent: int) -> list[int]:
-    out = subprocess.run(["ps", "-o", "pid=,args=", "--ppid", str(parent)], capture_output=True, text=True)
-    return [int(line.split()[0]) for line in out.stdout.splitlines() if "simecs.nodes.worker" in line]
 
 
 def worker_of(service: Service, sid: str, run_id: str) -> int:
