@@ -193,6 +193,7 @@ class WorkerForks:
         self._lock = threading.Lock()  # one request and its answer at a time
         self._ready_timeout = ready_timeout
         self._started = time.monotonic()
+        self._closing = False
         threading.Thread(target=self._read, name="worker-forks", daemon=True).start()
 
     def _read(self) -> None:
@@ -207,6 +208,9 @@ class WorkerForks:
             pass
         self._gone.set()
         self._ready.set()  # nobody waits for a fork server that is gone
+        if not self._closing:
+            code = self._proc.wait()
+            log.warning("the worker fork server is gone (exit code %s): workers start on their own", code)
 
     def _take(self, words: list[str]) -> None:
         if words == [READY]:
@@ -252,6 +256,7 @@ class WorkerForks:
         return ForkedWorker(pid, open(my_in, "w", buffering=1), open(my_out, "rb", buffering=0), self)
 
     def close(self) -> None:
+        self._closing = True
         with contextlib.suppress(OSError):
             self._sock.close()
         try:

@@ -311,16 +311,15 @@ def server() -> Iterator[Any]:
         srv.stop()
 
 
+def children(parent: int) -> list[tuple[int, str]]:
+    """The child processes of `parent`: (pid, command line)."""
+    out = subprocess.run(["ps", "-o", "pid=,args=", "--ppid", str(parent)], capture_output=True, text=True)
+    return [(int(line.split()[0]), line) for line in out.stdout.splitlines()]
+
+
 def worker_pids(simulator: int) -> list[int]:
     """The simulator's workers: those its fork server forked (nodes/worker_forks.py), and any it
     started as processes of their own."""
-
-    def children(parent: int) -> list[tuple[int, str]]:
-        out = subprocess.run(
-            ["ps", "-o", "pid=,args=", "--ppid", str(parent)], capture_output=True, text=True
-        )
-        return [(int(line.split()[0]), line) for line in out.stdout.splitlines()]
-
     pids = []
     for pid, args in children(simulator):
         if "simecs.nodes.worker_forks" in args:

@@ -17,7 +17,7 @@ from simecs.mesh.protocol import messages as m
 from simecs.nodes.admission import QUEUE_WAITS_FOR_HOST_S
 from simecs.nodes.runs import WORKER_REPORTS_S
 
-from .conftest import Mesh, Service, start_service, wait_until, worker_pids
+from .conftest import Mesh, Service, children, start_service, wait_until, worker_pids
 from .test_service import prepare
 
 TARGET = [0.3, -0.2, 0.2, 0.1, -0.1, 0.1, 0.0]
@@ -92,6 +92,27 @@ def test_killed_simulation_fails_its_session_within_a_second(service: Service) -
     assert whole[-1, 0] == pytest.approx(5.0) and np.all(np.diff(whole[:, 0]) > 0)
     assert np.array_equal(whole[: rows.shape[0]], rows)  # deterministic: where the crash left it
     assert "continues run r1" in service.mesh.log("proxy")
+
+
+def test_runs_go_on_when_the_worker_fork_server_is_lost(service: Service) -> None:
+    """Workers are forked warm from one process (nodes/worker_forks.py): killed, it costs no run; the
+    simulator says so and starts each new worker as a process of its own."""
+    sim_pid = service.mesh.procs["simulator"].pid
+    s = service.client.create_session("ann", "spider")
+    prepare(s, stop_time=0.3)
+    first = s.run()
+    assert s.wait_for(["finished", "failed"], 60, first).phase == "finished"
+    assert worker_of(service, s.id, first) not in {pid for pid, _ in children(sim_pid)}  # a fork's
+    forks = [pid for pid, args in children(sim_pid) if "simecs.nodes.worker_forks" in args]
+    assert len(forks) == 1
+    os.kill(forks[0], signal.SIGKILL)
+    gone = "worker fork server is gone"
+    wait_until(lambda: gone in service.mesh.log("simulator"), 10, what="the fork server's loss seen")
+    for _ in range(3):  # the warm workers forked before, then workers of their own
+        run_id = s.run()
+        end = s.wait_for(["finished", "failed"], 120, run_id)
+        assert end.phase == "finished", end.reason
+    assert worker_of(service, s.id, run_id) in {pid for pid, _ in children(sim_pid)}
 
 
 def test_a_simulator_that_does_not_answer_holds_up_no_other_session(service: Service) -> None:
