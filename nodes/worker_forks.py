@@ -36,6 +36,7 @@ log = logging.getLogger("simecs.worker")
 
 READY = "ready"
 FORK_REQUEST = b"fork"
+EXITS_KEPT = 4096  # exit codes kept for the simulator to read (it reads each within a tick)
 
 
 # -- the fork server --------------------------------------------------------------------------------
@@ -48,6 +49,9 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--control-fd", type=int, required=True, help="the socket to the simulator")
     args = parser.parse_args(argv)
     setup_logging("worker", args.log_level)
+    # Ctrl-C in a terminal reaches the whole process group: the fork server ends with its simulator
+    # (the socket closes), and a traceback of an interrupted select would only clutter the log.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     control = socket.socket(fileno=args.control_fd)
     try:
         cost = worker.warm_up()
@@ -113,6 +117,7 @@ def _become_worker(
         faulthandler.enable()  # a crash in a native library leaves every thread's stack in the log
         signal.set_wakeup_fd(-1)
         signal.signal(signal.SIGCHLD, signal.SIG_DFL)
+        signal.signal(signal.SIGINT, signal.default_int_handler)  # as in a worker started on its own
         control.close()
         for fd in wake:
             os.close(fd)
@@ -189,7 +194,7 @@ class WorkerForks:
         self._ready = threading.Event()
         self._gone = threading.Event()
         self._pids: queue.Queue[int] = queue.Queue()
-        self._codes: dict[int, int] = {}
+        self._codes: dict[int, int] = {}  # the last EXITS_KEPT workers' exit codes, by pid
         self._lock = threading.Lock()  # one request and its answer at a time
         self._ready_timeout = ready_timeout
         self._started = time.monotonic()
@@ -219,6 +224,8 @@ class WorkerForks:
             self._pids.put(int(words[1]))
         elif len(words) == 3 and words[0] == "exit":
             self._codes[int(words[1])] = int(words[2])
+            while len(self._codes) > EXITS_KEPT:  # a long-lived host forks many thousands
+                del self._codes[next(iter(self._codes))]
 
     def exit_code(self, pid: int) -> int | None:
         code = self._codes.get(pid)
