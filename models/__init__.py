@@ -18,6 +18,7 @@ import os
 from pathlib import Path
 
 import numpy as np
+from simecs.mesh.protocol.environment import Obstacle
 from simecs.mesh.protocol.model import ModelSummary
 
 from .errors import CommandError, ParameterError, SimulationError
@@ -166,9 +167,10 @@ def warmup(alongside: bool = False) -> float:
     sim.set_control("opspace_hybrid", 0.002)
     sim.start(0.004, 0.002)
     sim.advance(0.004)
-    sim.set_points.set_forces(np.zeros((0, 5)))
-    sim.set_control("joint_independent", 0.001)
-    sim.set_values({"drives.enabled": 0.0})  # contact with the drives off
+    sim.close()
+    # contact with the drives off (a new simulation: values set during a run wait for their time)
+    sim = get_model("spider").build({"drives.enabled": 0.0})
+    sim.set_obstacles([Obstacle(name="warmup", kind="box", position=[2.0, 2.0, 2.0])])
     sim.start(0.004, 0.002)
     sim.advance(0.004)
     sim.close()

@@ -532,18 +532,26 @@ def _posture(q: np.ndarray) -> str:
 
 def warmup() -> None:
     """Compile (or load from numba's cache) the kinematics kernels: a line and a reach on the Spider,
-    and a pose just beyond its reach (the closest-pose search a refusal runs)."""
+    the checks the proxy runs on them (holding, the obstacles', the arm against itself), and a pose
+    just beyond its reach (the closest-pose search a refusal runs). A kernel left out compiles on a
+    session's first command instead: 10 s or more before its answer."""
     from . import get_model
 
     pkg = get_model("spider")
     q0 = [0.5, 0.2, -0.3, -0.5, -0.3, -0.2, 0.7]
-    planner = Planner(pkg, pkg.check_values({}), q0, 1.0)
+    box = Obstacle(name="warmup", kind="box", position=[2.0, 2.0, 2.0])  # far from the arm
+    planner = Planner(pkg, pkg.check_values({}), q0, 1.0, obstacles=[box])
     p, R = planner.kin.tool_pose(np.array(q0))
     rpy = [float(x) for x in rpy_of(R)]
-    nodes = [
-        m.CartesianNode([float(p[0]), float(p[1]), float(p[2]) - 0.01], rpy, move) for move in ("lin", "ptp")
+    x, y, z = (float(v) for v in p)
+    nodes = [  # a line down, and back up point to point (a move of its own: its samples' kernel)
+        m.CartesianNode([x, y, z - 0.01], rpy, "lin"),
+        m.CartesianNode([x, y, z], rpy, "ptp"),
     ]
-    planner.plan(m.CartesianPath(nodes))
+    plan = planner.plan(m.CartesianPath(nodes))
+    planner.checks.holding_problem(plan)
+    planner.checks.collision(plan)
+    planner.checks.self_touch(plan)
     try:
         planner.plan(m.CartesianPath([m.CartesianNode([0.0, 2.2, 0.3], rpy, "ptp")]))
     except CommandError:

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import math
 import time as _time
-from collections.abc import Callable, Hashable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -17,17 +17,16 @@ from simecs.mesh.protocol.environment import Obstacle
 from simecs.mesh.protocol.model import CONTROL_SYSTEMS
 from simecs.mesh.rules.kinematics import rot_rpy
 
-from . import chain_dynamics, drive_integrator, jit, references
+from . import chain_dynamics, drive_integrator, references
 from . import drive as dr
 from .chain_dynamics import gravity_torques
-from .contact import ContactTables, contact_prestep
+from .contact import contact_prestep
 from .description import ArmDescription
 from .drive_integrator import DriveArrays
 from .errors import SimulationError
 from .exudyn_chain import ExudynChain, exudyn
 from .mechanics import (
     MECH_PREFIXES,
-    ChainArrays,
     chain_arrays,
     drive_array,
     gravity_of,
@@ -35,39 +34,12 @@ from .mechanics import (
     tool_point,
     vec,
 )
-from .opspace import ControllerArrays, OpspaceController
+from .opspace import OpspaceController
 from .output_row import output_row
 from .run_world import RunWorld
 from .sensors import sensor_row
 from .set_points import SetPoints
-from .step import chain_step, gravity_feedforward
-
-#: What the step kernel reads besides the step's own values, taken once per solver call (nothing
-#: replaces these arrays while the solver runs).
-StepArrays = tuple[
-    DriveArrays, references.SetPointArrays, ChainArrays, np.ndarray, ControllerArrays, ContactTables
-]
-
-#: The step kernel's machine code (jit.compiled_for) as mypy sees it: StepArrays, then q, qd, t, h,
-#: substeps, repeat, control_due.
-StepKernel = Callable[
-    [
-        DriveArrays,
-        references.SetPointArrays,
-        ChainArrays,
-        np.ndarray,
-        ControllerArrays,
-        ContactTables,
-        np.ndarray,
-        np.ndarray,
-        float,
-        float,
-        int,
-        bool,
-        bool,
-    ],
-    int,
-]
+from .step import CompiledStep, StepArrays, StepKernel, gravity_feedforward
 
 
 class Simulation:
@@ -114,9 +86,8 @@ class Simulation:
         self._mbs: Any = self._chain.mbs  # the hot path reads these two on every step
         self._kt = self._chain.kt
         self._step_args: tuple[StepArrays, int] | None = None
-        self._step_key: Hashable = None
-        self._step_entry: StepKernel | None = None
-        self._step_kernel: StepKernel | None = None  # _step_entry, once checked in a solver call
+        self._compiled_step = CompiledStep()
+        self._step_kernel: StepKernel | None = None  # once checked in a solver call
 
     def _tool_local(self) -> np.ndarray:
         return tool_point(self.package.spec, self.values)
@@ -389,7 +360,9 @@ class Simulation:
         (drives, sp, chain, gravity, ctl, tables), control_steps = self._step_args
         control_due = control_steps > 0 and not repeat and k % control_steps == 0  # a period starts
         args = (drives, sp, chain, gravity, ctl, tables, q, qd, k * self.h, h, self.nsub, repeat, control_due)
-        status = (self._step_kernel or self._compiled_step(args))(*args)
+        if self._step_kernel is None:  # a solver call's first step: its arguments' types are checked
+            self._step_kernel = self._compiled_step.for_args(args)
+        status = self._step_kernel(*args)
         if status == drive_integrator.STEP_NOT_FINITE:
             bad = [j + 1 for j in range(self.n) if not np.all(np.isfinite(self.X[j, : dr.NS]))]
             self._fail = (
@@ -403,15 +376,6 @@ class Simulation:
         mbs.SetObjectParameter(self._kt, "jointForceVector", self._tau)
         self.timing["drive"] += _time.perf_counter() - t0 - (self.timing["output"] - out0)
         return True
-
-    def _compiled_step(self, args: tuple[Any, ...]) -> StepKernel:
-        """The step kernel's machine code for the types of a solver call's arguments (its first step):
-        looked up again only when a type changed (a command that replaced an array by another kind)."""
-        key = jit.type_key(args)
-        if self._step_entry is None or key != self._step_key:
-            self._step_key, self._step_entry = key, jit.compiled_for(chain_step, args)
-        self._step_kernel = self._step_entry
-        return self._step_entry
 
     def _step_arguments(self) -> tuple[StepArrays, int]:
         """What `step.chain_step` reads besides the step's own values, and the solver steps per control

@@ -8,17 +8,22 @@ and the controller and the drives each used to compute the same frames, mass mat
 
 from __future__ import annotations
 
+from collections.abc import Callable, Hashable
+from typing import Any
+
 import numpy as np
 from numba import njit
 
 from . import drive as dr
-from . import references
+from . import jit, references
 from .chain_dynamics import chain_state, gravity_torques
 from .chain_kinematics import spd_inverse
-from .drive_integrator import drive_step
+from .contact import ContactTables
+from .drive_integrator import DriveArrays, drive_step
 from .jit import CACHE as _CACHE
 from .jit import FAST as _FAST
-from .opspace import control_update
+from .mechanics import ChainArrays
+from .opspace import ControllerArrays, control_update
 
 
 @njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
@@ -61,3 +66,47 @@ def gravity_feedforward(P, sp, chain, gravity, t):
     for j in range(n):
         holding = g[j] / P[j, dr.P_N] * dr.resting_gear_factor(P[j, dr.P_ETA])
         live[j, references.LV_GRAVITY] = P[j, dr.P_FFG] * holding / P[j, dr.P_KT]
+
+
+#: What the step kernel reads besides the step's own values, taken once per solver call (nothing
+#: replaces these arrays while the solver runs).
+StepArrays = tuple[
+    DriveArrays, references.SetPointArrays, ChainArrays, np.ndarray, ControllerArrays, ContactTables
+]
+
+#: The step kernel's machine code (jit.compiled_for) as mypy sees it: StepArrays, then q, qd, t, h,
+#: substeps, repeat, control_due.
+StepKernel = Callable[
+    [
+        DriveArrays,
+        references.SetPointArrays,
+        ChainArrays,
+        np.ndarray,
+        ControllerArrays,
+        ContactTables,
+        np.ndarray,
+        np.ndarray,
+        float,
+        float,
+        int,
+        bool,
+        bool,
+    ],
+    int,
+]
+
+
+class CompiledStep:
+    """`chain_step`'s machine code for the types of a solver call's arguments, called past numba's
+    type dispatch (jit.compiled_for); looked up again only when a type changed (a command that
+    replaced an array by one of another kind)."""
+
+    def __init__(self) -> None:
+        self._key: Hashable = None
+        self._entry: StepKernel | None = None
+
+    def for_args(self, args: tuple[Any, ...]) -> StepKernel:
+        key = jit.type_key(args)
+        if self._entry is None or key != self._key:
+            self._key, self._entry = key, jit.compiled_for(chain_step, args)
+        return self._entry
