@@ -222,3 +222,23 @@ def test_bias_forces_agree_with_the_mass_matrix_and_the_potential(model):
         )
         assert np.max(np.abs(bias(q, np.zeros(n), gravity) - grad)) < 1e-6 * (np.max(np.abs(grad)) + 1e-9)
         assert np.allclose(bias(q, qd, gravity), bias(q, qd, [0, 0, 0]) + grad, atol=1e-6 * scale)
+
+
+def test_a_kernel_called_past_its_dispatch_is_looked_up_again_for_arrays_of_another_kind() -> None:
+    """The step's machine code is called without numba's type dispatch (jit.compiled_for): an array
+    of another layout or type would be read wrongly by code made for another, so the lookup is
+    keyed on what numba's type depends on (jit.type_key; step.CompiledStep asks again on a change)."""
+    from numba import njit
+    from simecs.models import jit
+
+    @njit(cache=False)
+    def corner(a: np.ndarray) -> float:
+        return float(a[0, 1])
+
+    c = np.arange(12.0).reshape(3, 4)
+    f = np.asfortranarray(c)
+    assert jit.type_key((c, 1.0, True)) == jit.type_key((c.copy(), 2.5, False))
+    assert jit.type_key((c,)) != jit.type_key((f,))
+    assert jit.type_key((c,)) != jit.type_key((c.astype(np.float32),))
+    assert jit.type_key((c,)) != jit.type_key((c[:, ::2],))
+    assert jit.compiled_for(corner, (c,))(c) == jit.compiled_for(corner, (f,))(f) == 1.0
