@@ -23,10 +23,11 @@ from .jit import FAST as _FAST
 
 
 @njit(cache=_CACHE, error_model="numpy", fastmath=_FAST)
-def output_row(P, sp, X, q, qd, t, pre_R, pre_p, Rrpy, tool_local, contact, grasp, rows, k):
+def output_row(P, sp, X, q, qd, t, chain, Rrpy, tool_local, contact, grasp, rows, k):
     """One result row into rows[k]: time, the variables of every joint, the tool's, the contacts', the
     grasp's, the link and tool poses and the grasped object's. `sp`: the set points
-    (references.SetPointArrays); `contact`: contact.ContactTables; `grasp` the grasp state of grasp.py.
+    (references.SetPointArrays); `chain`: mechanics.ChainArrays; `contact`: contact.ContactTables;
+    `grasp` the grasp state of grasp.py.
 
     Returns 0, or 1 when the chain coordinates are not finite (row untouched), 2 when an output is not.
     """
@@ -49,6 +50,7 @@ def output_row(P, sp, X, q, qd, t, pre_R, pre_p, Rrpy, tool_local, contact, gras
     p, p_r, erot = threes[0], threes[1], threes[2]
     mats = np.empty((2, 3, 3))
     R, R_r = mats[0], mats[1]
+    pre_R, pre_p = chain.pre_R, chain.pre_p
     tool_frames(pre_R, pre_p, Rrpy[n - 1], tool_local, q, R_all, p_all, p, R)
     tool_frames(pre_R, pre_p, Rrpy[n - 1], tool_local, out[:, 2].copy(), Rr_all, pr_all, p_r, R_r)
     k0 = 1 + n * NO

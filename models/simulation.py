@@ -25,15 +25,7 @@ from .description import ArmDescription
 from .drive_integrator import DriveArrays
 from .errors import SimulationError
 from .exudyn_chain import ExudynChain, exudyn
-from .mechanics import (
-    MECH_PREFIXES,
-    chain_arrays,
-    drive_array,
-    gravity_of,
-    init_states,
-    tool_point,
-    vec,
-)
+from .mechanics import MECH_PREFIXES, chain_arrays, drive_array, gravity_of, init_states, tool_point, vec
 from .opspace import OpspaceController
 from .output_row import output_row
 from .run_world import RunWorld
@@ -413,7 +405,6 @@ class Simulation:
         k = self._nrows
         if k >= self._rows.shape[0]:  # never with the size advance() reserves; kept safe anyway
             self._rows = np.concatenate([self._rows, np.empty((k + 8, self._rows.shape[1]))])
-        m = self._mech_arrays
         status = output_row(
             self.P,
             self.set_points.arrays(),
@@ -421,8 +412,7 @@ class Simulation:
             q,
             qd,
             t,
-            m.pre_R,
-            m.pre_p,
+            self._mech_arrays,
             self._Rrpy,
             self._tool_loc,
             self._contact,

@@ -20,6 +20,7 @@ Lines on the socket, fork server to simulator: `ready`, `pid <pid>` (one per req
 from __future__ import annotations
 
 import contextlib
+import faulthandler
 import logging
 import os
 import queue
@@ -32,6 +33,10 @@ import threading
 import time
 from typing import IO, Any, Protocol
 
+from simecs.mesh.process.logs import setup_logging
+
+from . import worker
+
 log = logging.getLogger("simecs.worker")
 
 READY = "ready"
@@ -41,10 +46,6 @@ EXITS_KEPT = 4096  # exit codes kept for the simulator to read (it reads each wi
 
 # -- the fork server --------------------------------------------------------------------------------
 def main(argv: list[str] | None = None) -> None:
-    from simecs.mesh.process.logs import setup_logging
-
-    from . import worker
-
     parser = worker.worker_arguments("simecs-worker-forks", __doc__)
     parser.add_argument("--control-fd", type=int, required=True, help="the socket to the simulator")
     args = parser.parse_args(argv)
@@ -109,10 +110,6 @@ def _become_worker(
     args: Any, cost: str, control: socket.socket, fds: list[int], wake: tuple[int, int]
 ) -> None:
     """The forked child: the pipes as its stdin and stdout, nothing else of the fork server's kept."""
-    import faulthandler
-
-    from . import worker
-
     try:
         faulthandler.enable()  # a crash in a native library leaves every thread's stack in the log
         signal.set_wakeup_fd(-1)

@@ -60,8 +60,8 @@ def test_realtime_runs_share_a_small_machine_and_fast_runs_queue_per_core(mesh: 
     mesh.start("proxy", "--data-dir", str(data))
     mesh.start("simulator", "--results-dir", str(data / "results"))
     realtime = [new_session(mesh, f"rt{i}", stop_time=300.0, output_interval=0.01) for i in range(8)]
-    # All asked for at once; each starts when a worker is warm (two start at a time, the others wait
-    # for the pool's refill, warmed at nice 10), and only while the host's capacity holds it: beside
+    # All asked for at once; each starts on a warm worker (two are kept ready, the others forked as
+    # runs take them), and only while the host's capacity holds it: beside
     # another test's browser the host measures less room (cores x headroom - other processes' use),
     # and fewer than eight fit. How long starts take is a speed figure (`bench scale`), not this test's.
     for s in realtime:
