@@ -50,9 +50,12 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--control-fd", type=int, required=True, help="the socket to the simulator")
     args = parser.parse_args(argv)
     setup_logging("worker", args.log_level)
-    # Ctrl-C in a terminal reaches the whole process group: the fork server ends with its simulator
-    # (the socket closes), and a traceback of an interrupted select would only clutter the log.
+    # Ctrl-C in a terminal, or a SIGTERM to the node's process group, reaches the fork server too: it
+    # ends with its simulator (the socket closes), after reporting how the workers it forked ended.
+    # Gone first, it would leave them to init, which may never reap them (a container's init), and
+    # the simulator waiting for their exit codes until its timeout.
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
     control = socket.socket(fileno=args.control_fd)
     try:
         cost = worker.warm_up()
@@ -69,7 +72,10 @@ def main(argv: list[str] | None = None) -> None:
     os.set_blocking(wake_w, False)
     signal.set_wakeup_fd(wake_w)
     signal.signal(signal.SIGCHLD, lambda *_: None)  # a child's exit wakes the select below
-    control.sendall(f"{READY}\n".encode())
+    try:
+        control.sendall(f"{READY}\n".encode())
+    except OSError:  # the simulator ended while this warmed up
+        os._exit(0)
     while True:
         ready, _, _ = select.select([control.fileno(), wake_r], [], [], 1.0)
         if wake_r in ready:
@@ -115,6 +121,7 @@ def _become_worker(
         signal.set_wakeup_fd(-1)
         signal.signal(signal.SIGCHLD, signal.SIG_DFL)
         signal.signal(signal.SIGINT, signal.default_int_handler)  # as in a worker started on its own
+        signal.signal(signal.SIGTERM, signal.SIG_DFL)
         control.close()
         for fd in wake:
             os.close(fd)
@@ -178,6 +185,15 @@ class ForkedWorker:
         self.send_signal(signal.SIGKILL)
 
 
+def _running(pid: int) -> bool:
+    """Whether process `pid` is there and not a zombie (an orphan init has not reaped yet)."""
+    try:
+        with open(f"/proc/{pid}/stat", "rb") as stat:
+            return stat.read().rsplit(b")", 1)[1].split()[0] != b"Z"
+    except (OSError, IndexError):
+        return False
+
+
 class WorkerForks:
     """The simulator's fork server: started at once, it warms up while the node starts; `fork` makes a
     warm worker in milliseconds, or returns None when the fork server is not there (not warm within
@@ -226,12 +242,9 @@ class WorkerForks:
 
     def exit_code(self, pid: int) -> int | None:
         code = self._codes.get(pid)
-        if code is None and self._gone.is_set():
-            # the fork server is gone and init reaps its orphans: alive while the process is there
-            try:
-                os.kill(pid, 0)
-            except ProcessLookupError:
-                return self._codes.setdefault(pid, -signal.SIGKILL)
+        if code is None and self._gone.is_set() and not _running(pid):
+            # the fork server is gone: its orphans are init's, which may reap them late or never
+            return self._codes.setdefault(pid, -signal.SIGKILL)
         return code
 
     def wait_ready(self) -> bool:
@@ -261,6 +274,8 @@ class WorkerForks:
 
     def close(self) -> None:
         self._closing = True
+        with contextlib.suppress(OSError):  # shutdown, not only close: the reading thread holds the socket
+            self._sock.shutdown(socket.SHUT_RDWR)
         with contextlib.suppress(OSError):
             self._sock.close()
         try:
