@@ -9,7 +9,7 @@ CHROMIUM ?= /usr/bin/chromium
 export SIMECS_CHROMIUM := $(CHROMIUM)
 CODE := mesh models nodes viewer testing benchmarks tests docs/examples
 
-.PHONY: up test lint format bench warm schema clean
+.PHONY: up test lint format bench warm schema clean browser-deps
 
 $(BIN)/python:
 	$(PY) -m venv $(VENV)
@@ -23,15 +23,19 @@ $(TEST_STAMP): pyproject.toml | $(BIN)/python
 	$(BIN)/pip install --quiet -e '.[test]'
 	touch $(STAMP) $@
 
-# The browser tests need chromium: installed from Debian's packages where we may (root with apt),
-# otherwise `make test` stops here and says what is missing (it never skips those tests).
-$(CHROMIUM):
-	@if command -v apt-get >/dev/null 2>&1 && [ "$$(id -u)" = 0 ]; then \
-		echo "installing Debian's chromium for the browser tests"; \
-		apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium >/dev/null; \
+# The browser tests need chromium, and Mesa for its WebGL (llvmpipe, testing/browser.py): installed from
+# Debian's packages where we may (root with apt), otherwise `make test` stops here and says what is
+# missing (it never skips those tests).
+BROWSER_PACKAGES := chromium libegl1 libegl-mesa0 libgl1-mesa-dri
+browser-deps:
+	@if [ -x "$(CHROMIUM)" ] && $(PY) -c "import glob, sys; sys.exit(not glob.glob('/usr/lib/*/dri/swrast_dri.so') or not glob.glob('/usr/lib/*/libEGL_mesa.so.0'))"; then \
+		:; \
+	elif command -v apt-get >/dev/null 2>&1 && [ "$$(id -u)" = 0 ]; then \
+		echo "installing Debian's chromium and Mesa for the browser tests"; \
+		apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq $(BROWSER_PACKAGES) >/dev/null; \
 	else \
-		echo "make test: the browser tests need chromium at $(CHROMIUM): install Debian's chromium" \
-			"package (apt-get install chromium, as root) or pass CHROMIUM=/path/to/chromium" >&2; \
+		echo "make test: the browser tests need chromium at $(CHROMIUM) and Mesa's EGL: install Debian's" \
+			"packages $(BROWSER_PACKAGES) (as root) or pass CHROMIUM=/path/to/chromium" >&2; \
 		exit 1; \
 	fi
 
@@ -64,7 +68,7 @@ schema: $(STAMP)
 	$(BIN)/python -m simecs.mesh.protocol.protocol_doc
 
 # Lint and the drives' compile run side by side (one core each): on a fresh clone that saves half a minute.
-test: $(TEST_STAMP) $(CHROMIUM)
+test: $(TEST_STAMP) browser-deps
 	$(MAKE) --no-print-directory -j2 --output-sync=target lint warm
 	$(BIN)/python -m pytest -q -n 2 --dist loadfile --durations=20
 
