@@ -16,7 +16,7 @@ import xml.etree.ElementTree as ET
 import zlib
 from pathlib import Path
 
-import json5
+from simecs.mesh.process.files import parse_json5
 
 from .model_file import MODEL_FILE, ModelFileError, read_model_file
 from .spec import ArmSpec
@@ -33,7 +33,7 @@ def bundle(spec: ArmSpec) -> bytes:
         raise ValueError(f"model {spec.id} was not read from a model directory")
     directory = spec.source
     model = read_model_file(directory)
-    raw = json5.loads((directory / MODEL_FILE).read_text(encoding="utf-8"))
+    raw = parse_json5((directory / MODEL_FILE).read_text(encoding="utf-8"))
     files: dict[str, bytes] = {}
     for name in (model.docs.assumptions, model.docs.chain):
         if name:

@@ -32,7 +32,6 @@ from dataclasses import dataclass
 from typing import NamedTuple
 
 import numpy as np
-from scipy.optimize import minimize
 from simecs.mesh.rules.kinematics import rot_rpy
 
 from .chain_kinematics import rotation_vector, rotvec_exp, tool_frames, tool_jacobian
@@ -409,6 +408,10 @@ class ArmKinematics:
 
         Gauss-Newton (the kernel) crawls here: beyond reach the residual is large, and its curvature,
         which Gauss-Newton leaves out, dominates (e.g. a wrist orienting a short tool offset)."""
+        # Imported here: scipy.optimize takes 0.45 s to import, and only a pose out of reach needs it (every
+        # process that plans would pay it at its start).
+        from scipy.optimize import minimize
+
         args = (self.pre_R, self.pre_p, self.R_last, self.tool_local, p_t, R_t, 1.0 / self.reach, W_PRIORITY)
         grad = np.empty(self.n)
 

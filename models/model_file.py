@@ -13,9 +13,9 @@ import math
 from pathlib import Path
 from typing import Annotated, Literal
 
-import json5
 import msgspec
 from msgspec import Meta
+from simecs.mesh.process.files import parse_json5
 from simecs.mesh.protocol.codec import DecodeError, from_obj
 from simecs.mesh.protocol.environment import ObstacleList, check_obstacles
 from simecs.mesh.protocol.model import Shape
@@ -170,7 +170,7 @@ def read_model_file(directory: str | Path) -> ModelFile:
     """model.json5 of `directory`, parsed and checked against the format (not yet the URDF)."""
     path = Path(directory) / MODEL_FILE
     try:
-        raw = json5.loads(path.read_text(encoding="utf-8"))
+        raw = parse_json5(path.read_text(encoding="utf-8"))
     except FileNotFoundError:
         raise ModelFileError(str(path), "no such file: a model directory holds a model.json5") from None
     except (ValueError, UnicodeDecodeError) as exc:

@@ -16,7 +16,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any, TextIO
 
-import json5
+from simecs.mesh.process.files import parse_json5
 
 from .drives_catalog import size_for_limits
 from .model_file import FORMAT, MODEL_FILE, ModelFileError, load_model_dir
@@ -214,7 +214,7 @@ def check_model(directory: str | Path, *, run: bool = True, log: TextIO = sys.st
 def read_drive_table(path: str | Path) -> dict[str, Any]:
     """A drive table file for the import: JSON5 {drives: {class: {...}}, joints: {joint: {drive: class}}}."""
     try:
-        table = json5.loads(Path(path).read_text(encoding="utf-8"))
+        table = parse_json5(Path(path).read_text(encoding="utf-8"))
     except (OSError, ValueError) as exc:
         raise ModelFileError(str(path), f"cannot read the drive table ({exc})") from None
     if not isinstance(table, dict) or set(table) - {"drives", "joints"}:

@@ -8,9 +8,9 @@ from __future__ import annotations
 
 from typing import Any
 
-import json5
 import numpy as np
 from simecs import models
+from simecs.mesh.process.files import parse_json5
 from simecs.mesh.rules.kinematics import link_frames
 from simecs.models.urdf import resolve_uri
 
@@ -29,7 +29,7 @@ class UrdfReference:
         self.package = models.get_model(model_id)
         source_dir = self.package.spec.source
         assert source_dir is not None
-        self.source: dict[str, Any] = json5.loads((source_dir / "model.json5").read_text())["urdf"]
+        self.source: dict[str, Any] = parse_json5((source_dir / "model.json5").read_text())["urdf"]
         path = resolve_uri(self.source["file"], source_dir)
         self.urdf = yourdfpy.URDF.load(
             str(path), load_meshes=False, build_scene_graph=True, load_collision_meshes=False

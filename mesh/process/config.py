@@ -16,7 +16,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Literal
 
-import json5
+from .files import parse_json5
 
 DEFAULT_HUB = "tcp/127.0.0.1:7447"
 
@@ -123,7 +123,7 @@ def load(path: str | os.PathLike[str] | None = None, env: Mapping[str, str] | No
     path = path or env.get("SIMECS_MESH_CONFIG") or None
     if path:
         try:
-            data = json5.loads(Path(path).read_text())
+            data = parse_json5(Path(path).read_text())
         except (OSError, ValueError) as exc:
             raise ValueError(f"mesh config {path}: {exc}") from None
         if not isinstance(data, dict):
