@@ -22,9 +22,23 @@ MAX_FRAME_S = 0.1  # faster pacing: bigger frames (fewer, larger), still a few m
 FRAMES_PER_SOLVE = 2
 
 
+# A jog acts at the next solver call and shows in the frames of that call, each sent at its time: in
+# 50 ms calls of 25 ms frames a jog took 23-25 ms (p50) to show, more than a pendant's user accepts
+# (~10 ms). While a paced run is jogged (from a jog message for it until JOG_MODE_S after the last one)
+# and throughout a run until stopped (an idle arm jogged to teach poses), each call simulates one frame
+# of JOG_FRAME_S in wall time. Each call costs its solver start-up: a run costs more CPU so, only then.
+JOG_FRAME_S = 0.005
+JOG_MODE_S = 2.0
+
+
 def frame_length(speed: float, output_interval: float) -> float:
     """About 40 frames per wall second: 25 ms simulated in real time, up to 100 ms when faster."""
     return max(min(FRAME_S * speed, MAX_FRAME_S), FRAME_S, output_interval)
+
+
+def jog_frame_length(speed: float, output_interval: float) -> float:
+    """A jogged run's frame (and solver call): JOG_FRAME_S of wall time, at least one output interval."""
+    return min(max(JOG_FRAME_S * speed, output_interval), frame_length(speed, output_interval))
 
 
 def frame_parts(rows: np.ndarray, t0: float, frame: float, t_end: float) -> list[tuple[np.ndarray, float]]:

@@ -35,7 +35,15 @@ from simecs.mesh.protocol import messages as m
 from simecs.mesh.rules import load
 
 from .hil import Lockstep
-from .pacing import FRAMES_PER_SOLVE, Pacer, PaceWatch, frame_length, frame_parts
+from .pacing import (
+    FRAMES_PER_SOLVE,
+    JOG_MODE_S,
+    Pacer,
+    PaceWatch,
+    frame_length,
+    frame_parts,
+    jog_frame_length,
+)
 from .results_store import PartialResults, ResultsStore, StoredRun
 from .sources import RecordingSource, RunSource, SimulationSource, open_source
 
@@ -139,6 +147,11 @@ class Jogging:
             return
         with self.lock:
             self.latest, self.at, self.active = msg, time.monotonic(), True
+
+    def recent(self) -> bool:
+        """Whether a jog message for this run came within JOG_MODE_S (the run is being jogged)."""
+        with self.lock:
+            return self.at > 0.0 and time.monotonic() - self.at < JOG_MODE_S
 
     def apply(self, source: RunSource, horizon: float) -> bool:
         """Before a chunk: the held velocity, or none once the deadman time has passed. Whether a
@@ -291,9 +304,11 @@ class Run:
     def _loop(self, source: RunSource) -> None:
         st, ctl, pacer = self.req.settings, self.control, self.pacer
         speed = st.speed
-        frame = frame_length(speed, source.output_interval)
+        usual_frame = frame_length(speed, source.output_interval)
+        jog_frame = jog_frame_length(speed, source.output_interval)
         # lockstep with an external controller keeps its own cadence: one frame per call
-        solve = frame * FRAMES_PER_SOLVE if pacer.paced and self.hil is None else frame
+        usual_solve = usual_frame * FRAMES_PER_SOLVE if pacer.paced and self.hil is None else usual_frame
+        small_when_jogged = pacer.paced and self.hil is None  # a lockstep keeps its controller's cadence
         last_status = 0.0
         last_step = source.step_at(source.time)
         simulated = busy = 0.0  # over the run so far, pauses left out: the RTF
@@ -327,6 +342,8 @@ class Run:
                 pacer.reset(source.time)
                 self.pace_watch.reset(source.time)
             step_wall, step_t = time.monotonic(), source.time
+            jog_mode = small_when_jogged and (self.req.until_stopped or self.jogging.recent())
+            frame, solve = (jog_frame, jog_frame) if jog_mode else (usual_frame, usual_solve)
             # jogging is telemanipulation: runs paced in wall time only
             jogged = pacer.paced and self.jogging.apply(source, solve)
             # Told to stop: one more frame, the run's last (a finished run's final frame holds samples).

@@ -12,6 +12,7 @@ import pytest
 from simecs.mesh.client import RemoteError, SessionClient
 from simecs.mesh.protocol import codec, frames, keys, session_commands
 from simecs.mesh.protocol import messages as m
+from simecs.nodes import pacing
 
 from tests.conftest import Service, wait_until
 from tests.test_commands import SPIDER_Q0, kinematics
@@ -46,20 +47,30 @@ def running(s: SessionClient, stop_time: float) -> str:
 @pytest.mark.shares_service
 def test_a_joint_jog_moves_the_joint_and_the_deadman_stops_it(service: Service) -> None:
     s = service.client.create_session("ann", "spider")
-    run_id = running(s, 3.0)
-    time.sleep(0.3)
-    s.client.z.put(
-        keys.jog(s.user, s.id), codec.dumps(m.JogInput(run_id="r99", qd=[0.2] + [0.0] * 6))
-    )  # not ours
-    held = jog_for(s, run_id, 1.0, qd=[0.2] + [0.0] * 6)
-    released = time.monotonic()
-    assert s.wait_for(["finished", "failed"], 30, run_id).phase == "finished"
+    full: list[frames.Frame] = []
+    with s.watch(on_full=full.append):
+        run_id = running(s, 5.0)
+        time.sleep(0.3)
+        s.client.z.put(
+            keys.jog(s.user, s.id), codec.dumps(m.JogInput(run_id="r99", qd=[0.2] + [0.0] * 6))
+        )  # not ours
+        held = jog_for(s, run_id, 1.0, qd=[0.2] + [0.0] * 6)
+        released = time.monotonic()
+        assert s.wait_for(["finished", "failed"], 30, run_id).phase == "finished"
+        wait_until(lambda: full and full[-1].final, timeout=10, what="the final frame")
+    # Jogged, the run simulates 5 ms frames (a jog shows within one), from its first jog message until
+    # JOG_MODE_S after the last; before and after, 25 ms ones (2 ms samples: 2-3 rows, and 12-13).
+    sizes = [f.rows.shape[0] for f in full if f.rows.shape[0]]
+    small = [k for k, n in enumerate(sizes) if n <= 3]
+    assert small and small == list(range(small[0], small[-1] + 1)), sizes
+    assert min(sizes[1 : small[0]]) >= 12 and min(sizes[small[-1] + 1 : -1]) >= 12, sizes
+    assert 0.8 * (held + pacing.JOG_MODE_S) < 0.005 * len(small) < held + pacing.JOG_MODE_S + 0.5, sizes
     _, rows = s.results(run_id, ["joint1.q_ref", "joint1.q", "joint2.q"])
     t, ref, q = rows[:, 0], rows[:, 1], rows[:, 2]
     moved = ref[-1] - SPIDER_Q0[0]
-    # The worker reads the held velocity before each chunk (2 frames, 50 ms at real time): the jog
-    # starts at the chunk after the first message and goes on until the chunk after the deadman ran
-    # out past the last one.
+    # The worker reads the held velocity before each solver call (50 ms at real time, 5 ms once
+    # jogged): the jog starts at the call after the first message and goes on until the call after
+    # the deadman ran out past the last one.
     most = 0.2 * (held + m.JOG_DEADMAN_S + 2 * 0.05)
     assert 0.12 < moved < most, f"joint1 jogged {moved:.3f} rad, messages over {held:.3f} s at 0.2 rad/s"
     assert abs(q[-1] - ref[-1]) < 5e-3 and np.allclose(rows[:, 3], SPIDER_Q0[1], atol=2e-3)
@@ -167,6 +178,8 @@ def test_an_idle_arm_is_jogged_in_a_run_until_stopped_and_stop_finishes_it(servi
     assert mine[-1].final, "a stopped run's final frame holds its last samples"
     went = mine[-1].rows[-1, 0] - mine[0].rows[-1, 0]
     assert went <= (mine[-1].wall_ns - mine[0].wall_ns) / 1e9 + 0.1, went
+    # ready to be jogged throughout: frames of 5 ms (2-3 samples of 2 ms), not 25 ms
+    assert max(f.rows[-1, 0] - f.rows[0, 0] for f in mine) <= pacing.JOG_FRAME_S + 1e-9
 
     att, rows = s.results_of(run_id, ["joint2.q_ref", "joint2.q", "joint1.q_ref"])
     assert att.run.until_stopped and att.run.phase == "finished" and att.run.reason == end.reason

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from simecs.nodes.pacing import frame_length, frame_parts
+from simecs.nodes.pacing import frame_length, frame_parts, jog_frame_length
 
 
 def rows_at(times: list[float]) -> np.ndarray:
@@ -49,3 +49,20 @@ def test_a_frame_is_25_ms_in_real_time_longer_when_faster_and_never_shorter_than
     speed: float, output_interval: float, frame: float
 ) -> None:
     assert frame_length(speed, output_interval) == pytest.approx(frame)
+
+
+@pytest.mark.parametrize(
+    ("speed", "output_interval", "frame"),
+    [
+        (1.0, 0.002, 0.005),
+        (0.5, 0.001, 0.0025),
+        (4.0, 0.002, 0.02),
+        (10.0, 0.002, 0.05),
+        (1.0, 0.01, 0.01),
+        (1.0, 0.04, 0.04),
+    ],
+)
+def test_a_jogged_run_s_frame_is_5_ms_of_wall_time_at_least_a_sample_at_most_a_usual_frame(
+    speed: float, output_interval: float, frame: float
+) -> None:
+    assert jog_frame_length(speed, output_interval) == pytest.approx(frame)
