@@ -129,12 +129,16 @@ class Jogging:
     §5.4). A message for this run that is not usable stops the jog, and the user is told once what was
     wrong; one that does not decode names no run, so it is only logged."""
 
-    def __init__(self, z: zenoh.Session, req: m.RunRequest, notifier: Notifier) -> None:
+    def __init__(
+        self, z: zenoh.Session, req: m.RunRequest, notifier: Notifier, wake: threading.Event
+    ) -> None:
         self.req, self.notifier = req, notifier
         self.lock = threading.Lock()
         self.latest: m.JogInput | None = None
         self.at = 0.0
         self.active = False
+        # In jog mode a message wakes the run's loop, so that the call that obeys it starts at once.
+        self.wake, self.wakes = wake, False
         self.sub = z.declare_subscriber(keys.jog(req.user, req.session), self.on_sample)
 
     def on_sample(self, sample: zenoh.Sample) -> None:
@@ -147,6 +151,8 @@ class Jogging:
             return
         with self.lock:
             self.latest, self.at, self.active = msg, time.monotonic(), True
+        if self.wakes:
+            self.wake.set()
 
     def recent(self) -> bool:
         """Whether a jog message for this run came within JOG_MODE_S (the run is being jogged)."""
@@ -205,7 +211,7 @@ class Run:
         )
         self.control_sub = z.declare_subscriber(keys.control(u, s), self.control.on_sample)
         self.notifier = Notifier(z, req, seal)
-        self.jogging = Jogging(z, req, self.notifier)
+        self.jogging = Jogging(z, req, self.notifier, self.control.wake)
         self.pacer = Pacer(req.settings.speed, req.fast_until)
         self.pace_watch = PaceWatch(req.settings.speed)
         self.hil: Lockstep | None = None
@@ -344,6 +350,7 @@ class Run:
             step_wall, step_t = time.monotonic(), source.time
             jog_mode = small_when_jogged and (self.req.until_stopped or self.jogging.recent())
             frame, solve = (jog_frame, jog_frame) if jog_mode else (usual_frame, usual_solve)
+            self.jogging.wakes = jog_mode
             # jogging is telemanipulation: runs paced in wall time only
             jogged = pacer.paced and self.jogging.apply(source, solve)
             # Told to stop: one more frame, the run's last (a finished run's final frame holds samples).
@@ -375,6 +382,10 @@ class Run:
                 ahead = pacer.ahead(t_part)
                 if ahead > 0:
                     ctl.sleep(ahead)
+                    # Woken early by a jog (jog mode: one frame per call), the call that obeys it
+                    # starts now if that keeps the run at most one frame ahead of its time.
+                    while (late_wake := pacer.ahead(t_part) - frame) > 0 and not ctl.aborted.is_set():
+                        ctl.sleep(late_wake)
                 if ctl.aborted.is_set():
                     break  # what the call simulated beyond the frames sent is not the run's
             if jogged:  # the velocity held for the whole call: as far as its frames went

@@ -60,10 +60,11 @@ def test_a_joint_jog_moves_the_joint_and_the_deadman_stops_it(service: Service) 
         wait_until(lambda: full and full[-1].final, timeout=10, what="the final frame")
     # Jogged, the run simulates 5 ms frames (a jog shows within one), from its first jog message until
     # JOG_MODE_S after the last; before and after, 25 ms ones (2 ms samples: 2-3 rows, and 12-13).
-    sizes = [f.rows.shape[0] for f in full if f.rows.shape[0]]
+    # (The run's last call may be short: frames up to 0.1 s before its end are looked at.)
+    sizes = [f.rows.shape[0] for f in full if f.rows.shape[0] and f.rows[-1, 0] < 5.0 - 0.1]
     small = [k for k, n in enumerate(sizes) if n <= 3]
     assert small and small == list(range(small[0], small[-1] + 1)), sizes
-    assert min(sizes[1 : small[0]]) >= 12 and min(sizes[small[-1] + 1 : -1]) >= 12, sizes
+    assert min(sizes[1 : small[0]]) >= 12 and min(sizes[small[-1] + 1 :]) >= 12, sizes
     assert 0.8 * (held + pacing.JOG_MODE_S) < 0.005 * len(small) < held + pacing.JOG_MODE_S + 0.5, sizes
     _, rows = s.results(run_id, ["joint1.q_ref", "joint1.q", "joint2.q"])
     t, ref, q = rows[:, 0], rows[:, 1], rows[:, 2]
