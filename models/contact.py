@@ -428,6 +428,8 @@ class ContactLog:
         ]
 
     def scan(self, rows: np.ndarray) -> list[str]:
+        if not any(self._touching.values()) and not (rows[:, self._force] > NOTICE_FORCE).any():
+            return []  # nothing touched in the chunk (most chunks): one look, not a loop per row
         out = []
         for i in range(self.n):
             f = rows[:, self._force[i]]

@@ -253,7 +253,9 @@ class SelfContactLog:
 
     def scan(self, rows: np.ndarray) -> list[str]:
         slots = np.floor(rows[:, 0] / SCAN_PERIOD)
-        _values, first = np.unique(slots, return_index=True)
+        if slots.size == 0:
+            return []
+        first = np.flatnonzero(np.r_[True, slots[1:] != slots[:-1]])  # rows are in time order
         keep = first[slots[first] > self._last_slot]
         if keep.size == 0:
             return []
