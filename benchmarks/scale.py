@@ -1,6 +1,6 @@
 """`simecs bench scale`: how many runs the service carries, and how it spreads them over hosts.
 
-- `realtime_sessions_2cores`: real-time Spider sessions (full drive train) added one at a time to a
+- `realtime_sessions`: real-time Spider sessions (full drive train) added one at a time to a
   service started with its defaults (no --max-running), until one of them falls below RTF 0.99 over
   RTF_WINDOWS s (the workers' own 1 s windows, `SimulatorLoad.runs[].rtf`, averaged: one window
   jitters by about 1 % with the wake-ups' latency) or falls behind, the service stops admitting, or
@@ -8,6 +8,11 @@
   measured once the simulator's spare workers are warm again: a run takes a warm worker and the host
   warms another in its place (about 1 s of one core), a transient of starting a run, not what the
   host holds;
+- `realtime_sessions_per_core`: that count over the CPUs this machine gives the benchmark (`cores`),
+  the figure that carries from one machine to another;
+- `proxy_cmd_ms_p99_at_max` (and `_p50`): the proxy's answer time to a session command (`set_settings`
+  of an idle session, PROXY_PROBES of them) while the most sessions that held their pace run, through
+  the same hub: one proxy carries every session's commands, states and progress;
 - `admitted_by_default`: how many of those the defaults admitted without queueing;
 - `queue_wait_estimate_error`: |estimated - actual| / actual wait of runs queued behind runs as fast
   as possible on one host (the estimate is the first `wait_s` each queued run was told);
@@ -21,12 +26,14 @@ Every loop is bounded in count and time.
 from __future__ import annotations
 
 import json
+import os
 import signal
 import sys
 import threading
 import time
 from typing import Any
 
+import numpy as np
 import zenoh
 import zenoh.ext
 from simecs.mesh.client import SessionClient
@@ -40,6 +47,7 @@ MAX_SESSIONS = 64
 TIME_LIMIT_S = 600.0
 FAST_RUNS = 8
 RTF_WINDOWS = 3  # a run's RTF is the mean of this many 1 s windows: one window's is +-1 % of jitter
+PROXY_PROBES = 40  # commands timed at each count of sessions
 
 
 def log(text: str) -> None:
@@ -83,6 +91,8 @@ def realtime_capacity() -> dict[str, Any]:
         loads = Loads(mesh)
         held, admitted, began = 0, 0, time.monotonic()
         sessions: list[SessionClient] = []
+        probe = mesh.new_client().create_session("probe", "spider")  # idle: its commands are timed
+        answers: list[float] = []  # ms, at the count that held last
         try:
             while len(sessions) < MAX_SESSIONS and time.monotonic() - began < TIME_LIMIT_S:
                 now = loads.latest.get("simulator-t")
@@ -117,10 +127,14 @@ def realtime_capacity() -> dict[str, Any]:
                     time.sleep(1.0)
                 worst = min(sum(w) / len(w) for w in windows.values())
                 used = f"{load.demand:.2f}/{load.capacity:.2f} cores"
-                log(f"{len(load.runs)} real-time runs: worst RTF {worst:.3f}, {used}")
+                times = proxy_answers(probe)
+                log(
+                    f"{len(load.runs)} real-time runs: worst RTF {worst:.3f}, {used}; the proxy answers "
+                    f"in p50 {np.percentile(times, 50):.1f} ms, p99 {np.percentile(times, 99):.1f} ms"
+                )
                 if worst < 0.99 or load.behind:
                     break
-                held = len(load.runs)
+                held, answers = len(load.runs), times
         finally:
             loads.close()
             for s in sessions:
@@ -128,7 +142,26 @@ def realtime_capacity() -> dict[str, Any]:
                     s.abort()
                 except Exception:
                     pass
-    return {"realtime_sessions_2cores": held, "admitted_by_default": min(admitted, held)}
+    cores = len(os.sched_getaffinity(0))
+    at_max = np.array(answers) if answers else np.array([np.nan])
+    return {
+        "realtime_sessions": held,
+        "cores": cores,
+        "realtime_sessions_per_core": round(held / cores, 2),
+        "proxy_cmd_ms_p50_at_max": round(float(np.percentile(at_max, 50)), 2),
+        "proxy_cmd_ms_p99_at_max": round(float(np.percentile(at_max, 99)), 2),
+        "admitted_by_default": min(admitted, held),
+    }
+
+
+def proxy_answers(probe: SessionClient) -> list[float]:
+    """PROXY_PROBES `set_settings` of the idle session `probe`, one after the other: each answer's ms."""
+    times = []
+    for k in range(PROXY_PROBES):
+        t0 = time.perf_counter()
+        probe.set_settings(stop_time=1.0 + k % 2)  # a change each time: the proxy stores it
+        times.append((time.perf_counter() - t0) * 1e3)
+    return times
 
 
 def queue_wait_error() -> dict[str, Any]:
