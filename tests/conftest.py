@@ -34,6 +34,14 @@ mesh_env = clean_env
 os.environ["SIMECS_CLIENT_CONFIG"] = ""
 
 
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """The files with browser tests first, each file's tests in their order: `make test` hands whole
+    files to its workers in this order (`--dist loadfile`), and those files are the longest (a minute
+    or more each); handed out last, as their names sort, one of them ran alone at the end."""
+    with_browser = {item.path for item in items if "browser" in getattr(item, "fixturenames", ())}
+    items.sort(key=lambda item: item.path not in with_browser)  # stable: the rest keep their order
+
+
 @pytest.hookimpl(hookwrapper=True)
 def pytest_runtest_makereport(item: pytest.Item, call: pytest.CallInfo[None]) -> Iterator[None]:
     """A failing test on a mesh shows its nodes' logs in its report and keeps its mesh folder (node
