@@ -58,8 +58,10 @@ class Admission:
         max_running: int | None = None,
         max_queue: int = 16,
         hosts: Hosts | None = None,
+        host_wait_s: float = QUEUE_WAITS_FOR_HOST_S,
     ) -> None:
         self.store = store
+        self.host_wait_s = host_wait_s  # the proxy's --host-wait-s
         self._z = zenoh_session
         self._seal = seal
         self.lock = lock
@@ -125,7 +127,7 @@ class Admission:
             if not self.hosts.live:
                 if self.hub is not None and self.hub.lost_since(time.monotonic() - QUEUE_WAITS_AFTER_HUB_S):
                     break  # the hub went away lately: its simulators come back with it
-                if self.hosts.left_lately(QUEUE_WAITS_FOR_HOST_S):
+                if self.hosts.left_lately(self.host_wait_s):
                     break  # the proxy's tick asks again until it is back or the wait is over
                 self._fail_head(request, "no simulator node is on the mesh")
                 continue

@@ -29,6 +29,7 @@ from simecs.mesh.protocol import keys, limits, phases, session_commands
 from simecs.mesh.protocol import messages as m
 from simecs.mesh.protocol.model import DocPage, ModelDescription, check_joints
 
+from .admission import QUEUE_WAITS_FOR_HOST_S
 from .library import ModelLibrary
 from .placement import RESERVATION_S, Hosts
 from .quotas import FLOAT_BYTES, QuotaCheck, Quotas
@@ -50,8 +51,9 @@ def _open_run_s(text: str) -> float:
     return value
 
 
-def _reservation_s(text: str) -> float:
-    """--reservation-s: a time in (0, 3600] s (at 0 or below, runs on their way would not count)."""
+def _seconds(text: str) -> float:
+    """--reservation-s, --host-wait-s: a time in (0, 3600] s (at 0 or below, runs on their way would
+    not count, and a node's restart would fail the runs queued meanwhile)."""
     try:
         value = float(text)
     except ValueError:
@@ -77,6 +79,7 @@ class Proxy(Node):
         session_idle_s: float = limits.limit("session_idle_s"),
         open_run_s: float = limits.limit("open_run_s"),
         reservation_s: float = RESERVATION_S,
+        host_wait_s: float = QUEUE_WAITS_FOR_HOST_S,
     ) -> None:
         super().__init__(mesh, node_id)
         data = Path(data_dir)
@@ -100,6 +103,7 @@ class Proxy(Node):
             max_running,
             max_queue,
             Hosts(reservation_s),
+            host_wait_s,
         )
         self.admission = self.runs.admission
         self.quota = QuotaCheck(quotas or Quotas(), self.store, self._columns)
@@ -160,9 +164,15 @@ class Proxy(Node):
         )
         parser.add_argument(
             "--reservation-s",
-            type=_reservation_s,
+            type=_seconds,
             default=RESERVATION_S,
             help="how long a run handed to a simulator host counts against it before the host lists it",
+        )
+        parser.add_argument(
+            "--host-wait-s",
+            type=_seconds,
+            default=QUEUE_WAITS_FOR_HOST_S,
+            help="how long a queued run waits for a simulator host to come back when none is on the mesh",
         )
 
     @classmethod
@@ -183,6 +193,7 @@ class Proxy(Node):
             args.session_idle_s,
             args.open_run_s,
             args.reservation_s,
+            args.host_wait_s,
         )
 
     def status_detail(self) -> dict[str, Any]:
@@ -456,7 +467,7 @@ class Proxy(Node):
 
     def tick(self) -> None:
         """Runs queued while no simulator host is live: started when one is back, failed once the wait
-        is over (admission.QUEUE_WAITS_FOR_HOST_S). Close every session idle for longer than
+        is over (--host-wait-s). Close every session idle for longer than
         `session_idle_s` (its results go with it)."""
         with self.lock:
             if self.admission.queue and not self.admission.hosts.live:

@@ -21,7 +21,7 @@ from simecs.mesh.process.seal import Seal
 from simecs.mesh.protocol import codec, keys, phases
 from simecs.mesh.protocol import messages as m
 
-from .admission import Admission
+from .admission import QUEUE_WAITS_FOR_HOST_S, Admission
 from .placement import Hosts
 from .sessions import SessionRecord, SessionStore
 
@@ -59,10 +59,11 @@ class RunTracker:
         max_running: int | None = None,
         max_queue: int = 16,
         hosts: Hosts | None = None,
+        host_wait_s: float = QUEUE_WAITS_FOR_HOST_S,
     ) -> None:
         self.store = store
         self.admission = Admission(
-            store, zenoh_session, seal, lock, self.handed_over, max_running, max_queue, hosts
+            store, zenoh_session, seal, lock, self.handed_over, max_running, max_queue, hosts, host_wait_s
         )
         self.z = zenoh_session
         self.seal = seal

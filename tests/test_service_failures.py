@@ -14,11 +14,12 @@ import pytest
 from simecs.mesh.client import NoReply, RemoteError, SessionClient
 from simecs.mesh.protocol import codec, keys
 from simecs.mesh.protocol import messages as m
-from simecs.nodes.admission import QUEUE_WAITS_FOR_HOST_S
 from simecs.nodes.runs import WORKER_REPORTS_S
 
 from .conftest import Mesh, Service, children, start_service, wait_until, worker_pids
 from .test_service import prepare
+
+HOST_WAIT_S = 10.0  # the proxy's --host-wait-s in the test that waits it out (30 s by default)
 
 TARGET = [0.3, -0.2, 0.2, 0.1, -0.1, 0.1, 0.0]
 
@@ -258,10 +259,11 @@ def test_a_simulator_node_killed_alone_costs_no_run(service: Service) -> None:
     wait_until(lambda: not running(worker), timeout=10, what="the worker ended")
 
 
-def test_a_run_asked_for_while_the_simulator_node_is_away_waits_for_it(service: Service) -> None:
+def test_a_run_asked_for_while_the_simulator_node_is_away_waits_for_it(mesh: Mesh) -> None:
     """A run asked for while no simulator host is on the mesh (its node restarting, or its link cut
     for longer than the lease by a starved CPU) waits for one and runs; only when none comes back
-    within the wait does it fail, saying why."""
+    within the wait (--host-wait-s: 10 s here, 30 by default) does it fail, saying why."""
+    service = start_service(mesh, extra_proxy=("--host-wait-s", str(HOST_WAIT_S)))
     c = service.client
     s = c.create_session("ann", "spider")
     prepare(s)
@@ -278,5 +280,7 @@ def test_a_run_asked_for_while_the_simulator_node_is_away_waits_for_it(service: 
     service.mesh.stop("simulator", signal.SIGKILL)
     wait_until(lambda: service.mesh.log("proxy").count(lost) == 2, 10, what="the node's second loss seen")
     run_id = s.run()
-    end = s.wait_for(["failed"], QUEUE_WAITS_FOR_HOST_S + 10, run_id)
+    asked = time.monotonic()
+    end = s.wait_for(["failed"], HOST_WAIT_S + 10, run_id)
     assert end.reason == "no simulator node is on the mesh", end.reason
+    assert time.monotonic() - asked > HOST_WAIT_S - 3.0  # it waited, from the loss seen
