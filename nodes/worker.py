@@ -383,8 +383,9 @@ class Run:
                 if ahead > 0:
                     ctl.sleep(ahead)
                     # Woken early by a jog (jog mode: one frame per call), the call that obeys it
-                    # starts now if that keeps the run at most one frame ahead of its time.
-                    while (late_wake := pacer.ahead(t_part) - frame) > 0 and not ctl.aborted.is_set():
+                    # starts now if that keeps the run at most one frame (in wall time) ahead of its time.
+                    frame_wall = frame / pacer.speed
+                    while (late_wake := pacer.ahead(t_part) - frame_wall) > 0 and not ctl.aborted.is_set():
                         ctl.sleep(late_wake)
                 if ctl.aborted.is_set():
                     break  # what the call simulated beyond the frames sent is not the run's
