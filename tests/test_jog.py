@@ -65,7 +65,8 @@ def test_a_joint_jog_moves_the_joint_and_the_deadman_stops_it(service: Service) 
     small = [k for k, n in enumerate(sizes) if n <= 3]
     assert small and small == list(range(small[0], small[-1] + 1)), sizes
     assert min(sizes[1 : small[0]]) >= 12 and min(sizes[small[-1] + 1 :]) >= 12, sizes
-    assert 0.8 * (held + pacing.JOG_MODE_S) < 0.005 * len(small) < held + pacing.JOG_MODE_S + 0.5, sizes
+    # it lasted the jog and JOG_MODE_S after it (simulated time in it; its end: the 25 ms frames above)
+    assert 0.005 * len(small) > 0.8 * (held + pacing.JOG_MODE_S), sizes
     _, rows = s.results(run_id, ["joint1.q_ref", "joint1.q", "joint2.q"])
     t, ref, q = rows[:, 0], rows[:, 1], rows[:, 2]
     moved = ref[-1] - SPIDER_Q0[0]
