@@ -27,8 +27,8 @@ $(TEST_STAMP): pyproject.toml | $(BIN)/python
 # Debian's packages where we may (root with apt), otherwise `make test` stops here and says what is
 # missing (it never skips those tests).
 BROWSER_PACKAGES := chromium libegl1 libegl-mesa0 libgl1-mesa-dri
-browser-deps:
-	@if [ -x "$(CHROMIUM)" ] && $(PY) -c "import glob, sys; sys.exit(not glob.glob('/usr/lib/*/dri/swrast_dri.so') or not glob.glob('/usr/lib/*/libEGL_mesa.so.0'))"; then \
+browser-deps: $(TEST_STAMP)
+	@if $(BIN)/python -c "import sys; from simecs.testing.browser import browser_missing; sys.exit(bool(browser_missing()))"; then \
 		:; \
 	elif command -v apt-get >/dev/null 2>&1 && [ "$$(id -u)" = 0 ]; then \
 		echo "installing Debian's chromium and Mesa for the browser tests"; \
