@@ -35,9 +35,9 @@ from simecs.mesh.protocol import messages as m
 from simecs.mesh.rules import load
 
 from .hil import Lockstep
+from .jogging import Jogging
 from .pacing import (
     FRAMES_PER_SOLVE,
-    JOG_MODE_S,
     Pacer,
     PaceWatch,
     frame_length,
@@ -124,57 +124,6 @@ class Notifier:
             pass
 
 
-class Jogging:
-    """The session's jog key: the newest message for this run, held for JOG_DEADMAN_S (PROTOCOL.md
-    §5.4). A message for this run that is not usable stops the jog, and the user is told once what was
-    wrong; one that does not decode names no run, so it is only logged."""
-
-    def __init__(
-        self, z: zenoh.Session, req: m.RunRequest, notifier: Notifier, wake: threading.Event
-    ) -> None:
-        self.req, self.notifier = req, notifier
-        self.lock = threading.Lock()
-        self.latest: m.JogInput | None = None
-        self.at = 0.0
-        self.active = False
-        # In jog mode a message wakes the run's loop, so that the call that obeys it starts at once.
-        self.wake, self.wakes = wake, False
-        self.sub = z.declare_subscriber(keys.jog(req.user, req.session), self.on_sample)
-
-    def on_sample(self, sample: zenoh.Sample) -> None:
-        try:
-            msg = codec.loads(m.JogInput, sample.payload.to_bytes())
-        except codec.DecodeError as exc:  # not known to be for this run: logged, nothing changes
-            log.warning("jog for session %s ignored: %s", self.req.session, exc)
-            return
-        if msg.run_id != self.req.run_id:
-            return
-        with self.lock:
-            self.latest, self.at, self.active = msg, time.monotonic(), True
-        if self.wakes:
-            self.wake.set()
-
-    def recent(self) -> bool:
-        """Whether a jog message for this run came within JOG_MODE_S (the run is being jogged)."""
-        with self.lock:
-            return self.at > 0.0 and time.monotonic() - self.at < JOG_MODE_S
-
-    def apply(self, source: RunSource, horizon: float) -> bool:
-        """Before a chunk: the held velocity, or none once the deadman time has passed. Whether a
-        velocity other than zero is in force for the chunk (its simulated time counts as jogged)."""
-        with self.lock:
-            if not self.active:
-                return False
-            fresh = time.monotonic() - self.at < m.JOG_DEADMAN_S
-            msg = self.latest if fresh else None
-            self.active = fresh
-        problem = source.jog(msg, horizon)
-        if problem:
-            self.notifier.tell(f"jog ignored: {problem}")
-            return False
-        return msg is not None and any(msg.qd if msg.space == "joint" else msg.twist)
-
-
 class Run:
     def __init__(
         self, z: zenoh.Session, req: m.RunRequest, store: ResultsStore, seal: Seal, host: str = ""
@@ -211,7 +160,7 @@ class Run:
         )
         self.control_sub = z.declare_subscriber(keys.control(u, s), self.control.on_sample)
         self.notifier = Notifier(z, req, seal)
-        self.jogging = Jogging(z, req, self.notifier, self.control.wake)
+        self.jogging = Jogging(z, req, self.notifier.tell, self.control.wake)
         self.pacer = Pacer(req.settings.speed, req.fast_until)
         self.pace_watch = PaceWatch(req.settings.speed)
         self.hil: Lockstep | None = None
@@ -312,9 +261,10 @@ class Run:
         speed = st.speed
         usual_frame = frame_length(speed, source.output_interval)
         jog_frame = jog_frame_length(speed, source.output_interval)
-        # lockstep with an external controller keeps its own cadence: one frame per call
-        usual_solve = usual_frame * FRAMES_PER_SOLVE if pacer.paced and self.hil is None else usual_frame
-        small_when_jogged = pacer.paced and self.hil is None  # a lockstep keeps its controller's cadence
+        # paced runs simulate several frames per call (fewer when jogged); a lockstep with an external
+        # controller keeps its own cadence: one frame per call
+        several = pacer.paced and self.hil is None
+        usual_solve = usual_frame * FRAMES_PER_SOLVE if several else usual_frame
         last_status = 0.0
         last_step = source.step_at(source.time)
         simulated = busy = 0.0  # over the run so far, pauses left out: the RTF
@@ -348,7 +298,7 @@ class Run:
                 pacer.reset(source.time)
                 self.pace_watch.reset(source.time)
             step_wall, step_t = time.monotonic(), source.time
-            jog_mode = small_when_jogged and (self.req.until_stopped or self.jogging.recent())
+            jog_mode = several and (self.req.until_stopped or self.jogging.recent())
             frame, solve = (jog_frame, jog_frame) if jog_mode else (usual_frame, usual_solve)
             self.jogging.wakes = jog_mode
             # jogging is telemanipulation: runs paced in wall time only
