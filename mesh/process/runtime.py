@@ -77,6 +77,15 @@ def release_memory() -> None:
         pass
 
 
+def resident_mb() -> int:
+    """This process's resident memory (MB): what a large request's release is logged with."""
+    try:
+        with open("/proc/self/statm") as statm:
+            return int(statm.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") >> 20
+    except (OSError, ValueError, IndexError):
+        return -1
+
+
 def _shortened(text: str, most: int) -> str:
     return text if len(text) <= most else text[: most - 1] + "…"
 
@@ -333,8 +342,16 @@ class Node:
             finally:
                 query.drop()
                 if payload is not None and len(payload) >= LARGE_PAYLOAD:
+                    size, held = len(payload) >> 20, resident_mb()
                     del payload
                     release_memory()
+                    self.log.info(
+                        "a %d MB request on %s answered: resident memory %d -> %d MB",
+                        size,
+                        key_str,
+                        held,
+                        resident_mb(),
+                    )
 
         if threaded:
             worker = BoundedWorker(f"{self.role}:q:{key}", answer, maxlen=4096)
