@@ -30,9 +30,9 @@ import zenoh
 import zenoh.ext
 from simecs.mesh.client import MeshClient
 from simecs.mesh.process.config import MeshConfig, open_session
+from simecs.mesh.process.seal import SealedPublisher
 from simecs.mesh.protocol import codec, frames, keys
 from simecs.mesh.protocol import messages as m
-from simecs.mesh.seal import SealedPublisher
 from simecs.nodes.local_mesh import LocalMesh, clean_env
 from simecs.nodes.recording import mcapread
 
