@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 import zenoh
-from simecs.mesh.client import SessionClient
+from simecs.mesh.client import MeshClient, SessionClient
 from simecs.mesh.process.config import MeshConfig, open_session
 from simecs.mesh.protocol import frames, keys
 from simecs.mesh.protocol import messages as m
@@ -67,7 +67,49 @@ def slow_main(endpoint: str, status_file: str, seconds: float) -> None:
         Path(status_file).write_text(json.dumps({"ready": True, "seen": seen[0]}))
 
 
+class LiveLatency:
+    """A plain subscriber of one session's `vars/live` on the measuring host: each frame's age when it
+    arrives (now - the frame's `wall_ns`), as any client of the protocol gets it."""
+
+    def __init__(self, client: MeshClient, s: SessionClient) -> None:
+        self.ms: list[float] = []
+        self.sub = client.z.declare_subscriber(keys.vars_live(s.user, s.id), self.on_live)
+
+    def on_live(self, sample: zenoh.Sample) -> None:
+        self.ms.append((time.time_ns() - frames.decode(sample.payload.to_bytes()).wall_ns) / 1e6)
+
+    def close(self) -> list[float]:
+        self.sub.undeclare()
+        return self.ms
+
+
+def pair_of_runs(
+    client: MeshClient,
+) -> tuple[m.SessionState, m.SessionState, list[m.SessionState], list[float]]:
+    """slowpoke's run as fast as possible beside ann's real-time run: both ends, ann's states, and the
+    ages of ann's live frames."""
+    mine = prepared(client, "slowpoke", SLOW_STOP, "fast")  # floods the slow subscriber's link
+    other = prepared(client, "ann", SLOW_STOP, "realtime")
+    states: list[m.SessionState] = []
+    live = LiveLatency(client, other)
+    try:
+        with other.watch(on_state=states.append):
+            time.sleep(0.3)  # the subscriptions reach the hub before the first frame
+            r_mine, r_other = mine.run(), other.run()
+            st_other = other.wait_for(ENDED, SLOW_STOP * 5 + 30, r_other)
+        st_mine = mine.wait_for(ENDED, 120, r_mine)
+    finally:
+        ages = live.close()
+        mine.close()
+        other.close()
+    return st_mine, st_other, [s for s in states if s.run_id == r_other], ages
+
+
 def slow_trial(mesh: LanMesh) -> dict[str, Any]:
+    """The same pair of runs without the slow subscriber, with it, and without it again: ann's live
+    latency with it against the two runs around it (the baseline, on the same machine and load)."""
+    client = mesh.client()
+    before = pair_of_runs(client)[3]
     status = mesh.folder / "slow.json"
     argv = [*mesh.hosts.prefixes["slow"], sys.executable, "-m", "simecs.benchmarks.lan"]
     argv += ["--slow-subscriber", mesh.endpoint, "--status-file", str(status), "--seconds", "120"]
@@ -75,15 +117,7 @@ def slow_trial(mesh: LanMesh) -> dict[str, Any]:
         proc = subprocess.Popen(argv, stdout=out, stderr=subprocess.STDOUT, env=clean_env())
     try:
         wait_until(status.exists, 20, what="slow subscriber ready")
-        time.sleep(0.3)
-        client = mesh.client()
-        mine = prepared(client, "slowpoke", SLOW_STOP, "fast")  # floods the slow subscriber's link
-        other = prepared(client, "ann", SLOW_STOP, "realtime")
-        states: list[m.SessionState] = []
-        with other.watch(on_state=states.append):
-            r_mine, r_other = mine.run(), other.run()
-            st_other = other.wait_for(ENDED, SLOW_STOP * 5 + 30, r_other)
-        st_mine = mine.wait_for(ENDED, 120, r_mine)
+        st_mine, st_other, states, slowed = pair_of_runs(client)
     finally:
         proc.send_signal(signal.SIGTERM)
         try:
@@ -91,11 +125,22 @@ def slow_trial(mesh: LanMesh) -> dict[str, Any]:
         except subprocess.TimeoutExpired:
             proc.kill()
             proc.wait(5)
-    running = [s.sim_time for s in states if s.phase == "running" and s.run_id == r_other]
+    after = pair_of_runs(client)[3]
+    running = [s.sim_time for s in states if s.phase == "running"]
     seen = json.loads(status.read_text()).get("seen", -1) if status.exists() else -1
+    base_p99 = float(np.percentile(before + after, 99)) if before and after else None
+    slow_p99 = float(np.percentile(slowed, 99)) if slowed else None
     return {
         "slow_subscriber_other_session_rtf": st_other.rtf,
         "slow_subscriber_failed_runs": sum(st.phase != "finished" for st in (st_mine, st_other)),
+        "slow_subscriber_live_p99_ratio": round(slow_p99 / base_p99, 3) if base_p99 and slow_p99 else None,
+        "slow_subscriber_live_ms_p50": round(float(np.percentile(slowed, 50)), 2) if slowed else None,
+        "slow_subscriber_live_ms_p99": round(slow_p99, 2) if slow_p99 else None,
+        "slow_subscriber_live_ms_max": round(max(slowed), 2) if slowed else None,
+        "baseline_live_ms_p50": round(float(np.percentile(before + after, 50)), 2) if base_p99 else None,
+        "baseline_live_ms_p99": round(base_p99, 2) if base_p99 else None,
+        "baseline_live_ms_max": round(max(before + after), 2) if base_p99 else None,
+        "slow_subscriber_live_frames": [len(before), len(slowed), len(after)],
         "slow_subscriber_fast_run_rtf": st_mine.rtf,
         "slow_subscriber_max_progress_step_s": float(np.max(np.diff([0.0, *running]))) if running else None,
         "slow_subscriber_samples_seen": seen,
