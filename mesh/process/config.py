@@ -201,8 +201,8 @@ def router_entries() -> dict[str, Any]:
     run reports, notices and session states are blocking too (a report dropped on a busy link loses a
     step or a phase for good). A subscriber whose link is full would then hold the hub's thread for
     that publisher for up to 5 s, and every other key with it. The hub instead drops them on their way
-    out to a link that cannot take them within 20 ms; the recorder fills such gaps from the run's
-    results, and a state is read again from its cache."""
+    out to a link that cannot take them within SLOW_LINK_WAIT_US; the recorder fills such gaps from the
+    run's results, and a state is read again from its cache."""
     from ..protocol import keys
 
     streams = [keys.wildcard(name) for name in DROPPED_FOR_SLOW_LINKS]
@@ -237,8 +237,14 @@ def lossless_put() -> Any:
     return zenoh.CongestionControl.BLOCK
 
 
-#: How long the hub waits for room on a full link before it drops a sample stream's sample (µs).
-SLOW_LINK_WAIT_US = 20_000
+#: How long the hub waits for room on a full link before it drops a sample stream's sample (µs). The
+#: wait holds the hub's thread for the sample's publisher, and every other subscriber of that publisher
+#: waits with it (the hot-feedback node publishes every session's live frames), once each time the slow
+#: link takes a batch: at 20 ms a subscriber reading a sample per 200 ms stretched other users' live
+#: p99 by 1.3-1.7x (`simecs bench lan`), at 5 ms it is within noise. Shorter drops more for a subscriber
+#: that is only busy: at 1 ms (zenoh's own default) the recorder lost a flood's frames that it takes
+#: whole at 5 ms (`simecs bench recorder`).
+SLOW_LINK_WAIT_US = 5_000
 
 #: How a client retries its hub after losing it (milliseconds).
 HUB_RETRY = {"period_init_ms": 100, "period_max_ms": 1000, "period_increase_factor": 2.0}
