@@ -195,7 +195,8 @@ def drive_step(drives, sp, R_all, p_all, Minv, bias, tables, repeat, q, qd, t, h
     sig = np.empty(NO + 10)
     rows = np.zeros((3, n))
     # Joints all under an external controller read no set point: the reference is not evaluated.
-    refs = False
+    # (np.bool_: a literal False would have numba compile rk4_substeps once more, for that literal.)
+    refs = np.bool_(False)
     for j in range(n):
         if sp.live[j, LV_EXTERNAL] <= 0.5:
             refs = True

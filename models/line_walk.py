@@ -249,7 +249,7 @@ def line_kernel(
             LINE_IK_TOL,
             LINE_IK_TOL,
             n > 6,
-            LINE_ITER,
+            np.int64(LINE_ITER),  # not the literal 50: numba would compile solve_kernel once more for it
             q1,
             sinfo,
         )
