@@ -136,14 +136,18 @@ def test_a_recorder_killed_mid_run_loses_no_sample(mesh: Mesh) -> None:
     holds the whole run, as the simulator stored it (issue 33, 1: a recorder crash loses nothing)."""
     client = with_recorder(mesh)
     s = prepared(client, "ann", 3.0, "realtime")
-    run_id = s.run()
+    # Until stopped: the run goes on however long the recorder takes to come back on a loaded machine
+    # (a run that ends while the recorder is away keeps only the repaired first part, RECORDINGS.md).
+    run_id = s.run(until_stopped=True)
     wait_until(lambda: s.snapshot().state.sim_time > 1.0, timeout=30, what="the run under way")
     mesh.stop("recorder", signal.SIGKILL)
     time.sleep(0.5)  # frames go by with no recorder at all
     mesh.start("recorder", "--dir", str(mesh.folder / "rec"), name="recorder2")
-    assert s.wait_for(["finished", "failed"], 60, run_id).phase == "finished"
     base = keys.recording_name(s.id, run_id)
     cont = mesh.folder / "rec" / s.user / f"{base}.2.mcap"
+    wait_until(cont.exists, 30, what="the restarted recorder's continuation")  # it records the run again
+    s.stop()
+    assert s.wait_for(["finished", "failed"], 60, run_id).phase == "finished"
     wait_file_closed(cont, timeout=40.0)
     rec = mcapread.load(cont)
     _columns, rows = s.results(run_id)
