@@ -120,7 +120,7 @@ def inner_main(plan: dict[str, Any]) -> None:
             secured.close()
             meshes.remove(secured)
         else:
-            time.sleep(2.0)
+            time.sleep(2.0)  # the plain mesh's warm workers finish compiling
         part("forgery", lambda: forgery_trial(plain))
         part("fuzz", lambda: fuzz_trial(plain))
         part("slow_subscriber", lambda: slow_trial(plain))
