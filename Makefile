@@ -12,7 +12,7 @@ CODE := mesh models nodes viewer testing benchmarks tests docs/examples
 .PHONY: up test lint format bench warm schema clean browser-deps
 
 # uv installs into the venv what pip would (same resolver rules, same editable install), downloading
-# and unpacking in parallel: 17 s instead of 50 s for the test extras on a fresh clone. Compiled to
+# and unpacking in parallel: 25 s instead of 50 s for the test extras on a fresh clone. Compiled to
 # bytecode as pip does: without it every process imports from source (4.3 s instead of 1.5 s for a
 # node's imports here), and the tests start hundreds of processes.
 UV := $(BIN)/uv pip install --quiet --compile-bytecode --python $(BIN)/python
