@@ -33,6 +33,7 @@ from .lan_mesh import (
     recording_matches,
     sim_time_above,
 )
+from .service import age_ms
 
 SLOW_SLEEP_S = 0.2
 SLOW_STOP = 6.0
@@ -76,7 +77,7 @@ class LiveLatency:
         self.sub = client.z.declare_subscriber(keys.vars_live(s.user, s.id), self.on_live)
 
     def on_live(self, sample: zenoh.Sample) -> None:
-        self.ms.append((time.time_ns() - frames.decode(sample.payload.to_bytes()).wall_ns) / 1e6)
+        self.ms.append(age_ms(frames.decode(sample.payload.to_bytes())))
 
     def close(self) -> list[float]:
         self.sub.undeclare()

@@ -112,6 +112,11 @@ class RawPing:
         self.echo.wait(5)
 
 
+def age_ms(frame: frames.Frame) -> float:
+    """How old a frame is when it arrives (now - its `wall_ns`), in ms: a client's live latency."""
+    return (time.time_ns() - frame.wall_ns) / 1e6
+
+
 def live_run(client: MeshClient, stop: float) -> tuple[list[float], list[float]]:
     """One real-time run. Latency of each live frame at a plain subscriber's zenoh callback (what
     any client of the protocol gets; the viewer then hands it to its own thread), and of each
@@ -124,12 +129,12 @@ def live_run(client: MeshClient, stop: float) -> tuple[list[float], list[float]]
 
     def on_live(sample: zenoh.Sample) -> None:
         f = frames.decode(sample.payload.to_bytes())
-        live.append((time.time_ns() - f.wall_ns) / 1e6)
+        live.append(age_ms(f))
         if f.final:
             done.set()
 
     def on_full(sample: zenoh.Sample) -> None:
-        full.append((time.time_ns() - frames.decode(sample.payload.to_bytes()).wall_ns) / 1e6)
+        full.append(age_ms(frames.decode(sample.payload.to_bytes())))
 
     subs = [
         client.z.declare_subscriber(keys.vars_live(s.user, s.id), on_live),

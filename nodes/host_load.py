@@ -15,6 +15,7 @@ import os
 import time
 from dataclasses import dataclass, field
 
+from simecs.mesh.process.runtime import process_mb
 from simecs.mesh.protocol import keys
 from simecs.mesh.protocol import messages as m
 from simecs.mesh.rules import load
@@ -29,7 +30,6 @@ OTHER_SMOOTHING = 0.3  # of a new measurement of the other processes' CPU use
 START_SMOOTHING = 0.3  # of a new measurement of a start-up time
 DEFAULT_WORKER_MB = 300.0
 _TICK = os.sysconf("SC_CLK_TCK")
-_PAGE = os.sysconf("SC_PAGE_SIZE")
 
 
 @dataclass
@@ -60,14 +60,6 @@ def process_cpu_s(pid: int) -> float | None:
         return (int(fields[11]) + int(fields[12])) / _TICK
     except (OSError, IndexError, ValueError):
         return None
-
-
-def process_mb(pid: int) -> float:
-    try:
-        with open(f"/proc/{pid}/statm") as f:
-            return int(f.read().split()[1]) * _PAGE / 2**20
-    except (OSError, IndexError, ValueError):
-        return 0.0
 
 
 def cores_busy_s(cpus: set[int]) -> tuple[float, float]:

@@ -77,13 +77,17 @@ def release_memory() -> None:
         pass
 
 
-def resident_mb() -> int:
-    """This process's resident memory (MB): what a large request's release is logged with."""
+_PAGE = os.sysconf("SC_PAGE_SIZE")
+
+
+def process_mb(pid: int) -> float:
+    """Resident memory of process `pid` (MB; 0 when it cannot be read): a host's load, and what a
+    large request's release is logged with."""
     try:
-        with open("/proc/self/statm") as statm:
-            return int(statm.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") >> 20
-    except (OSError, ValueError, IndexError):
-        return -1
+        with open(f"/proc/{pid}/statm") as f:
+            return int(f.read().split()[1]) * _PAGE / 2**20
+    except (OSError, IndexError, ValueError):
+        return 0.0
 
 
 def _shortened(text: str, most: int) -> str:
@@ -342,15 +346,15 @@ class Node:
             finally:
                 query.drop()
                 if payload is not None and len(payload) >= LARGE_PAYLOAD:
-                    size, held = len(payload) >> 20, resident_mb()
+                    size, held = len(payload) >> 20, process_mb(os.getpid())
                     del payload
                     release_memory()
                     self.log.info(
-                        "a %d MB request on %s answered: resident memory %d -> %d MB",
+                        "a %d MB request on %s answered: resident memory %.0f -> %.0f MB",
                         size,
                         key_str,
                         held,
-                        resident_mb(),
+                        process_mb(os.getpid()),
                     )
 
         if threaded:
