@@ -33,6 +33,14 @@ import threading
 import time
 from typing import IO, Any, Protocol
 
+from simecs.mesh.process.forks import (
+    ForkedProcess,
+    ForkServer,
+    reap_exits,
+    reset_signals_in_child,
+    running,
+    single_threaded,
+)
 from simecs.mesh.process.logs import setup_logging
 
 from . import worker
@@ -41,6 +49,7 @@ log = logging.getLogger("simecs.worker")
 
 READY = "ready"
 FORK_REQUEST = b"fork"
+CONTROL_FD = 3  # the socket to the simulator, in a fork server forked from the node fork server
 EXITS_KEPT = 4096  # exit codes kept for the simulator to read (it reads each within a tick)
 
 
@@ -62,10 +71,9 @@ def main(argv: list[str] | None = None) -> None:
     except Exception as exc:
         log.error("the worker fork server failed to warm up: %s", exc)
         os._exit(1)
-    threads = len(os.listdir("/proc/self/task"))
-    if threads != 1:
+    if not single_threaded():
         log.error(
-            "the worker fork server has %d threads: forking is unsafe, workers start on their own", threads
+            "the worker fork server has more than one thread: forking is unsafe, workers start on their own"
         )
         os._exit(1)
     wake_r, wake_w = os.pipe()
@@ -101,15 +109,9 @@ def main(argv: list[str] | None = None) -> None:
 
 
 def _report_exits(control: socket.socket) -> None:
-    while True:
-        try:
-            pid, status = os.waitpid(-1, os.WNOHANG)
-        except ChildProcessError:
-            return
-        if pid == 0:
-            return
+    for pid, code in reap_exits():
         with contextlib.suppress(OSError):
-            control.sendall(f"exit {pid} {os.waitstatus_to_exitcode(status)}\n".encode())
+            control.sendall(f"exit {pid} {code}\n".encode())
 
 
 def _become_worker(
@@ -118,10 +120,7 @@ def _become_worker(
     """The forked child: the pipes as its stdin and stdout, nothing else of the fork server's kept."""
     try:
         faulthandler.enable()  # a crash in a native library leaves every thread's stack in the log
-        signal.set_wakeup_fd(-1)
-        signal.signal(signal.SIGCHLD, signal.SIG_DFL)
-        signal.signal(signal.SIGINT, signal.default_int_handler)  # as in a worker started on its own
-        signal.signal(signal.SIGTERM, signal.SIG_DFL)
+        reset_signals_in_child()  # as in a worker started on its own
         control.close()
         for fd in wake:
             os.close(fd)
@@ -153,45 +152,13 @@ class WorkerProcess(Protocol):
     def kill(self) -> None: ...
 
 
-class ForkedWorker:
-    """A worker forked by the fork server, with what the simulator uses of a `subprocess.Popen`."""
+class ForkedWorker(ForkedProcess):
+    """A worker forked by the fork server, with the pipes the simulator talks to it on."""
 
     def __init__(self, pid: int, stdin: IO[str], stdout: IO[bytes], forks: WorkerForks) -> None:
-        self.pid = pid
+        super().__init__(pid, lambda: forks.exit_code(pid))
         self.stdin: IO[str] | None = stdin
         self.stdout: IO[bytes] | None = stdout
-        self._forks = forks
-
-    def poll(self) -> int | None:
-        return self._forks.exit_code(self.pid)
-
-    def wait(self, timeout: float | None = None) -> int:
-        end = None if timeout is None else time.monotonic() + timeout
-        while (code := self.poll()) is None:
-            if end is not None and time.monotonic() >= end:
-                raise subprocess.TimeoutExpired(f"worker {self.pid}", timeout or 0.0)
-            time.sleep(0.02)
-        return code
-
-    def send_signal(self, sig: int) -> None:
-        if self.poll() is None:
-            with contextlib.suppress(ProcessLookupError):
-                os.kill(self.pid, sig)
-
-    def terminate(self) -> None:
-        self.send_signal(signal.SIGTERM)
-
-    def kill(self) -> None:
-        self.send_signal(signal.SIGKILL)
-
-
-def _running(pid: int) -> bool:
-    """Whether process `pid` is there and not a zombie (an orphan init has not reaped yet)."""
-    try:
-        with open(f"/proc/{pid}/stat", "rb") as stat:
-            return stat.read().rsplit(b")", 1)[1].split()[0] != b"Z"
-    except (OSError, IndexError):
-        return False
 
 
 class WorkerForks:
@@ -201,8 +168,18 @@ class WorkerForks:
 
     def __init__(self, argv: list[str], env: dict[str, str], ready_timeout: float) -> None:
         self._sock, theirs = socket.socketpair(socket.AF_UNIX, socket.SOCK_STREAM)
-        cmd = [sys.executable, "-m", "simecs.nodes.worker_forks", *argv, "--control-fd", str(theirs.fileno())]
-        self._proc = subprocess.Popen(cmd, env=env, stdin=subprocess.DEVNULL, pass_fds=[theirs.fileno()])
+        # Forked from the node fork server this node came from, if any: already warm but for the models'
+        # costs; in this node's process group, as a process of its own would be.
+        node_forks = ForkServer.from_env()
+        proc: ForkedProcess | subprocess.Popen[bytes] | None = None
+        if node_forks is not None:
+            out = {1: sys.stdout.fileno(), 2: sys.stderr.fileno(), CONTROL_FD: theirs.fileno()}
+            flags = [*argv, "--control-fd", str(CONTROL_FD)]
+            proc = node_forks.spawn(__name__, flags, env, fds=out, group=os.getpgid(0))
+        if proc is None:
+            cmd = [sys.executable, "-m", __name__, *argv, "--control-fd", str(theirs.fileno())]
+            proc = subprocess.Popen(cmd, env=env, stdin=subprocess.DEVNULL, pass_fds=[theirs.fileno()])
+        self._proc = proc
         theirs.close()
         self._ready = threading.Event()
         self._gone = threading.Event()
@@ -242,7 +219,7 @@ class WorkerForks:
 
     def exit_code(self, pid: int) -> int | None:
         code = self._codes.get(pid)
-        if code is None and self._gone.is_set() and not _running(pid):
+        if code is None and self._gone.is_set() and not running(pid):
             # the fork server is gone: its orphans are init's, which may reap them late or never
             return self._codes.setdefault(pid, -signal.SIGKILL)
         return code
