@@ -38,6 +38,7 @@ __all__ = [
     "load_model_dir",
     "warmup",
     "costs",
+    "forget_library",
 ]
 
 _REGISTRY: dict[str, ModelPackage] = {}
@@ -98,6 +99,13 @@ def add_model(directory: Path) -> ModelPackage:
     spec = load_model_dir(directory)
     _load()[spec.id] = package = ModelPackage(spec)
     return package
+
+
+def forget_library() -> None:
+    """Forget the models read so far (the compiled kernels stay): a process forked from a warm one
+    reads the library again, with its own SIMECS_MODELS (mesh/process/forks.py)."""
+    _REGISTRY.clear()
+    _PROBLEMS.clear()
 
 
 def load_problems() -> list[str]:

@@ -2,7 +2,9 @@
 
 Each `LocalMesh` has its own hub on a unix socket in a fresh temporary folder (no ports, no races,
 no cross-talk with anything else on the machine or the LAN; multicast scouting and shared memory stay
-off). Nodes are started by module name, so nothing here imports a node.
+off). Nodes are started by module name, so nothing here imports a node: forked from one fork server
+per process that imported and warmed up every node once (mesh/process/forks.py, nodes/node_forks.py;
+SIMECS_FORK_NODES=0 starts each as `python -m` instead), or as `python -m` when it cannot be.
 """
 
 from __future__ import annotations
@@ -13,6 +15,7 @@ import signal
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
@@ -22,6 +25,7 @@ from typing import Any
 from simecs.mesh.client import MeshClient
 from simecs.mesh.process import seal as seals
 from simecs.mesh.process.config import MeshConfig, load
+from simecs.mesh.process.forks import ForkedProcess, ForkServer
 
 from .secure import SecureFolder
 
@@ -47,6 +51,24 @@ def clean_env() -> dict[str, str]:
     return env
 
 
+_forks_lock = threading.Lock()
+_forks: list[ForkServer | None] = []  # this process's fork server of nodes, once asked for (None: none)
+
+
+def node_forks() -> ForkServer | None:
+    """This process's fork server of nodes, started on first use (a few CPU s, once); None when
+    SIMECS_FORK_NODES=0 or it could not start."""
+    with _forks_lock:
+        if not _forks:
+            server = None
+            if os.environ.get("SIMECS_FORK_NODES", "1") != "0":
+                from .node_forks import WARM  # names modules only: importing it imports no node
+
+                server = ForkServer.start(WARM, clean_env())
+            _forks.append(server)
+        return _forks[0]
+
+
 @dataclass
 class SecuredService:
     """What `LocalMesh.start_secured` made: the secure folder, each user's password and the service
@@ -69,7 +91,7 @@ class LocalMesh:
         self.client_config: MeshConfig | None = None
         self.key_file = self.folder / "service.key"  # this mesh's service secret (mesh/process/seal.py)
         self.seal = seals.load(self.key_file, create=True)
-        self.procs: dict[str, subprocess.Popen[bytes]] = {}
+        self.procs: dict[str, subprocess.Popen[bytes] | ForkedProcess] = {}
         self.clients: list[MeshClient] = []
 
     @property
@@ -81,19 +103,32 @@ class LocalMesh:
 
     def spawn(
         self, name: str, module: str, *args: str, node_id: str | None = None
-    ) -> subprocess.Popen[bytes]:
-        """Start `python -m module args`, logging to `<folder>/<name>.log`."""
-        argv = [*self.argv_prefix(module), sys.executable, "-m", module, *args]
+    ) -> subprocess.Popen[bytes] | ForkedProcess:
+        """Start `python -m module args` (forked warm when it can be), logging to `<folder>/<name>.log`,
+        in a process group of its own."""
+        flags = list(args)
         if module != "simecs.nodes.hub":
-            argv += ["--connect", self.connect_to(name)]
+            flags += ["--connect", self.connect_to(name)]
         if node_id:
-            argv += ["--node-id", node_id]
+            flags += ["--node-id", node_id]
         env = clean_env()
         env["SIMECS_SERVICE_KEY_FILE"] = str(self.key_file)
+        prefix = self.argv_prefix(module)
         with open(self.folder / f"{name}.log", "ab") as log:
-            proc = subprocess.Popen(
-                argv, stdout=log, stderr=subprocess.STDOUT, env=env, start_new_session=True
-            )
+            forks = node_forks() if not prefix else None
+            fd = log.fileno()
+            forked = forks.spawn(module, flags, env, fds={1: fd, 2: fd}) if forks is not None else None
+            proc: subprocess.Popen[bytes] | ForkedProcess
+            if forked is not None:
+                proc = forked
+            else:
+                proc = subprocess.Popen(
+                    [*prefix, sys.executable, "-m", module, *flags],
+                    stdout=log,
+                    stderr=subprocess.STDOUT,
+                    env=env,
+                    start_new_session=True,
+                )
         self.procs[name] = proc
         return proc
 

@@ -325,13 +325,31 @@ def children(parent: int) -> list[tuple[int, str]]:
     return [(int(line.split()[0]), line) for line in out.stdout.splitlines()]
 
 
+def group_members(leader: int) -> list[tuple[int, int, str]]:
+    """The processes of `leader`'s process group but itself: (pid, parent pid, command line)."""
+    out = subprocess.run(["ps", "-e", "-o", "pid=,ppid=,pgid=,args="], capture_output=True, text=True)
+    rows = [line.split(maxsplit=3) for line in out.stdout.splitlines()]
+    return [
+        (int(r[0]), int(r[1]), r[3] if len(r) > 3 else "")
+        for r in rows
+        if int(r[2]) == leader and int(r[0]) != leader
+    ]
+
+
+def worker_forks_of(simulator: int) -> list[int]:
+    """The simulator's worker fork server (nodes/worker_forks.py), in its process group: forked from
+    the node fork server the tests start nodes from, or started by the simulator as a process."""
+    members = group_members(simulator)
+    inside = {pid for pid, _, _ in members}
+    return [
+        pid
+        for pid, ppid, args in members
+        if ppid not in inside | {simulator} or (ppid == simulator and "simecs.nodes.worker_forks" in args)
+    ]
+
+
 def worker_pids(simulator: int) -> list[int]:
-    """The simulator's workers: those its fork server forked (nodes/worker_forks.py), and any it
-    started as processes of their own."""
-    pids = []
-    for pid, args in children(simulator):
-        if "simecs.nodes.worker_forks" in args:
-            pids += [child for child, _ in children(pid)]
-        elif "simecs.nodes.worker" in args:
-            pids.append(pid)
-    return pids
+    """The simulator's workers: those its fork server forked, and any it started as processes of
+    their own (the rest of its process group)."""
+    forks = set(worker_forks_of(simulator))
+    return [pid for pid, _, _ in group_members(simulator) if pid not in forks]

@@ -16,7 +16,7 @@ from simecs.mesh.protocol import codec, keys
 from simecs.mesh.protocol import messages as m
 from simecs.nodes.runs import WORKER_REPORTS_S
 
-from .conftest import Mesh, Service, children, start_service, wait_until, worker_pids
+from .conftest import Mesh, Service, children, start_service, wait_until, worker_forks_of, worker_pids
 from .test_service import prepare
 
 HOST_WAIT_S = 10.0  # the proxy's --host-wait-s in the test that waits it out (30 s by default)
@@ -104,7 +104,7 @@ def test_runs_go_on_when_the_worker_fork_server_is_lost(service: Service) -> Non
     first = s.run()
     assert s.wait_for(["finished", "failed"], 60, first).phase == "finished"
     assert worker_of(service, s.id, first) not in {pid for pid, _ in children(sim_pid)}  # a fork's
-    forks = [pid for pid, args in children(sim_pid) if "simecs.nodes.worker_forks" in args]
+    forks = worker_forks_of(sim_pid)
     assert len(forks) == 1
     os.kill(forks[0], signal.SIGKILL)
     gone = "worker fork server is gone"
