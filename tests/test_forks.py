@@ -7,6 +7,7 @@ import json
 import os
 import signal
 import socket
+import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -124,3 +125,26 @@ def test_a_warm_up_that_fails_leaves_no_server() -> None:
     t0 = time.monotonic()
     assert ForkServer.start("simecs.no_such_module:warm", dict(os.environ), timeout=60) is None
     assert time.monotonic() - t0 < 60  # said at once, not after the timeout
+
+
+def test_spawns_from_many_threads_each_get_their_own_child_and_leave_no_descriptor(forks: ForkServer) -> None:
+    def open_fds() -> int:
+        return len(os.listdir("/proc/self/fd"))
+
+    started(forks, ["0"])[0].wait(10)  # the first connection's one-off descriptors (logging, ...)
+    before = open_fds()
+    codes: dict[int, int] = {}
+
+    def one(k: int) -> None:
+        with open(os.devnull, "w") as quiet:
+            proc = forks.spawn(PROBE, [str(k)], dict(os.environ), fds={1: quiet.fileno()})
+        assert proc is not None
+        codes[k] = proc.wait(30)
+
+    threads = [threading.Thread(target=one, args=(k,)) for k in range(12)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(60)
+    assert codes == {k: k for k in range(12)}
+    assert open_fds() == before  # each process's connection closed once its exit was read

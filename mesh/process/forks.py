@@ -35,6 +35,7 @@ import socket
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 import traceback
 from collections.abc import Callable, Iterator, Mapping
@@ -146,6 +147,7 @@ class _Answer:
         self.buffer = b""
         self.code: int | None = None
         self.pid = 0
+        self._lock = threading.Lock()  # a node's threads may poll one process at once
 
     def line(self, timeout: float) -> str | None:
         """The next line, waiting at most `timeout` s; None if the connection closed first."""
@@ -163,6 +165,10 @@ class _Answer:
         return line.decode(errors="replace")
 
     def exit_code(self) -> int | None:
+        with self._lock:
+            return self._exit_code()
+
+    def _exit_code(self) -> int | None:
         if self.code is not None:
             return self.code
         try:
