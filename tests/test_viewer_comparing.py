@@ -27,6 +27,7 @@ from tests.viewer_fakes import (
     arm,
     attached,
     loaded_tab,
+    settle,
     state,
 )
 
@@ -92,6 +93,7 @@ def test_runs_compared_on_every_plot_with_a_time_cursor_that_poses_the_arm(serve
         ctl.refresh_runs()
         ctl.drain()
         page.results.runs.value = next(o for o in page.results.runs.options if o.startswith("r2"))
+        settle(tab)
         plot = page.open_plot("joint1.q")
         plot._transient(Event(SimpleNamespace(value="Full resolution")))
         ctl.drain()
@@ -157,16 +159,18 @@ def test_runs_compared_on_every_plot_with_a_time_cursor_that_poses_the_arm(serve
         line._toggled(Event(line.cursor_on))
         assert not line.cursor.disabled and cmp.follow.options == ("r2", "r1", "r3")
         line.cursor.value = 0.5
-        ctl.drain()
+        settle(tab)
         assert plot.cursor == 0.5
         assert np.allclose(page.scene.frames[0].position, [0.5, 1.0, 1.5])  # the fake's pose.link1.x/y/z
         assert "| joint1.q [deg] | 28.6479 | 28.6479 | 28.6479 |" in cmp.values.content  # degrees first
         plot.redraw(ctl.stream.live)
         assert plot.chart.series[-1]["label"] == "cursor"
         page.plots.angle_choice.value = "rad"
+        settle(tab)
         assert plot.angles == "rad" and "| joint1.q [rad] | 0.5 | 0.5 | 0.5 |" in cmp.values.content
         # angles in degrees, chosen once: every plot and the values read at the cursor; remembered
         page.plots.angle_choice.value = "deg"
+        settle(tab)
         assert (
             plot.angles == "deg" and "| joint1.q [deg] | 28.6479 | 28.6479 | 28.6479 |" in cmp.values.content
         )
@@ -178,6 +182,7 @@ def test_runs_compared_on_every_plot_with_a_time_cursor_that_poses_the_arm(serve
         assert page.plots.angles == "deg"
         # the timeline plays: the cursor, and with it the arm, every plot and the values, on to the end
         line.speed.value = "4×"
+        settle(tab)
         line._transport("▶ Play")
         seen = set()
         end = time.monotonic() + 10.0
@@ -185,6 +190,7 @@ def test_runs_compared_on_every_plot_with_a_time_cursor_that_poses_the_arm(serve
             time.sleep(0.01)
             tab.loop.run_pending()
             seen.add(round(plot.cursor or 0.0, 3))
+        settle(tab)  # the last step's cursor callback runs after the step that set it
         assert line.at == pytest.approx(float(line.cursor.max)) and plot.cursor == pytest.approx(line.at)
         assert len(seen) >= 3  # it moved on step by step, not in one jump
         line._transport("To start")

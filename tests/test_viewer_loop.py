@@ -6,6 +6,8 @@ runs on its loop, whichever thread viser calls it from.
 
 from __future__ import annotations
 
+import asyncio
+import inspect
 import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
@@ -111,13 +113,28 @@ def test_every_callback_of_a_loaded_page_runs_on_the_tabs_loop(server: Any) -> N
         assert len(found) > 60, len(found)
         stray = [what for what, cb in found if getattr(cb, "on_tab_loop", None) is not tab.loop]
         assert not stray, stray
-        # viser calls a callback on its own thread: the panel's code then runs on the loop
-        seen: list[bool] = []
-        button = next(h for h in server.gui._gui_input_handle_from_uuid.values() if h._impl.update_cb)
-        tab.loop.post(lambda: seen.append(tab.loop.owns()))
-        threading.Thread(target=lambda: button._impl.update_cb[0](FakeEvent(button))).start()
+        # each is a coroutine: viser awaits it on its event loop, message after message (a plain
+        # one it would run on its thread pool, several at once, and two clicks could swap)
+        pooled = [what for what, cb in found if not inspect.iscoroutinefunction(cb)]
+        assert not pooled, pooled
+        # a page's messages in the order they came (viser awaits each message's callbacks before
+        # the next message's): the panels' code runs on the loop, in that order
+        ran: list[tuple[str, bool]] = []
+        number = tab.client.gui.add_number("probe number", 0.5)
+        number.on_update(lambda e: ran.append(("number", tab.loop.owns())))
+        button = tab.client.gui.add_button("probe button")
+        button.on_click(lambda e: ran.append(("button", tab.loop.owns())))
+
+        async def page_messages() -> None:
+            for handle in (button, number, button, number):
+                for cb in handle._impl.update_cb:
+                    await cb(FakeEvent(handle))
+
+        viser_thread = threading.Thread(target=lambda: asyncio.run(page_messages()))
+        viser_thread.start()
+        viser_thread.join(10)
         tab.controller.drain()
-        assert seen == [True]
+        assert ran == [("button", True), ("number", True), ("button", True), ("number", True)]
     finally:
         tab.close()
         page.remove()

@@ -35,6 +35,7 @@ from tests.viewer_fakes import (
     layout,
     live_frame,
     loaded_tab,
+    settle,
     started_tab,
     state,
 )
@@ -334,6 +335,7 @@ def test_the_page_draws_the_sessions_obstacles_and_a_runs_grasps_and_contacts(se
         # the panel: a new sphere, applied, goes to the server with the list it joins
         panel = page.commands.obstacles
         panel.pick.value = NEW
+        settle(tab)  # as a pick from the page would: the fields of a new obstacle
         panel.name.value = "ball"
         panel.kind.value = "sphere"
         panel.radius.value = 0.04
@@ -347,6 +349,7 @@ def test_the_page_draws_the_sessions_obstacles_and_a_runs_grasps_and_contacts(se
         panel.radius.value = -1.0
         panel.apply()
         panel.pick.value = NEW
+        settle(tab)
         panel.name.value = "box1"
         panel.radius.value = 0.04
         panel.apply()
@@ -355,6 +358,7 @@ def test_the_page_draws_the_sessions_obstacles_and_a_runs_grasps_and_contacts(se
         # refused by the server: the list drawn comes back to the stored one
         sc.refuse[m.SetObstacles] = RemoteError(m.Error("bad_request", "no", "obstacles[0].name"))
         panel.pick.value = "ball"
+        settle(tab)
         panel.remove()
         ctl.drain()
         assert [ob.name for ob in ctl.obstacles] == ["box1", "ball"] and len(page.scene._obstacles) == 2

@@ -5,6 +5,7 @@ messages a server would send (states, layouts, live frames).
 
 from __future__ import annotations
 
+import asyncio
 import math
 import time
 from dataclasses import dataclass
@@ -456,6 +457,15 @@ def started_tab(server: Any, model: ModelDescription) -> tuple[Tab, FakeClient, 
     tab.controller.start()
     tab.controller.drain()
     return tab, client, mesh
+
+
+def settle(tab: Tab) -> None:
+    """Run what values assigned from code to the tab's widgets set off: viser hands their callbacks
+    (coroutines, `TabLoop.wrap_widget`) to its event loop, which posts them to the tab's loop; a task
+    scheduled there after them has run once they have."""
+    viser_loop = tab.client.server.gui._event_loop  # type: ignore[attr-defined]
+    asyncio.run_coroutine_threadsafe(asyncio.sleep(0), viser_loop).result(10)
+    tab.controller.drain()
 
 
 def loaded_tab(server: Any, model: ModelDescription) -> tuple[Tab, FakeClient, Any, FakeSession]:

@@ -141,6 +141,21 @@ class TabLoop:
         on_loop.on_tab_loop = self  # type: ignore[attr-defined]  # what tests check callbacks by
         return on_loop
 
+    def wrap_widget(self, fn: Callable[..., Any]) -> Callable[..., Any]:
+        """`fn` as a viser widget or scene callback that runs on the loop, in the order the page's
+        messages came. viser runs a plain callback on its thread pool, several at once, so two of a
+        page's messages could reach the loop in the other order (a pick after a click applied before
+        it: seen with three test workers on two cores); a coroutine callback it awaits on its event
+        loop, one message after the other: this one only posts, and returns at once. A value the
+        tab's own code assigns sets its callbacks off after the job that assigned it, not inside it."""
+
+        async def on_loop(*args: Any, **kwargs: Any) -> None:
+            self.post(lambda: fn(*args, **kwargs))
+
+        on_loop.__wrapped__ = fn  # type: ignore[attr-defined]
+        on_loop.on_tab_loop = self  # type: ignore[attr-defined]  # what tests check callbacks by
+        return on_loop
+
     # -- running ---------------------------------------------------------------------------------
     def _next(self, wait: bool) -> Callable[[], Any] | None:
         """The next job due (a timer's or the queue's), waiting for one when `wait`."""

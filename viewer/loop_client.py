@@ -3,7 +3,8 @@
 viser runs a callback of a user's click on its thread pool, several at once and beside the tab's
 events and ticks; the panels would then change under each other. The tab hands its panels this
 client instead: every `add_*` of its `gui` and `scene` returns the real handle, with its callback
-registrars (`on_click`, `on_update`, ...) wrapped so the callbacks they take run on the loop. Nothing
+registrars (`on_click`, `on_update`, ...) wrapped so the callbacks they take run on the loop, in the
+order the page's messages came (`TabLoop.wrap_widget`). Nothing
 else changes: a panel uses viser's API as documented. `tests/test_viewer_loop.py` checks that every
 callback a loaded page registered is one of these.
 """
@@ -32,8 +33,8 @@ def _registrar(register: Callable[..., Any], loop: TabLoop) -> Callable[..., Any
     def on_loop(func: Callable[..., Any] | None = None, *args: Any, **kwargs: Any) -> Any:
         if func is None:  # used as a decorator with arguments: @button.on_hold(callback_hz=10)
             decorate = register(None, *args, **kwargs)
-            return lambda f: decorate(loop.wrap(f))
-        register(loop.wrap(func), *args, **kwargs)
+            return lambda f: decorate(loop.wrap_widget(f))
+        register(loop.wrap_widget(func), *args, **kwargs)
         return func
 
     return on_loop
