@@ -3,7 +3,9 @@
 A worker's warm-up (importing the models, loading the drives' machine code, measuring each model's
 cost) takes 2-3 CPU s; every run used to pay it again for the worker that replaced its own, on a
 2-core host as much CPU as a run of several seconds. The simulator starts one *fork server*
-(`python -m simecs.nodes.worker_forks`, the worker's flags) that warms up once, and asks it for each
+(`python -m simecs.nodes.worker_forks`, the worker's flags; or, when the simulator itself was forked
+from a node fork server, mesh/process/forks.py, forked from that one, already warm but for measuring
+the models' costs) that warms up once, and asks it for each
 worker over a Unix socket: it passes the two pipe ends the worker is to use as its stdin and stdout
 (SCM_RIGHTS), the fork server forks a child that becomes a worker (nodes/worker.py, `serve`) and
 answers its pid, and later its exit code (the fork server is the worker's parent). A worker forked
