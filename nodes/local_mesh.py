@@ -51,6 +51,9 @@ def clean_env() -> dict[str, str]:
     return env
 
 
+#: s the fork server of nodes may take to warm up (loading the kernels: a few s; compiling them, on a
+#: fresh install without `make warm`: minutes, which each node would otherwise spend itself).
+WARM_TIMEOUT_S = 900.0
 _forks_lock = threading.Lock()
 _forks: list[ForkServer | None] = []  # this process's fork server of nodes, once asked for (None: none)
 
@@ -64,7 +67,8 @@ def node_forks() -> ForkServer | None:
             if os.environ.get("SIMECS_FORK_NODES", "1") != "0":
                 from .node_forks import WARM  # names modules only: importing it imports no node
 
-                server = ForkServer.start(WARM, clean_env())
+                # A cold numba cache compiles for minutes here; the nodes would compile it again each
+                server = ForkServer.start(WARM, clean_env(), timeout=WARM_TIMEOUT_S)
             _forks.append(server)
         return _forks[0]
 
