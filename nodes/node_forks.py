@@ -26,8 +26,6 @@ def warm() -> None:
     for name in NODE_MODULES:
         importlib.import_module(name)
     from simecs import models
-    from simecs.models.planner import warmup
 
-    models.warmup()
-    warmup()
+    models.warmup()  # the drives' kernels, then the planner's
     models.forget_library()  # each child reads the library with its own SIMECS_MODELS

@@ -245,10 +245,6 @@ class ForkServer:
         path = (os.environ if env is None else env).get(FORK_SERVER_ENV, "")
         return cls(path) if path else None
 
-    def child_env(self, env: Mapping[str, str]) -> dict[str, str]:
-        """`env` with this fork server named in it, for the processes started from it."""
-        return {**env, FORK_SERVER_ENV: self.path}
-
     def spawn(
         self,
         module: str,
@@ -271,7 +267,7 @@ class ForkServer:
         request = {
             "module": module,
             "args": list(args),
-            "env": self.child_env(env),
+            "env": {**env, FORK_SERVER_ENV: self.path},  # its own helpers may be forked here too
             "cwd": cwd or os.getcwd(),
             "fds": list(fds),
             "group": "new" if group is None else group,
