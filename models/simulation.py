@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import math
 import time as _time
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -80,6 +80,9 @@ class Simulation:
         self._step_args: tuple[StepArrays, int] | None = None
         self._compiled_step = CompiledStep()
         self._step_kernel: StepKernel | None = None  # once checked in a solver call
+        self._period_hook: tuple[int, Callable[[], None]] | None = None  # (solver steps, hook)
+        self._hooked_k = -1  # the last step index the hook was called at
+        self._hook_error: Exception | None = None  # what it raised in the solver's call
 
     def _tool_local(self) -> np.ndarray:
         return tool_point(self.package.spec, self.values)
@@ -213,6 +216,37 @@ class Simulation:
             raise ValueError(f"settings.control_period: {period!r} s is not a positive time")
         self._control = (system, float(period))
 
+    def set_period_hook(self, steps: int, hook: Callable[[], None] | None) -> None:
+        """Call `hook()` at the start of every `steps`-th solver step (0, steps, 2 steps, ...), before
+        that step's output row and drives, with `time` and `sensors()` at that step; None: no hook.
+        A controller in the loop exchanges its period there, inside one solver call for a whole chunk:
+        one call per period cost more than the period's own steps. The call does not stop for the
+        hook: what it raises, `advance` raises once the call has ended (the hook is not called again
+        in that call), and a hook that has nothing more to do returns at once."""
+        if hook is not None and steps < 1:
+            raise ValueError(f"a period hook needs at least one solver step per period, not {steps}")
+        self._period_hook = None if hook is None else (int(steps), hook)
+
+    def _call_hook(self, ts: float) -> None:
+        """The period hook at the step starting at ts, when a period starts there and it was not
+        called there yet."""
+        assert self._period_hook is not None
+        steps, hook = self._period_hook
+        k = round(ts / self.h)
+        if k <= self._hooked_k or k % steps or self._hook_error is not None:
+            return
+        self._hooked_k = k
+        self._time = k * self.h  # what the hook reads (`time`, `sensors()`): the step's start, on the grid
+        try:
+            hook()
+        except Exception as exc:  # raised by advance() once out of the solver's call
+            self._hook_error = exc
+
+    def _raise_hook_error(self) -> None:
+        error, self._hook_error = self._hook_error, None
+        if error is not None:
+            raise error
+
     def sensors(self, out: np.ndarray) -> None:
         """What an external controller reads now into `out` (models/sensors.py, mesh/protocol/hil.py)."""
         sd = self._sd
@@ -293,6 +327,8 @@ class Simulation:
         self._sd = mbs.systemData
         self._running = True
         self._time = 0.0
+        self._hooked_k = -1
+        self._hook_error = None
         self._k_next = 0  # index of the next output sample; its time is _t_next
         self._t_next = 0.0
         self.timing = {"mechanics+drive": 0.0, "drive": 0.0, "output": 0.0}
@@ -325,6 +361,8 @@ class Simulation:
         the drives over the step. Exudyn passes the time at the END of the coming step."""
         h = self._it.currentStepSize
         ts = t - h  # the step start: the chain state and the drive states are those of ts
+        if self._period_hook is not None:
+            self._call_hook(ts)
         due = ts >= self._t_next - 0.5 * self.h
         if not (due or self._drives_on or self._touching):
             return True
@@ -489,6 +527,9 @@ class Simulation:
         n_max = int(max(until - self._time, 0.0) / self.dt_out) + 3
         self._rows = np.empty((n_max, len(self.columns)))
         self._nrows = 0
+        if self._period_hook is not None and self._k_next == 0:
+            self._call_hook(0.0)
+            self._raise_hook_error()
         if self._k_next == 0:
             # the t = 0 row's currents with the feed-forward of the first step
             gravity_feedforward(self.P, self.set_points.arrays(), self._mech_arrays, self._gravity, 0.0)
@@ -516,7 +557,12 @@ class Simulation:
             if row_end:
                 if abs(self._t_next - t_stop) > 0.5 * h:
                     raise SimulationError(f"output sample at t = {self._t_next:.6f} s missed")
+                # A period starting on this row: its hook first, as inside a call (the row shows what
+                # the hook set, whatever the chunks); none at the run's end (no period follows).
+                if self._period_hook is not None and t_stop < t_end - 0.5 * h:
+                    self._call_hook(t_stop)
                 self._row_now()
+            self._raise_hook_error()
         out = self._rows[: self._nrows]
         wall = _time.perf_counter() - t_wall
         self.timing["mechanics+drive"] += wall - (self.timing["output"] - out_before)

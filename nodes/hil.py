@@ -6,6 +6,8 @@ simulated time never runs ahead of the controller, however slow it is. A paced r
 also starts each period at its wall time and counts the answers that come later than one period
 (misses, worst lateness); a controller silent for `hil_timeout` fails the run. The simulator keeps
 the drive (current loops, motor, gear): the controller's output is each joint's current set point.
+The exchange runs inside the solver's call for a whole chunk (`Simulation.set_period_hook`): a call
+per period cost more than the period's own solver steps.
 """
 
 from __future__ import annotations
@@ -75,8 +77,10 @@ class Lockstep:
                 f"({sim.h:g} s)"
             )
         sim.set_points.set_external(external_joints(st, joints))
+        sim.set_period_hook(round(ratio), self._period)
         self.row = np.empty(1 + len(hil.SENSOR_JOINT_FIELDS) * self.n)
         self.seq = 0
+        self.aborted = False
         self.stats = m.HilStats()
         self._expect = -1
         self._answer: np.ndarray | None = None
@@ -112,25 +116,27 @@ class Lockstep:
         self._event.set()
 
     def advance(self, until: float) -> np.ndarray:
-        """Simulate whole control periods up to `until` (the last may pass it; the run's stop time
-        ends it); rows as `Simulation.advance` gives them. Returns early when the run is aborted."""
+        """Simulate up to `until`, exchanging a frame with the controller at the start of every control
+        period on the way; rows as `Simulation.advance` gives them. Once the run is aborted the rest of
+        the call goes without exchange or pacing (its rows are not the run's)."""
+        return self.sim.advance(until)
+
+    def _period(self) -> None:
+        """The simulation's period hook: this period's exchange at its start, in the solver's call."""
+        if self.aborted:
+            return
         sim = self.sim
-        parts = []
-        while sim.time < until - 0.5 * sim.h and not sim.finished:
-            t = sim.time
-            ahead = self.pacer.ahead(t)
-            if ahead > 0:
-                time.sleep(ahead)
-            sim.sensors(self.row)
-            i_ref = self._exchange(t)
-            if i_ref is None:
-                break
-            sim.set_points.set_actuators(i_ref)
-            parts.append(sim.advance(t + self.period))
-            self.seq += 1
-        if not parts:
-            return np.empty((0, len(sim.columns)))
-        return parts[0] if len(parts) == 1 else np.concatenate(parts)
+        t = sim.time
+        ahead = self.pacer.ahead(t)
+        if ahead > 0:
+            time.sleep(ahead)
+        sim.sensors(self.row)
+        i_ref = self._exchange(t)
+        if i_ref is None:
+            self.aborted = True
+            return
+        sim.set_points.set_actuators(i_ref)
+        self.seq += 1
 
     def _exchange(self, t: float) -> np.ndarray | None:
         """Put this period's sensor frame and wait for its answer (None: the run was aborted)."""
@@ -197,6 +203,7 @@ class Lockstep:
         )
 
     def close(self) -> None:
+        self.sim.set_period_hook(0, None)
         for e in (self.sub, self.pub):
             try:
                 e.undeclare()

@@ -419,3 +419,79 @@ def test_runs_repeat_and_drive_parameters_change_without_rebuild(spider):
     r2 = sim.advance(1.0)
     assert np.allclose(r2[:, 0], np.arange(0.04, 0.1001, 0.01)) and sim.finished
     sim.close()
+
+
+# ---------------------------------------------------------------------------------------------------
+# The period hook: a controller in the loop exchanges its period inside one solver call (nodes/hil.py)
+
+PERIOD_STEPS = 2  # the hook every 2 solver steps
+
+
+def hooked_sim(spider):
+    """A Spider at Q0 with every joint's current from a digital P controller on the load angle."""
+    sim = spider.build()
+    sim.set_initial(Q0)
+    sim.set_joint_path([([q + 0.2 for q in Q0], 100.0, 100.0)])
+    sim.set_points.set_external([True] * sim.n)
+    sim.start(0.2, 0.002)
+    return sim
+
+
+def digital_controller(sim, log):
+    """The hook: sensors at the period's start -> current set points held over the period."""
+    row = np.empty(1 + 9 * sim.n)
+
+    def period() -> None:
+        sim.sensors(row)
+        log.append(row[0])
+        q = row[1::9][: sim.n]
+        sim.set_points.set_actuators(-20.0 * (q - (np.array(Q0) + 0.1)))
+
+    return period
+
+
+def test_a_period_hook_inside_one_solver_call_gives_what_a_call_per_period_gives(spider):
+    per_call = hooked_sim(spider)
+    hook_times: list[float] = []
+    control = digital_controller(per_call, hook_times)
+    period = PERIOD_STEPS * per_call.h
+    parts = []
+    while not per_call.finished:  # the reference: one solver call per period, the exchange between
+        control()
+        parts.append(per_call.advance(per_call.time + period))
+    expected = np.vstack(parts)
+
+    hooked = hooked_sim(spider)
+    times: list[float] = []
+    hooked.set_period_hook(PERIOD_STEPS, digital_controller(hooked, times))
+    # chunks that end off the period grid
+    got = np.vstack([hooked.advance(0.013), hooked.advance(0.1), hooked.advance(1.0)])
+    assert hooked.finished
+    # The same motion to the last bit. A row on a period's start shows the current set point held from
+    # there (as at t = 0); a call per period emitted it at the end of the period before, with that one's.
+    held = [i for i, c in enumerate(hooked.columns) if c.endswith((".i_ref", ".u_a"))]
+    others = np.setdiff1d(np.arange(len(hooked.columns)), held)
+    assert len(held) == 2 * hooked.n
+    np.testing.assert_array_equal(got[:, others], expected[:, others])
+    i_ref = [hooked.columns.index(f"joint{j + 1}.i_ref") for j in range(hooked.n)]
+    np.testing.assert_array_equal(got[:-1, i_ref], expected[1:, i_ref])
+    assert times == pytest.approx(hook_times, abs=1e-12)  # once per period, at its start
+    assert np.ptp(col(hooked, got, "joint1.i_ref")) > 0.1 and np.ptp(col(hooked, got, "joint1.q")) > 1e-3
+
+
+def test_what_a_period_hook_raises_comes_out_of_advance_once_the_call_has_ended(spider):
+    sim = hooked_sim(spider)
+    calls: list[float] = []
+
+    def silent_at_the_third_period() -> None:
+        calls.append(sim.time)
+        if len(calls) == 3:
+            raise ValueError("the controller went silent")
+
+    sim.set_period_hook(PERIOD_STEPS, silent_at_the_third_period)
+    with pytest.raises(ValueError, match="went silent"):
+        sim.advance(0.05)
+    assert calls == pytest.approx([0.0, PERIOD_STEPS * sim.h, 2 * PERIOD_STEPS * sim.h], abs=1e-12)
+    assert sim.time == pytest.approx(0.05, abs=1e-12)  # the call went on, without the hook
+    with pytest.raises(ValueError, match="at least one solver step"):
+        sim.set_period_hook(0, silent_at_the_third_period)
