@@ -242,6 +242,10 @@ class Simulation:
         except Exception as exc:  # raised by advance() once out of the solver's call
             self._hook_error = exc
 
+    def _period_starts(self, t: float) -> bool:
+        """Whether the period hook is due at the step starting at t."""
+        return self._period_hook is not None and round(t / self.h) % self._period_hook[0] == 0
+
     def _raise_hook_error(self) -> None:
         error, self._hook_error = self._hook_error, None
         if error is not None:
@@ -485,7 +489,10 @@ class Simulation:
     def advance(self, until: float) -> np.ndarray:
         """Simulate up to `until` (on the step grid); the output rows with time in (previous until, until],
         the t = 0 row on the first call. A parameter event due on the way (a payload change) splits the
-        chunk: the chain changes on the step grid point at or just before its time."""
+        chunk: the chain changes on the step grid point at or just before its time. With a period hook,
+        a row at `until` where a period starts comes with the next call, after that period's hook (it
+        shows what the hook set, whatever the calls; and the hook's exchange waits for the caller's
+        next call, as a call per period did)."""
         if not self._running:
             raise SimulationError("advance() before start()")
         parts = []
@@ -538,6 +545,8 @@ class Simulation:
         t_mid = math.floor(until / h + 1e-9) * h
         t_row = t_end if t_mid > t_end - 0.5 * h else round(t_mid / self.dt_out) * self.dt_out
         row_end = abs(t_row - t_mid) < 0.5 * h and t_row > self._time + 0.5 * h
+        if row_end and self._period_starts(t_row) and t_row < t_end - 0.5 * h:
+            row_end = False  # the row after the period's hook, in the next call: see advance()
         t_stop = t_row if row_end else t_mid
         if t_stop > self._time + 0.5 * h:
             self._it.startTime = self._time
@@ -557,10 +566,6 @@ class Simulation:
             if row_end:
                 if abs(self._t_next - t_stop) > 0.5 * h:
                     raise SimulationError(f"output sample at t = {self._t_next:.6f} s missed")
-                # A period starting on this row: its hook first, as inside a call (the row shows what
-                # the hook set, whatever the chunks); none at the run's end (no period follows).
-                if self._period_hook is not None and t_stop < t_end - 0.5 * h:
-                    self._call_hook(t_stop)
                 self._row_now()
             self._raise_hook_error()
         out = self._rows[: self._nrows]
