@@ -26,9 +26,12 @@ from .placement import Hosts
 from .sessions import SessionRecord, SessionStore
 
 MAX_WARNINGS = 20
-#: How long a lost run token waits for the worker's own last report (it travels another way).
-LAST_REPORT_GRACE_S = 0.3
 ALIVE_AFTER_S = 0.15  # a report this long after a run's token went proves its worker alive
+#: How long a lost run token waits before it is judged: for the worker's own last report (it travels
+#: another way), and long enough that a live worker reports after ALIVE_AFTER_S (a running one reports
+#: every RUNNING_REPORT_S; a window shorter than that let a peer's dropped copy of the token, on a busy
+#: machine, pass a live run for lost).
+LAST_REPORT_GRACE_S = ALIVE_AFTER_S + 1.75 * m.RUNNING_REPORT_S
 TOKEN_QUERY_S = 1.0  # asking whether a run's token is still up
 # A worker reports at least this often (running: every 0.2 s; paused: every 1 s, worker.PAUSED_REPORT_S):
 # one heard from within it lives on when its simulator node is lost. Reports are sealed, tokens not.
@@ -392,7 +395,7 @@ class RunTracker:
             return
         gone_at = time.monotonic()
         # The worker's last RunStatus may still be on its way (another channel than liveliness):
-        # give it a moment before calling the run lost. Still well within the 1 s promise.
+        # give it a moment before calling the run lost. Still within the 1 s promise.
         time.sleep(LAST_REPORT_GRACE_S)
         with self.lock:
             if self.orphans.get(sid) == (user, run_id):  # a closed session's run: its slot is free
@@ -434,7 +437,7 @@ class RunTracker:
             if rec.state.attempt != attempt:
                 return  # restarted meanwhile (its host's token went first)
             if rec.reported_at > gone_at + ALIVE_AFTER_S:
-                # A running worker reports every 0.1 s: one that reported well after its token went is
+                # A running worker reports every 0.2 s: one that reported well after its token went is
                 # alive (another peer's copy of the token went, and a busy mesh answered the queries
                 # without the worker's own); a crashed one sends nothing after its token is gone.
                 self.log.warning(

@@ -51,7 +51,7 @@ from .sources import RecordingSource, RunSource, SimulationSource, open_source
 # the proxy publishes in turn (the proxy's part alone about 0.09 ms of CPU, measured with 27 runs).
 # A step of the command that begins is reported at once, however short (a 0.2 s wait would otherwise
 # fall between two reports and never show in the session's state).
-STATUS_PERIOD_S = 0.2
+STATUS_PERIOD_S = m.RUNNING_REPORT_S
 PAUSED_REPORT_S = 1.0  # a paused run reports too, that it is alive (runs.WORKER_REPORTS_S)
 # Lines a worker writes on stdout for its simulator (nodes/host_load.py reads them):
 READY = "ready"  # warm: send the run

@@ -62,6 +62,11 @@ class RunControl(Message, tag="run_control"):
     attempt: Annotated[int, Meta(ge=0, description="the run's attempt it is for; 0 = whichever")] = 0
 
 
+#: s between two progress reports of a running run's worker (at most 5 a second; a step that begins
+#: is reported at once too). The proxy relies on it to tell a live worker from a lost one.
+RUNNING_REPORT_S = 0.2
+
+
 class RunStatus(Message, tag="run_status"):
     """A worker's report on <session>/run; the proxy turns it into SessionState."""
 
