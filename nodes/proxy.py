@@ -39,6 +39,8 @@ from .user_library import UserLibrary
 
 #: How long before a host's model that could not be fetched (or was refused) is asked for again.
 MODEL_RETRY_S = 60.0
+#: ... and when nobody answered: a host's status may name its models a moment before it serves them.
+MODEL_UNANSWERED_RETRY_S = 1.0
 #: The longest stop_time a run may have (RunSettings.stop_time): a run until stopped's bound too.
 MAX_STOP_TIME_S = 3600.0
 
@@ -286,6 +288,9 @@ class Proxy(Node):
                 desc = self.models.add_bundle(data)
         except (RemoteError, NoReply, zenoh.ZError) as exc:
             self.log.warning("model %s of host %s not fetched: %s", model_id, host, exc)
+            if isinstance(exc, NoReply):  # not served yet (a host starting): asked again soon
+                with self.lock:
+                    self._asked[model_id] = time.monotonic() - MODEL_RETRY_S + MODEL_UNANSWERED_RETRY_S
             return
         except ValueError as exc:  # the bundle refused (models.ModelFileError), or its model
             self.log.error("model %s of host %s refused: %s", model_id, host, exc)
