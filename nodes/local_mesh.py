@@ -67,7 +67,7 @@ def node_forks() -> ForkServer | None:
             if os.environ.get("SIMECS_FORK_NODES", "1") != "0":
                 from .node_forks import WARM  # names modules only: importing it imports no node
 
-                # A cold numba cache compiles for minutes here; the nodes would compile it again each
+                # A cold numba cache compiles for minutes here, once, instead of in every node
                 server = ForkServer.start(WARM, clean_env(), timeout=WARM_TIMEOUT_S)
             _forks.append(server)
         return _forks[0]

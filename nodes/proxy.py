@@ -91,7 +91,7 @@ class Proxy(Node):
         self.lock = threading.RLock()
         self.library: ModelLibrary | None = None
         self.hosted_models = data / "models"  # models simulator hosts brought (kept over restarts)
-        self._asked: dict[str, float] = {}  # model id -> when it was last asked of a host
+        self._ask_after: dict[str, float] = {}  # model id -> when it may be asked of a host again
         self.store = SessionStore(
             data / "sessions",
             lambda key: self.publisher(key, latched=True, congestion_control=lossless_put()),  # LOSSLESS_KEYS
@@ -271,10 +271,10 @@ class Proxy(Node):
             wanted = [
                 model_id
                 for model_id in status.load.models
-                if not self.models.knows(model_id) and now - self._asked.get(model_id, -1e9) > MODEL_RETRY_S
+                if not self.models.knows(model_id) and now > self._ask_after.get(model_id, -1e9)
             ]
             for model_id in wanted:
-                self._asked[model_id] = now
+                self._ask_after[model_id] = now + MODEL_RETRY_S
         for model_id in wanted:  # a host's own model: fetched aside (a bundle may take a while)
             threading.Thread(target=self._fetch_model, args=(host, model_id), daemon=True).start()
 
@@ -290,7 +290,7 @@ class Proxy(Node):
             self.log.warning("model %s of host %s not fetched: %s", model_id, host, exc)
             if isinstance(exc, NoReply):  # not served yet (a host starting): asked again soon
                 with self.lock:
-                    self._asked[model_id] = time.monotonic() - MODEL_RETRY_S + MODEL_UNANSWERED_RETRY_S
+                    self._ask_after[model_id] = time.monotonic() + MODEL_UNANSWERED_RETRY_S
             return
         except ValueError as exc:  # the bundle refused (models.ModelFileError), or its model
             self.log.error("model %s of host %s refused: %s", model_id, host, exc)

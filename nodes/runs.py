@@ -33,8 +33,9 @@ ALIVE_AFTER_S = 0.15  # a report this long after a run's token went proves its w
 #: machine, pass a live run for lost).
 LAST_REPORT_GRACE_S = ALIVE_AFTER_S + 1.75 * m.RUNNING_REPORT_S
 TOKEN_QUERY_S = 1.0  # asking whether a run's token is still up
-# A worker reports at least this often (running: every 0.2 s; paused: every 1 s, worker.PAUSED_REPORT_S):
-# one heard from within it lives on when its simulator node is lost. Reports are sealed, tokens not.
+# A worker reports at least this often (running: every RUNNING_REPORT_S; paused: every 1 s,
+# worker.PAUSED_REPORT_S): one heard from within it lives on when its simulator node is lost. Reports
+# are sealed, tokens not.
 WORKER_REPORTS_S = 3.0
 TOKEN_QUERY_TRIES = 3  # queries that time out before one counts as an answer
 #: How long runs whose tokens went with the hub wait for it to come back before they are settled.
@@ -437,8 +438,8 @@ class RunTracker:
             if rec.state.attempt != attempt:
                 return  # restarted meanwhile (its host's token went first)
             if rec.reported_at > gone_at + ALIVE_AFTER_S:
-                # A running worker reports every 0.2 s: one that reported well after its token went is
-                # alive (another peer's copy of the token went, and a busy mesh answered the queries
+                # A running worker reports every RUNNING_REPORT_S: one that reported well after its token
+                # went is alive (another peer's copy of the token went, and a busy mesh answered the queries
                 # without the worker's own); a crashed one sends nothing after its token is gone.
                 self.log.warning(
                     "session %s run %s: a token vanished but its worker reported since: ignored", sid, run_id

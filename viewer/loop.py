@@ -137,9 +137,7 @@ class TabLoop:
             else:
                 self.post(lambda: fn(*args, **kwargs))
 
-        on_loop.__wrapped__ = fn  # type: ignore[attr-defined]
-        on_loop.on_tab_loop = self  # type: ignore[attr-defined]  # what tests check callbacks by
-        return on_loop
+        return self._tagged(on_loop, fn)
 
     def wrap_widget(self, fn: Callable[..., Any]) -> Callable[..., Any]:
         """`fn` as a viser widget or scene callback that runs on the loop, in the order the page's
@@ -152,8 +150,12 @@ class TabLoop:
         async def on_loop(*args: Any, **kwargs: Any) -> None:
             self.post(lambda: fn(*args, **kwargs))
 
+        return self._tagged(on_loop, fn)
+
+    def _tagged(self, on_loop: Callable[..., Any], fn: Callable[..., Any]) -> Callable[..., Any]:
+        """`on_loop` marked as `fn` run on this loop: what tests check callbacks by."""
         on_loop.__wrapped__ = fn  # type: ignore[attr-defined]
-        on_loop.on_tab_loop = self  # type: ignore[attr-defined]  # what tests check callbacks by
+        on_loop.on_tab_loop = self  # type: ignore[attr-defined]
         return on_loop
 
     # -- running ---------------------------------------------------------------------------------

@@ -62,8 +62,10 @@ class RunControl(Message, tag="run_control"):
     attempt: Annotated[int, Meta(ge=0, description="the run's attempt it is for; 0 = whichever")] = 0
 
 
-#: s between two progress reports of a running run's worker (at most 5 a second; a step that begins
-#: is reported at once too). The proxy relies on it to tell a live worker from a lost one.
+#: s between two progress reports of a running run's worker. At most 5 a second: each costs a put, a
+#: routing in the hub and a state the proxy publishes in turn (the proxy's part alone about 0.09 ms of
+#: CPU, measured with 27 runs); a step of the command that begins is reported at once, however short.
+#: The proxy relies on it to tell a live worker from a lost one (nodes/runs.py).
 RUNNING_REPORT_S = 0.2
 
 
